@@ -1,0 +1,23 @@
+"""One exception root for lde; library errors are re-raised from it with ``from``.
+
+Bad *frames* are never exceptions (they are counted rejections, see :mod:`lde.signals`);
+these are for things a user must fix: a bad parameter file, an unreadable log, a bad option.
+"""
+
+from __future__ import annotations
+
+
+class LdeError(Exception):
+    """Root of every error lde raises on purpose."""
+
+
+class ConfigError(LdeError, ValueError):
+    """A parameter file, profile or option is invalid (the message says which field and why)."""
+
+
+class LogFormatError(LdeError, ValueError):
+    """A log file cannot be read: unknown format, corrupt, or not CAN frames."""
+
+
+class BusError(LdeError, OSError):
+    """A CAN bus could not be opened or used."""

@@ -1,0 +1,360 @@
+"""Typed, validated parameters loaded from TOML vehicle files.
+
+A vehicle file (``src/lde/vehicles/*.toml``, or any path given with ``--vehicle FILE``) has the
+tables ``[vehicle]``, ``[steering]``, ``[tires]``, ``[overlay]``, ``[estimator]`` and an optional
+``[sim]`` table that only the simulator reads. Keys carry their unit in their name
+(``mass_kg``, ``min_speed_kmh``); the loader converts to SI, so every attribute of these
+dataclasses is SI (kg, m, rad, N/rad, Nm/rad, m/s, Nm, Nm/s) with the unit in its docstring.
+
+A file may start with ``extends = "reference"`` (a shipped vehicle name) or
+``extends = "other.toml"`` (relative to the file) and override only what differs; this is how the
+paper's Table 1 candidate sets are written. Unknown keys are errors (a typo must not silently
+fall back to a default).
+
+Sign conventions: ISO 8855 everywhere (x forward, y left, z up, left turns positive).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import MISSING, Field, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+from .errors import ConfigError
+from .units import DEG, KMH
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on 3.10 only
+    import tomli as tomllib
+
+VEHICLE_DIR = Path(__file__).with_name("vehicles")
+DEFAULT_VEHICLE = "reference"
+
+
+@dataclass(frozen=True)
+class VehicleParams:
+    """Rigid-body and axle geometry of the 2-DOF bicycle model (paper eqs. 7-9).
+
+    Attributes (SI):
+        mass: m [kg].
+        yaw_inertia: Iz [kg m^2] about the CG.
+        lf: CG to front axle [m], > 0.
+        lr: CG to rear axle [m], > 0.
+        track_front: full front tread [m] (paper Table 2 ``t_f``, see SPEC erratum 5).
+        track_rear: full rear tread [m].
+    """
+
+    mass: float
+    yaw_inertia: float
+    lf: float
+    lr: float
+    track_front: float
+    track_rear: float
+
+    @property
+    def wheelbase(self) -> float:
+        """L = lf + lr [m]."""
+        return self.lf + self.lr
+
+
+@dataclass(frozen=True)
+class SteeringParams:
+    """Steering gear.
+
+    Attributes:
+        ratio: N, steering-wheel angle per road-wheel angle [-] (delta_f = delta_sw / N).
+    """
+
+    ratio: float
+
+
+@dataclass(frozen=True)
+class TireParams:
+    """Linear tire model of the estimator, per tire (paper eqs. 9 and 12).
+
+    Attributes:
+        cf: front cornering stiffness C_f per tire [N/rad] (F_f = C_f alpha_f).
+        cr: rear cornering stiffness C_r per tire [N/rad].
+        align_rate: K, aligning-torque rate per front tire on the steering axis [Nm/rad]
+            (T_align = 2 K alpha_f; the paper measured 6750-7640).
+    """
+
+    cf: float
+    cr: float
+    align_rate: float
+
+
+@dataclass(frozen=True)
+class OverlayLimits:
+    """Limits of the MDPS overlay-torque request (SPEC section 5). Torques at the column.
+
+    Attributes:
+        max_torque: |T_overlay| bound [Nm].
+        max_rate: |dT_overlay/dt| bound [Nm/s]; also the ramp-out rate on faults.
+        min_speed: the overlay is active only above this speed [m/s].
+        max_speed: ... and below this speed [m/s].
+        max_steering_angle: ... and within |delta_sw| <= this [rad] (steering-wheel angle).
+        driver_override_torque: |T_column| above which the driver is taken to override [Nm].
+    """
+
+    max_torque: float = 3.0
+    max_rate: float = 5.0
+    min_speed: float = 60.0 * KMH
+    max_speed: float = 180.0 * KMH
+    max_steering_angle: float = 15.0 * DEG
+    driver_override_torque: float = 3.0
+
+
+@dataclass(frozen=True)
+class EstimatorTuning:
+    """Kalman filter tuning (documented with reasons in ``docs/tuning.md`` / :mod:`lde.kalman`).
+
+    Attributes:
+        q_beta: process noise density on beta [rad^2/s].
+        q_yaw: process noise density on r [(rad/s)^2/s].
+        q_fw: random-walk density of Fw [N^2/s].
+        q_mw: random-walk density of Mw [(Nm)^2/s].
+        r_yaw: yaw-rate measurement variance [(rad/s)^2].
+        r_align: aligning-torque measurement variance [(Nm)^2] (at the steering axis).
+        p0_beta, p0_yaw, p0_fw, p0_mw: initial standard deviations [rad, rad/s, N, Nm].
+        min_speed: below this the model is not used, the filter holds [m/s] (SPEC: 30 km/h).
+        converge_time: time after a (re)start before the estimate counts as converged [s].
+    """
+
+    q_beta: float = 1e-6
+    q_yaw: float = 1e-6
+    q_fw: float = 4.0e5
+    q_mw: float = 4.0e5
+    r_yaw: float = (0.05 * DEG) ** 2
+    r_align: float = 4.0
+    p0_beta: float = 0.01
+    p0_yaw: float = 0.01
+    p0_fw: float = 3000.0
+    p0_mw: float = 3000.0
+    min_speed: float = 30.0 * KMH
+    converge_time: float = 1.0
+
+
+@dataclass(frozen=True)
+class Vehicle:
+    """Everything a vehicle file holds. ``sim`` is the raw ``[sim]`` table for :mod:`vcan_sim`."""
+
+    name: str
+    body: VehicleParams
+    steering: SteeringParams
+    tires: TireParams
+    overlay: OverlayLimits = field(default_factory=OverlayLimits)
+    estimator: EstimatorTuning = field(default_factory=EstimatorTuning)
+    sim: dict[str, Any] = field(default_factory=dict)
+    source: str = ""
+
+    def with_body(self, **changes: float) -> Vehicle:
+        """A copy with some body parameters replaced (SI), re-validated."""
+        v = replace(self, body=replace(self.body, **changes))
+        validate(v)
+        return v
+
+
+# --- file schema: TOML key -> (attribute, factor to SI) -------------------------------------
+
+_SCHEMA: dict[str, tuple[type, dict[str, tuple[str, float]]]] = {
+    "vehicle": (
+        VehicleParams,
+        {
+            "mass_kg": ("mass", 1.0),
+            "yaw_inertia_kgm2": ("yaw_inertia", 1.0),
+            "lf_m": ("lf", 1.0),
+            "lr_m": ("lr", 1.0),
+            "track_front_m": ("track_front", 1.0),
+            "track_rear_m": ("track_rear", 1.0),
+        },
+    ),
+    "steering": (SteeringParams, {"ratio": ("ratio", 1.0)}),
+    "tires": (
+        TireParams,
+        {
+            "cf_N_per_rad": ("cf", 1.0),
+            "cr_N_per_rad": ("cr", 1.0),
+            "align_rate_Nm_per_rad": ("align_rate", 1.0),
+        },
+    ),
+    "overlay": (
+        OverlayLimits,
+        {
+            "max_torque_Nm": ("max_torque", 1.0),
+            "max_rate_Nm_per_s": ("max_rate", 1.0),
+            "min_speed_kmh": ("min_speed", KMH),
+            "max_speed_kmh": ("max_speed", KMH),
+            "max_steering_angle_deg": ("max_steering_angle", DEG),
+            "driver_override_Nm": ("driver_override_torque", 1.0),
+        },
+    ),
+    "estimator": (
+        EstimatorTuning,
+        {
+            "q_beta_rad2_per_s": ("q_beta", 1.0),
+            "q_yaw_rad2_per_s3": ("q_yaw", 1.0),
+            "q_fw_N2_per_s": ("q_fw", 1.0),
+            "q_mw_Nm2_per_s": ("q_mw", 1.0),
+            "r_yaw_deg_per_s": ("r_yaw", None),  # given as a std dev in deg/s, stored as variance
+            "r_align_Nm": ("r_align", None),  # given as a std dev in Nm, stored as variance
+            "p0_beta_rad": ("p0_beta", 1.0),
+            "p0_yaw_rad_per_s": ("p0_yaw", 1.0),
+            "p0_fw_N": ("p0_fw", 1.0),
+            "p0_mw_Nm": ("p0_mw", 1.0),
+            "min_speed_kmh": ("min_speed", KMH),
+            "converge_time_s": ("converge_time", 1.0),
+        },
+    ),
+}
+_REQUIRED_TABLES = ("vehicle", "steering", "tires")
+
+
+def _std_to_var(key: str, value: float) -> float:
+    if key == "r_yaw_deg_per_s":
+        return (value * DEG) ** 2
+    return value**2
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def _read_toml(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
+    if path in seen:
+        raise ConfigError(f"{path}: 'extends' cycle through {', '.join(map(str, seen))}")
+    try:
+        with path.open("rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError as exc:
+        raise ConfigError(f"vehicle file not found: {path}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc}") from exc
+    parent = data.pop("extends", None)
+    if parent is None:
+        return data
+    if not isinstance(parent, str):
+        raise ConfigError(f"{path}: 'extends' must be a string")
+    base_path = resolve_vehicle_path(parent, relative_to=path.parent)
+    return _merge(_read_toml(base_path, seen + (path,)), data)
+
+
+def resolve_vehicle_path(name_or_path: str | Path, relative_to: Path | None = None) -> Path:
+    """A shipped vehicle name (``reference``, ``est3``) or a path to a TOML file."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.parent != Path("."):
+        if not p.is_absolute() and relative_to is not None and not p.exists():
+            p = relative_to / p
+        return p
+    shipped = VEHICLE_DIR / f"{p.name}.toml"
+    if shipped.exists():
+        return shipped
+    names = ", ".join(shipped_vehicles())
+    raise ConfigError(f"no shipped vehicle named {str(name_or_path)!r} (shipped: {names})")
+
+
+def shipped_vehicles() -> list[str]:
+    """Names of the vehicle files shipped with lde."""
+    return sorted(p.stem for p in VEHICLE_DIR.glob("*.toml"))
+
+
+def _build(cls: type, table: str, raw: dict[str, Any], src: str) -> Any:
+    keymap = _SCHEMA[table][1]
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{src}: [{table}] must be a table")
+    unknown = sorted(set(raw) - set(keymap))
+    if unknown:
+        raise ConfigError(
+            f"{src}: unknown key(s) in [{table}]: {', '.join(unknown)} (known: {', '.join(sorted(keymap))})"
+        )
+    kwargs: dict[str, float] = {}
+    for key, value in raw.items():
+        attr, factor = keymap[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{src}: [{table}] {key} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{src}: [{table}] {key} must be finite, got {value!r}")
+        kwargs[attr] = _std_to_var(key, float(value)) if factor is None else float(value) * factor
+    missing = [f.name for f in fields(cls) if f.name not in kwargs and _has_no_default(f)]
+    if missing:
+        names = {a: k for k, (a, _) in keymap.items()}
+        raise ConfigError(f"{src}: [{table}] is missing {', '.join(names[m] for m in missing)}")
+    return cls(**kwargs)
+
+
+def _has_no_default(f: Field[Any]) -> bool:
+    return f.default is MISSING and f.default_factory is MISSING
+
+
+def vehicle_from_dict(data: dict[str, Any], src: str = "<dict>") -> Vehicle:
+    """Build and validate a :class:`Vehicle` from a parsed TOML mapping (keys with units)."""
+    data = dict(data)
+    name = data.pop("name", None)
+    if not isinstance(name, str) or not name:
+        raise ConfigError(f"{src}: top-level 'name' (a string) is required")
+    data.pop("description", None)
+    sim = data.pop("sim", {})
+    if not isinstance(sim, dict):
+        raise ConfigError(f"{src}: [sim] must be a table")
+    for t in _REQUIRED_TABLES:
+        if t not in data:
+            raise ConfigError(f"{src}: missing table [{t}]")
+    unknown = sorted(set(data) - set(_SCHEMA))
+    if unknown:
+        raise ConfigError(f"{src}: unknown table(s) {', '.join(unknown)}")
+    parts = {t: _build(_SCHEMA[t][0], t, data.get(t, {}), src) for t in _SCHEMA}
+    v = Vehicle(
+        name=name,
+        body=parts["vehicle"],
+        steering=parts["steering"],
+        tires=parts["tires"],
+        overlay=parts["overlay"],
+        estimator=parts["estimator"],
+        sim=sim,
+        source=src,
+    )
+    validate(v)
+    return v
+
+
+def load_vehicle(name_or_path: str | Path | None = None) -> Vehicle:
+    """Load a vehicle file (default: the shipped reference vehicle), validated, in SI units."""
+    path = resolve_vehicle_path(name_or_path or DEFAULT_VEHICLE)
+    return vehicle_from_dict(_read_toml(path), src=str(path))
+
+
+def _check(cond: bool, src: str, msg: str) -> None:
+    if not cond:
+        raise ConfigError(f"{src}: {msg}")
+
+
+def validate(v: Vehicle) -> None:
+    """Physical plausibility checks; raise :class:`ConfigError` naming the offending field."""
+    s = v.source or v.name
+    b, t, o, e = v.body, v.tires, v.overlay, v.estimator
+    _check(200.0 <= b.mass <= 40000.0, s, f"mass_kg {b.mass} outside 200..40000")
+    _check(50.0 <= b.yaw_inertia <= 500000.0, s, f"yaw_inertia_kgm2 {b.yaw_inertia} outside 50..500000")
+    _check(0.2 <= b.lf <= 6.0 and 0.2 <= b.lr <= 6.0, s, f"lf_m/lr_m ({b.lf}, {b.lr}) must lie in 0.2..6 m")
+    _check(0.5 <= b.track_front <= 3.0 and 0.5 <= b.track_rear <= 3.0, s, "track widths must lie in 0.5..3 m")
+    _check(5.0 <= v.steering.ratio <= 40.0, s, f"steering ratio {v.steering.ratio} outside 5..40")
+    _check(1e3 <= t.cf <= 1e6 and 1e3 <= t.cr <= 1e6, s, "cornering stiffnesses must lie in 1e3..1e6 N/rad")
+    _check(10.0 <= t.align_rate <= 1e5, s, f"align_rate {t.align_rate} outside 10..1e5 Nm/rad")
+    _check(0.0 < o.max_torque <= 10.0, s, "overlay max_torque_Nm must lie in (0, 10]")
+    _check(0.0 < o.max_rate <= 100.0, s, "overlay max_rate_Nm_per_s must lie in (0, 100]")
+    _check(0.0 <= o.min_speed < o.max_speed, s, "overlay needs 0 <= min_speed_kmh < max_speed_kmh")
+    _check(0.0 < o.max_steering_angle <= math.pi, s, "overlay max_steering_angle_deg must lie in (0, 180]")
+    _check(o.driver_override_torque > 0.0, s, "overlay driver_override_Nm must be > 0")
+    for name in ("q_beta", "q_yaw", "q_fw", "q_mw", "r_yaw", "r_align"):
+        _check(getattr(e, name) > 0.0, s, f"estimator {name} must be > 0")
+    for name in ("p0_beta", "p0_yaw", "p0_fw", "p0_mw"):
+        _check(getattr(e, name) > 0.0, s, f"estimator {name} must be > 0")
+    _check(e.min_speed > 0.5, s, "estimator min_speed_kmh must be > 1.8 km/h (the model divides by vx)")
+    _check(e.converge_time >= 0.0, s, "estimator converge_time_s must be >= 0")
