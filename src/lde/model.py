@@ -65,6 +65,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .errors import ConfigError
 from .params import EstimatorTuning, Vehicle
 from .units import STEP_S
 
@@ -182,7 +183,7 @@ class DiscreteModel:
 def _check_speed(vx: float) -> float:
     vx = float(vx)
     if not np.isfinite(vx) or vx <= 0.0:
-        raise ValueError(f"the model needs a finite speed vx > 0 m/s, got {vx!r}")
+        raise ConfigError(f"the model needs a finite speed vx > 0 m/s, got {vx!r}")
     return vx
 
 
@@ -250,9 +251,14 @@ def _outputs(vehicle: Vehicle, vx: float, beta: float, r: float, delta_f: float)
     return SteadyState(beta, r, delta_f, alpha_f, alpha_r, 2.0 * t.align_rate * alpha_f)
 
 
-def steady_state(vehicle: Vehicle, vx: float, delta_f: float, fw: float = 0.0, mw: float = 0.0) -> SteadyState:
+def steady_state(
+    vehicle: Vehicle, vx: float, delta_f: float, fw: float = 0.0, mw: float = 0.0
+) -> SteadyState:
     """Steady state (beta_dot = r_dot = 0) at road-wheel angle ``delta_f`` [rad] under constant
-    ``fw`` [N], ``mw`` [Nm], speed ``vx`` [m/s]: solves A[:2,:2] [beta, r] = -(B delta_f + [Fw/(m vx), Mw/Iz])."""
+    ``fw`` [N], ``mw`` [Nm], speed ``vx`` [m/s]:
+
+        A[:2, :2] [beta, r] = -(B[:2] delta_f + [Fw/(m vx), Mw/Iz])
+    """
     vx = _check_speed(vx)
     c = continuous_matrices(vehicle, vx)
     rhs = -(c.B[:2] * delta_f + c.A[:2, 2] * fw + c.A[:2, 3] * mw)
@@ -276,11 +282,14 @@ def straight_line_hold(vehicle: Vehicle, fw: float, mw: float) -> SteadyState:
     return SteadyState(-alpha_r, 0.0, alpha_f - alpha_r, alpha_f, alpha_r, 2.0 * t.align_rate * alpha_f)
 
 
-def observability_matrix(vehicle: Vehicle, vx: float, dt: float = STEP_S) -> np.ndarray:
-    """O = [H; H Phi; H Phi^2; H Phi^3] (8x4) of the discrete model, columns scaled to typical
-    magnitudes (0.01 rad, 0.01 rad/s, 1000 N, 1000 Nm) and rows normalised so a rank is meaningful."""
+def observability_matrix(
+    vehicle: Vehicle, vx: float, dt: float = STEP_S, measurements: tuple[int, ...] = (IZ_YAW, IZ_ALIGN)
+) -> np.ndarray:
+    """O = [H; H Phi; H Phi^2; H Phi^3] of the discrete model using the measurement rows
+    ``measurements``, columns scaled to typical magnitudes (0.01 rad, 0.01 rad/s, 1000 N, 1000 Nm)
+    and rows normalised so that a rank is meaningful."""
     d = discrete_matrices(vehicle, vx, dt)
-    rows, M = [], d.H.copy()
+    rows, M = [], d.H[list(measurements)].copy()
     for _ in range(NX):
         rows.append(M)
         M = M @ d.Phi
@@ -288,7 +297,13 @@ def observability_matrix(vehicle: Vehicle, vx: float, dt: float = STEP_S) -> np.
     return O / np.linalg.norm(O, axis=1, keepdims=True)
 
 
-def observability_rank(vehicle: Vehicle, vx: float, dt: float = STEP_S, rtol: float = 1e-9) -> int:
+def observability_rank(
+    vehicle: Vehicle,
+    vx: float,
+    dt: float = STEP_S,
+    measurements: tuple[int, ...] = (IZ_YAW, IZ_ALIGN),
+    rtol: float = 1e-9,
+) -> int:
     """Rank of the (scaled) observability matrix of (Phi, H): 4 means Fw and Mw are observable."""
-    s = np.linalg.svd(observability_matrix(vehicle, vx, dt), compute_uv=False)
+    s = np.linalg.svd(observability_matrix(vehicle, vx, dt, measurements), compute_uv=False)
     return int(np.sum(s > rtol * s[0]))
