@@ -1,0 +1,299 @@
+"""Float Kalman filter: numba-compiled kernels, pure wrappers, a small class, a filterpy reference.
+
+The model (:mod:`lde.model`) is linear with a direct feedthrough of the input to the measurement:
+
+    x_{k+1} = Phi_k x_k + E_k u_k + w_k,   w ~ N(0, Qd_k)
+    z_k     = H_k x_k + D_k u_k + v_k,     v ~ N(0, R)
+
+Update (paper eq. 16, with the a-posteriori estimate propagated: SPEC erratum 4; the gain matrix
+``Kg`` here is not the aligning-torque rate K of eq. 12: erratum 9):
+
+    y  = z - H x - D u                       innovation
+    S  = H P H^T + R
+    Kg = P H^T S^-1
+    x  = x + Kg y
+    P  = (I - Kg H) P (I - Kg H)^T + Kg R Kg^T     Joseph form: stays symmetric positive
+                                                    semi-definite under rounding and for any gain
+    P  = (P + P^T) / 2                               remove the last rounding asymmetry
+
+Predict:
+
+    x = Phi x + E u
+    P = Phi P Phi^T + Qd
+
+A measurement row can be left out of an update (``use[i] = False``: a faulty input group); the
+update then runs on the remaining rows with the matching block of R (R may be full).
+
+Layers: ``*_inplace`` kernels (``@njit``, no allocation in the predict, used by :mod:`lde.step`),
+pure ``kf_predict`` / ``kf_update`` (``@njit``, return new arrays), the :class:`KalmanFilter` class
+around them, and :class:`FilterpyReference` (filterpy's ``KalmanFilter``; used in tests only).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# --- kernels ------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def predict_inplace(x, P, Phi, Eu, Qd, tmp):  # pragma: no cover - compiled
+    """x <- Phi x + Eu,  P <- Phi P Phi^T + Qd.  ``Eu`` is E u (n,); ``tmp`` is an (n, n) scratch."""
+    n = x.shape[0]
+    # x = Phi x + E u   (tmp[:, 0] holds the old x)
+    for i in range(n):
+        tmp[i, 0] = x[i]
+    for i in range(n):
+        s = Eu[i]
+        for j in range(n):
+            s += Phi[i, j] * tmp[j, 0]
+        x[i] = s
+    # tmp = Phi P
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                s += Phi[i, k] * P[k, j]
+            tmp[i, j] = s
+    # P = tmp Phi^T + Qd, symmetric by construction: compute the upper triangle, mirror it
+    for i in range(n):
+        for j in range(i, n):
+            s = 0.0
+            for k in range(n):
+                s += tmp[i, k] * Phi[j, k]
+            s += 0.5 * (Qd[i, j] + Qd[j, i])
+            P[i, j] = s
+            P[j, i] = s
+
+
+@njit(cache=True)
+def update_inplace(x, P, z, H, Du, R, use):  # pragma: no cover - compiled
+    """Joseph-form update of x (n,), P (n, n) with the rows of z (m,) where ``use`` is True.
+
+    ``H`` (m, n), ``Du`` = D u (m,), ``R`` (m, m). Returns the normalised innovation squared
+    y^T S^-1 y over the used rows (0.0 when no row is used; then x and P are unchanged).
+    """
+    n = x.shape[0]
+    m_all = z.shape[0]
+    m = 0
+    for i in range(m_all):
+        if use[i]:
+            m += 1
+    if m == 0:
+        return 0.0
+    rows = np.empty(m, dtype=np.int64)
+    c = 0
+    for i in range(m_all):
+        if use[i]:
+            rows[c] = i
+            c += 1
+    # y = z - H x - D u
+    y = np.empty(m)
+    for a in range(m):
+        i = rows[a]
+        s = z[i] - Du[i]
+        for j in range(n):
+            s -= H[i, j] * x[j]
+        y[a] = s
+    # PHt = P H^T  (n, m)
+    PHt = np.empty((n, m))
+    for i in range(n):
+        for a in range(m):
+            s = 0.0
+            for k in range(n):
+                s += P[i, k] * H[rows[a], k]
+            PHt[i, a] = s
+    # S = H P H^T + R  (m, m)
+    S = np.empty((m, m))
+    for a in range(m):
+        for b in range(m):
+            s = R[rows[a], rows[b]]
+            for k in range(n):
+                s += H[rows[a], k] * PHt[k, b]
+            S[a, b] = s
+    # S^-1: closed form for 1 and 2 rows, LAPACK otherwise
+    if m == 1:
+        Si = np.empty((1, 1))
+        Si[0, 0] = 1.0 / S[0, 0]
+    elif m == 2:
+        det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
+        Si = np.empty((2, 2))
+        Si[0, 0] = S[1, 1] / det
+        Si[0, 1] = -S[0, 1] / det
+        Si[1, 0] = -S[1, 0] / det
+        Si[1, 1] = S[0, 0] / det
+    else:
+        Si = np.linalg.inv(S)
+    # Kg = P H^T S^-1  (n, m)
+    Kg = np.empty((n, m))
+    for i in range(n):
+        for b in range(m):
+            s = 0.0
+            for a in range(m):
+                s += PHt[i, a] * Si[a, b]
+            Kg[i, b] = s
+    # x = x + Kg y
+    for i in range(n):
+        s = 0.0
+        for a in range(m):
+            s += Kg[i, a] * y[a]
+        x[i] += s
+    # I_KH = I - Kg H  (n, n)
+    IKH = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            s = 1.0 if i == j else 0.0
+            for a in range(m):
+                s -= Kg[i, a] * H[rows[a], j]
+            IKH[i, j] = s
+    # T = I_KH P
+    T = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                s += IKH[i, k] * P[k, j]
+            T[i, j] = s
+    # KR = Kg R_used  (n, m)
+    KR = np.empty((n, m))
+    for i in range(n):
+        for b in range(m):
+            s = 0.0
+            for a in range(m):
+                s += Kg[i, a] * R[rows[a], rows[b]]
+            KR[i, b] = s
+    # P = T I_KH^T + Kg R Kg^T, then symmetrised
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                s += T[i, k] * IKH[j, k]
+            for b in range(m):
+                s += KR[i, b] * Kg[j, b]
+            P[i, j] = s
+    for i in range(n):
+        for j in range(i + 1, n):
+            s = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = s
+            P[j, i] = s
+    # NIS = y^T S^-1 y
+    nis = 0.0
+    for a in range(m):
+        for b in range(m):
+            nis += y[a] * Si[a, b] * y[b]
+    return nis
+
+
+# --- pure wrappers ----------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def kf_predict(x, P, Phi, E, u, Qd):  # pragma: no cover - compiled
+    """Pure predict: returns (Phi x + E u, Phi P Phi^T + Qd) as new arrays. ``E`` (n,), ``u`` scalar."""
+    xn = x.copy()
+    Pn = P.copy()
+    predict_inplace(xn, Pn, Phi, E * u, Qd, np.empty_like(P))
+    return xn, Pn
+
+
+@njit(cache=True)
+def kf_update(x, P, z, H, D, u, R, use):  # pragma: no cover - compiled
+    """Pure Joseph-form update: returns (x+, P+, NIS) as new arrays / float. ``D`` (m,), ``u`` scalar."""
+    xn = x.copy()
+    Pn = P.copy()
+    nis = update_inplace(xn, Pn, z, H, D * u, R, use)
+    return xn, Pn, nis
+
+
+# --- class ------------------------------------------------------------------------------------
+
+
+class KalmanFilter:
+    """A float Kalman filter with a scalar input and input feedthrough, around the pure kernels.
+
+    Initialise explicitly with ``x0`` (n,) and ``P0`` (n, n); :meth:`reset` returns to them (or
+    to new values). The model matrices are passed to every call: they change with speed.
+    """
+
+    def __init__(self, x0: np.ndarray, P0: np.ndarray) -> None:
+        x0 = np.asarray(x0, dtype=np.float64)
+        P0 = np.asarray(P0, dtype=np.float64)
+        if x0.ndim != 1 or P0.shape != (x0.size, x0.size):
+            raise ValueError(f"x0 must be (n,) and P0 (n, n); got {x0.shape} and {P0.shape}")
+        self._x0, self._P0 = x0.copy(), P0.copy()
+        self.x = x0.copy()
+        self.P = P0.copy()
+        self.nis = 0.0  #: normalised innovation squared of the last update
+
+    def reset(self, x0: np.ndarray | None = None, P0: np.ndarray | None = None) -> None:
+        """Back to the initial state (or to new ``x0`` / ``P0``, which become the initial state)."""
+        if x0 is not None:
+            self._x0 = np.asarray(x0, dtype=np.float64).copy()
+        if P0 is not None:
+            self._P0 = np.asarray(P0, dtype=np.float64).copy()
+        self.x = self._x0.copy()
+        self.P = self._P0.copy()
+        self.nis = 0.0
+
+    def predict(self, Phi: np.ndarray, E: np.ndarray, u: float, Qd: np.ndarray) -> None:
+        """x = Phi x + E u,  P = Phi P Phi^T + Qd."""
+        self.x, self.P = kf_predict(self.x, self.P, Phi, E, float(u), Qd)
+
+    def update(
+        self,
+        z: np.ndarray,
+        H: np.ndarray,
+        D: np.ndarray,
+        u: float,
+        R: np.ndarray,
+        use: np.ndarray | None = None,
+    ) -> None:
+        """Joseph-form update with the rows of ``z`` where ``use`` is True (default: all)."""
+        z = np.asarray(z, dtype=np.float64)
+        use_ = np.ones(z.shape[0], dtype=np.bool_) if use is None else np.asarray(use, dtype=np.bool_)
+        self.x, self.P, self.nis = kf_update(self.x, self.P, z, H, D, float(u), R, use_)
+
+
+class FilterpyReference:
+    """The same filter on filterpy's ``KalmanFilter`` (a reference for tests, not for speed).
+
+    filterpy has ``B`` for the input in the predict but no feedthrough in the measurement: the
+    feedthrough is handled by updating with ``z - D u``. A left-out row is handled by passing the
+    used rows of H, R and z.
+    """
+
+    def __init__(self, x0: np.ndarray, P0: np.ndarray) -> None:
+        from filterpy.kalman import KalmanFilter as _FpKF
+
+        x0 = np.asarray(x0, dtype=np.float64)
+        self._kf = _FpKF(dim_x=x0.size, dim_z=2, dim_u=1)
+        self._kf.x = x0.reshape(-1, 1).copy()
+        self._kf.P = np.asarray(P0, dtype=np.float64).copy()
+
+    @property
+    def x(self) -> np.ndarray:
+        return self._kf.x[:, 0].copy()
+
+    @property
+    def P(self) -> np.ndarray:
+        return self._kf.P.copy()
+
+    def predict(self, Phi: np.ndarray, E: np.ndarray, u: float, Qd: np.ndarray) -> None:
+        self._kf.predict(u=np.array([[u]]), B=E.reshape(-1, 1), F=Phi, Q=Qd)
+
+    def update(
+        self,
+        z: np.ndarray,
+        H: np.ndarray,
+        D: np.ndarray,
+        u: float,
+        R: np.ndarray,
+        use: np.ndarray | None = None,
+    ) -> None:
+        z = np.asarray(z, dtype=np.float64)
+        idx = np.arange(z.size) if use is None else np.flatnonzero(use)
+        if idx.size == 0:
+            return
+        zc = (z - D * u)[idx].reshape(-1, 1)
+        self._kf.update(zc, R=R[np.ix_(idx, idx)], H=H[idx])
