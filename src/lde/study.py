@@ -1,0 +1,465 @@
+"""Parameter studies on Dask (issue 6, items 2 and 6): run specs -> futures -> CSV + PNG.
+
+A study is a list of :class:`RunSpec` (scenario, seed, simulated vehicle + payload, estimator
+vehicle, options). Each spec runs independently on a worker (:func:`run_one`: simulate with
+:mod:`vcan_sim`, estimate with :func:`lde.replay.replay` or a prototype estimator, score with
+:mod:`lde.metrics`) and returns a :class:`RunResult`. :func:`run_specs` maps the specs on a
+``dask.distributed`` cluster — a ``LocalCluster(n_workers=2, threads_per_worker=1)`` by default or
+an existing scheduler by address — with a tqdm progress bar fed by ``distributed.as_completed``.
+Results are plain rows (dicts) written with the csv module; plots use matplotlib's Agg backend.
+
+The paper's study (section 5): load cases that vary mass, yaw inertia and CG (Fig. 9; CG from wheel
+loads by eqs. 17-18, done in the simulator's payload cases), each candidate set of Table 1 as the
+estimator's nominal parameters, and the eq. (19) error index
+``J = q1 RMS(e_F) + q2 RMS(e_M)`` (weights in :mod:`lde.metrics`) averaged over the load cases.
+The set with the smallest mean J wins (:func:`rank_candidates`).
+
+A run that fails is a row with its error message (a sweep must survive one bad case); the CLI
+exits non-zero when any row failed.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import metrics
+from .errors import ConfigError, LdeError
+
+#: Table 1 candidate sets (shipped vehicle files; est2 with the erratum-6 lr)
+CANDIDATES = ("est1", "est2", "est3", "est4", "est5")
+#: the paper's two lateral-load scenarios (section 5 / Figs. 13-14)
+PAPER_SCENARIOS = ("heavy", "light")
+#: trace decimation: keep every n-th estimator step in returned traces (3.9 ms * 8 = 31 ms)
+TRACE_DECIMATION = 8
+
+OptionValue = float | int | str | bool
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One simulation + estimation run.
+
+    Attributes:
+        scenario: a :mod:`vcan_sim` scenario name (``lde sim --list``).
+        est_vehicle: the estimator's vehicle file (shipped name or path).
+        sim_vehicle: the simulated vehicle (shipped name or path).
+        payload: the simulator's payload case name ("none" = unloaded).
+        seed: the simulator's random seed.
+        duration: simulated time [s] (None: the scenario's own length).
+        estimator: "replay" (the product pipeline, :func:`lde.replay.replay`) or "adaptive"
+            (the prototype in :mod:`lde.adaptive`).
+        backend: replay backend ("float" or "fixed").
+        profile: CAN profile name.
+        sim_options: extra simulator options as (name, value) pairs (e.g. steering friction,
+            sensor offsets), passed as keyword arguments to ``vcan_sim.simulate``.
+        est_options: estimator options as (name, value) pairs (prototype estimator only).
+        group: a free label used to group rows in summaries and plots.
+        trace: return decimated traces (estimate and truth) for plots.
+    """
+
+    scenario: str
+    est_vehicle: str = "reference"
+    sim_vehicle: str = "reference"
+    payload: str = "none"
+    seed: int = 0
+    duration: float | None = None
+    estimator: str = "replay"
+    backend: str = "float"
+    profile: str = "lde"
+    sim_options: tuple[tuple[str, OptionValue], ...] = ()
+    est_options: tuple[tuple[str, OptionValue], ...] = ()
+    group: str = ""
+    trace: bool = False
+
+    @property
+    def label(self) -> str:
+        """A short human-readable id of the run."""
+        parts = [self.scenario, self.payload, self.est_vehicle, f"s{self.seed}"]
+        parts += [f"{k}={v}" for k, v in self.sim_options + self.est_options]
+        return "/".join(parts)
+
+
+@dataclass
+class RunResult:
+    """What a worker sends back: the spec, the accuracy (None on failure) and optional traces."""
+
+    spec: RunSpec
+    accuracy: metrics.Accuracy | None
+    error: str = ""
+    elapsed_s: float = 0.0
+    extra: dict[str, float] = field(default_factory=dict)
+    trace: dict[str, np.ndarray] | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.accuracy is not None and not self.error
+
+    def as_row(self) -> dict[str, Any]:
+        """A flat CSV row: spec fields, accuracy figures, extra figures, error text."""
+        s = asdict(self.spec)
+        s.pop("trace")
+        s["sim_options"] = ";".join(f"{k}={v}" for k, v in self.spec.sim_options)
+        s["est_options"] = ";".join(f"{k}={v}" for k, v in self.spec.est_options)
+        s["duration"] = "" if self.spec.duration is None else self.spec.duration
+        if self.accuracy is not None:
+            s.update(self.accuracy.as_row())
+        s.update(self.extra)
+        s["elapsed_s"] = round(self.elapsed_s, 3)
+        s["error"] = self.error
+        return s
+
+
+# --- one run (executes on a worker) ---------------------------------------------------------------
+
+
+Engine = Callable[[RunSpec], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, metrics.Truth]]
+
+
+def simulate_and_estimate(
+    spec: RunSpec,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, metrics.Truth]:
+    """The product engine: :mod:`vcan_sim` -> CAN frames -> estimator. Returns t [s], Fw_hat [N],
+    Mw_hat [Nm], valid mask, truth."""
+    try:
+        import vcan_sim  # noqa: F401
+    except ImportError as exc:
+        raise LdeError("the simulator package vcan_sim is not importable") from exc
+    raise LdeError("vcan_sim engine not wired yet")
+
+
+def run_one(spec: RunSpec, engine: Engine | None = None) -> RunResult:
+    """Run one spec and score it; any failure becomes ``RunResult.error`` (never raised)."""
+    t0 = time.perf_counter()
+    eng = engine or simulate_and_estimate
+    try:
+        t, fw_hat, mw_hat, valid, truth = eng(spec)
+        acc = metrics.accuracy(t, fw_hat, mw_hat, truth, valid=valid)
+    except Exception as exc:  # a sweep must survive one bad case: the error is reported per row
+        return RunResult(spec, None, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
+    trace = None
+    if spec.trace:
+        fw, mw, mw_ref = metrics.truth_at(truth, t)
+        sl = slice(None, None, TRACE_DECIMATION)
+        trace = {
+            "t": t[sl] - t[0],
+            "fw_hat": fw_hat[sl],
+            "mw_hat": mw_hat[sl],
+            "fw": fw[sl],
+            "mw": mw[sl],
+            "mw_ref": mw_ref[sl],
+        }
+    return RunResult(spec, acc, "", time.perf_counter() - t0, trace=trace)
+
+
+def synthetic_engine(spec: RunSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, metrics.Truth]:
+    """A plumbing-test engine (no simulator): a disturbance step and a lagged, noisy estimate.
+
+    The estimate's moment error grows with the estimator's CG error ``|lf_est - 1.071 m|`` so that
+    candidate rankings are deterministic; used by the tests of the Dask machinery only.
+    """
+    from .params import load_vehicle
+
+    v = load_vehicle(spec.est_vehicle)
+    rng = np.random.default_rng(spec.seed)
+    dur = spec.duration or 6.0
+    t = np.arange(0.0, dur, 0.0039)
+    amp = {"heavy": 2000.0, "light": 300.0}.get(spec.scenario, 1000.0)
+    fw = np.where(t > 1.0, amp, 0.0)
+    mw = 0.4 * fw
+    lag = np.exp(-0.0039 / 0.2)
+    fw_hat = np.empty_like(fw)
+    acc = 0.0
+    for i, f in enumerate(fw):
+        acc = lag * acc + (1.0 - lag) * f
+        fw_hat[i] = acc
+    bias = 2.0 * abs(v.body.lf - 1.071) * fw_hat
+    mw_hat = 0.4 * fw_hat + bias + rng.normal(0.0, 0.01 * amp, t.size)
+    return t, fw_hat, mw_hat, np.ones(t.size, dtype=bool), metrics.Truth(t, fw, mw, mw)
+
+
+# --- the sweep on Dask ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ClusterConfig:
+    """Where to run: ``scheduler`` address (None: a local cluster of ``n_workers`` processes)."""
+
+    scheduler: str | None = None
+    n_workers: int = 2
+    threads_per_worker: int = 1
+    connect_timeout: float = 10.0  # s, to reach an existing scheduler
+
+
+def run_specs(
+    specs: Sequence[RunSpec],
+    cluster: ClusterConfig | None = None,
+    engine: Engine | None = None,
+    progress: bool = True,
+) -> list[RunResult]:
+    """Run every spec on a Dask cluster; results in the order of ``specs``.
+
+    With ``cluster.n_workers == 0`` and no scheduler the specs run in this process (debugging).
+    """
+    cfg = cluster or ClusterConfig()
+    if not specs:
+        return []
+    if cfg.scheduler is None and cfg.n_workers == 0:
+        it: Iterable[RunSpec] = _progress(specs, progress, len(specs))
+        return [run_one(s, engine) for s in it]
+    from distributed import Client, LocalCluster, as_completed
+
+    local = None
+    try:
+        if cfg.scheduler is None:
+            local = LocalCluster(
+                n_workers=cfg.n_workers,
+                threads_per_worker=cfg.threads_per_worker,
+                processes=True,
+                dashboard_address=None,
+            )
+            client = Client(local)
+        else:
+            client = Client(cfg.scheduler, timeout=cfg.connect_timeout)
+    except (OSError, TimeoutError) as exc:
+        raise LdeError(f"cannot reach the Dask scheduler {cfg.scheduler!r}: {exc}") from exc
+    try:
+        futures = client.map(run_one, list(specs), engine=engine, pure=False)
+        index = {f.key: i for i, f in enumerate(futures)}
+        out: list[RunResult | None] = [None] * len(specs)
+        for fut in _progress(as_completed(futures), progress, len(futures)):
+            i = index[fut.key]
+            try:
+                out[i] = fut.result()
+            except Exception as exc:  # a worker died or could not unpickle: report, keep going
+                out[i] = RunResult(specs[i], None, f"worker: {type(exc).__name__}: {exc}")
+        return [r for r in out if r is not None]
+    finally:
+        client.close()
+        if local is not None:
+            local.close()
+
+
+def _progress(it: Iterable[Any], enabled: bool, total: int) -> Iterable[Any]:
+    if not enabled:
+        return it
+    from tqdm import tqdm
+
+    return tqdm(it, total=total, unit="run", desc="lde study")
+
+
+# --- study definitions --------------------------------------------------------------------------------
+
+
+def candidate_specs(
+    scenarios: Sequence[str] = PAPER_SCENARIOS,
+    payloads: Sequence[str] = ("none",),
+    candidates: Sequence[str] = CANDIDATES,
+    seeds: Sequence[int] = (0,),
+    duration: float | None = None,
+    sim_options: tuple[tuple[str, OptionValue], ...] = (),
+    estimator: str = "replay",
+    est_options: tuple[tuple[str, OptionValue], ...] = (),
+    group: str = "candidates",
+    trace_candidate: str | None = None,
+) -> list[RunSpec]:
+    """The paper's study: every candidate set on every (scenario, payload, seed) load case.
+
+    ``trace_candidate``: keep traces of this candidate's unloaded seed-0 runs (Figs. 13-14).
+    """
+    specs = []
+    for cand in candidates:
+        for sc in scenarios:
+            for pl in payloads:
+                for seed in seeds:
+                    specs.append(
+                        RunSpec(
+                            scenario=sc,
+                            est_vehicle=cand,
+                            payload=pl,
+                            seed=seed,
+                            duration=duration,
+                            estimator=estimator,
+                            sim_options=sim_options,
+                            est_options=est_options,
+                            group=group,
+                            trace=(cand == trace_candidate and seed == seeds[0] and pl == payloads[0]),
+                        )
+                    )
+    return specs
+
+
+# --- summaries ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CandidateScore:
+    """Mean eq. (19) index over the load cases of one candidate set, and its worst NRMSEs."""
+
+    candidate: str
+    n_runs: int
+    mean_j: float  # N
+    mean_rms_fw: float  # N
+    mean_rms_mw: float  # Nm
+    worst_nrmse_fw: float  # fraction
+    worst_nrmse_mw: float  # fraction
+
+
+def rank_candidates(results: Sequence[RunResult], key: str = "est_vehicle") -> list[CandidateScore]:
+    """Candidates (by ``key`` of the spec) sorted by mean J, best first. Failed runs are skipped."""
+    groups: dict[str, list[metrics.Accuracy]] = {}
+    for r in results:
+        if r.ok and r.accuracy is not None:
+            groups.setdefault(str(getattr(r.spec, key)), []).append(r.accuracy)
+    scores = []
+    for name, accs in groups.items():
+        scores.append(
+            CandidateScore(
+                candidate=name,
+                n_runs=len(accs),
+                mean_j=metrics.mean_error_index((a.rms_fw, a.rms_mw) for a in accs),
+                mean_rms_fw=float(np.mean([a.rms_fw for a in accs])),
+                mean_rms_mw=float(np.mean([a.rms_mw for a in accs])),
+                worst_nrmse_fw=_nanmax([a.nrmse_fw for a in accs]),
+                worst_nrmse_mw=_nanmax([a.nrmse_mw for a in accs]),
+            )
+        )
+    return sorted(scores, key=lambda s: s.mean_j)
+
+
+def _nanmax(xs: Sequence[float]) -> float:
+    finite = [x for x in xs if math.isfinite(x)]
+    return max(finite) if finite else math.nan
+
+
+# --- output -----------------------------------------------------------------------------------------
+
+
+def write_csv(results: Sequence[RunResult], path: Path) -> Path:
+    """One row per run (columns: union of all rows' keys, in first-seen order)."""
+    rows = [r.as_row() for r in results]
+    cols: list[str] = []
+    for row in rows:
+        cols += [k for k in row if k not in cols]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=cols, restval="")
+        w.writeheader()
+        for row in rows:
+            w.writerow({k: _fmt(v) for k, v in row.items()})
+    return path
+
+
+def write_scores_csv(scores: Sequence[CandidateScore], path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(asdict(scores[0])) if scores else ["candidate"])
+        w.writeheader()
+        for s in scores:
+            w.writerow({k: _fmt(v) for k, v in asdict(s).items()})
+    return path
+
+
+def _fmt(v: Any) -> Any:
+    if isinstance(v, float):
+        return "" if math.isnan(v) else f"{v:.6g}"
+    return v
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_error_index(scores: Sequence[CandidateScore], path: Path, title: str = "") -> Path:
+    """Bar chart of the mean eq. (19) index per candidate set (like the paper's Fig. 11)."""
+    if not scores:
+        raise ConfigError("no successful runs to plot")
+    plt = _pyplot()
+    ordered = sorted(scores, key=lambda s: s.candidate)
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    best = min(scores, key=lambda s: s.mean_j).candidate
+    colors = ["tab:green" if s.candidate == best else "tab:blue" for s in ordered]
+    ax.bar([s.candidate for s in ordered], [s.mean_j for s in ordered], color=colors)
+    ax.set_ylabel("error index J [N]  (q1 = 1/N, q2 = 1/Nm)")
+    ax.set_title(title or "Error index of the parameter sets (mean over load cases)")
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_traces(results: Sequence[RunResult], path: Path, title: str = "") -> Path:
+    """Estimates against truth, one column per traced run (like the paper's Figs. 13-14)."""
+    traced = [r for r in results if r.trace is not None]
+    if not traced:
+        raise ConfigError("no traced runs to plot")
+    plt = _pyplot()
+    fig, axes = plt.subplots(2, len(traced), figsize=(4.5 * len(traced), 5.5), squeeze=False, sharex="col")
+    for j, r in enumerate(traced):
+        tr = r.trace or {}
+        ax_f, ax_m = axes[0, j], axes[1, j]
+        ax_f.plot(tr["t"], tr["fw"], "k-", lw=1.2, label="truth")
+        ax_f.plot(tr["t"], tr["fw_hat"], "r--", lw=1.0, label="estimate")
+        ax_m.plot(tr["t"], tr["mw"], "k-", lw=1.2, label="truth (actual CG)")
+        ax_m.plot(tr["t"], tr["mw_ref"], color="0.6", lw=0.8, label="truth (unloaded CG)")
+        ax_m.plot(tr["t"], tr["mw_hat"], "r--", lw=1.0, label="estimate")
+        a = r.accuracy
+        sub = r.spec.label
+        if a is not None:
+            sub += f"\nNRMSE Fw {_pct(a.nrmse_fw)}, Mw {_pct(a.nrmse_mw)}"
+        ax_f.set_title(sub, fontsize=8)
+        ax_f.set_ylabel("Fw [N]")
+        ax_m.set_ylabel("Mw [Nm]")
+        ax_m.set_xlabel("t [s]")
+        for ax in (ax_f, ax_m):
+            ax.grid(alpha=0.3)
+        ax_m.legend(fontsize=7, loc="best")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _pct(x: float) -> str:
+    return "-" if not math.isfinite(x) else f"{100 * x:.1f}%"
+
+
+#: columns of the printed accuracy table (key, header, format)
+TABLE_COLUMNS = (
+    ("label", "run", ""),
+    ("kind", "kind", ""),
+    ("nrmse_fw", "NRMSE Fw", ".1%"),
+    ("nrmse_mw", "NRMSE Mw", ".1%"),
+    ("nrmse_mw_ref", "Mw (ref CG)", ".1%"),
+    ("rms_fw_N", "RMS Fw [N]", ".0f"),
+    ("rms_mw_Nm", "RMS Mw [Nm]", ".0f"),
+    ("J_N", "J [N]", ".0f"),
+    ("error", "error", ""),
+)
+
+
+def table(results: Sequence[RunResult]) -> str:
+    """The accuracy table as text (fractions printed as %)."""
+    rows = []
+    for r in results:
+        row = r.as_row()
+        row["label"] = r.spec.label
+        rows.append(row)
+    return metrics.format_table(rows, TABLE_COLUMNS)
