@@ -1,0 +1,190 @@
+"""Log readers and writers: candump ``-L``, MCAP (raw CAN channels + JSON channels), python-can formats.
+
+:func:`read_log` picks the format by suffix (``.mcap``; ``.log``/``.candump``/``.txt`` and unknown
+suffixes sniffed for candump text or the MCAP magic; ASC, BLF, TRC, CSV, ... through python-can) and
+returns a :class:`LogData` whose ``frames`` are stably sorted by time. Unreadable, corrupt, empty or
+non-CAN files raise :class:`~lde.errors.LogFormatError` with a one-line message; skipped frames
+(error, remote, malformed lines, a truncated last line) are counted in :class:`ReadStats`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import LogFormatError
+from ..frames import FrameBatch
+from .candump import format_candump, looks_like_candump, parse_candump_bytes, write_candump
+from .mcapfile import (
+    CAN_SCHEMA_NAME,
+    TOPIC_RX,
+    TOPIC_TX,
+    McapData,
+    McapWriter,
+    TopicInfo,
+    read_mcap,
+)
+
+__all__ = [
+    "LogData",
+    "ReadStats",
+    "read_log",
+    "detect_format",
+    "write_candump",
+    "format_candump",
+    "parse_candump_bytes",
+    "McapWriter",
+    "McapData",
+    "TopicInfo",
+    "read_mcap",
+    "CAN_SCHEMA_NAME",
+    "TOPIC_RX",
+    "TOPIC_TX",
+]
+
+CANDUMP_SUFFIXES = {".log", ".candump", ".txt"}
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+@dataclass(frozen=True)
+class ReadStats:
+    """What a reader skipped. All counts are frames or lines.
+
+    Attributes:
+        frames: data frames returned.
+        error_frames: error frames skipped.
+        remote_frames: remote frames skipped.
+        malformed_lines: candump lines that did not parse (first one: ``first_malformed_line``).
+        truncated_last_line: 1 if the last line of a text log was cut off (and skipped).
+        bad_messages: MCAP CAN-channel messages of the wrong size/encoding (skipped).
+    """
+
+    frames: int
+    error_frames: int = 0
+    remote_frames: int = 0
+    malformed_lines: int = 0
+    truncated_last_line: int = 0
+    first_malformed_line: int = 0
+    bad_messages: int = 0
+
+    @property
+    def skipped(self) -> int:
+        return (
+            self.error_frames + self.remote_frames + self.malformed_lines + self.truncated_last_line + self.bad_messages
+        )
+
+
+@dataclass
+class LogData:
+    """A log read into columns.
+
+    Attributes:
+        path: the file.
+        format: ``"candump"``, ``"mcap"`` or the python-can suffix (``"asc"``, ``"blf"``, ...).
+        frames: CAN frames, stably sorted by ``t_ns`` (the log's own time base).
+        stats: skipped-frame counts.
+        mcap: for MCAP files, the topics, the log times of the non-CAN channels and any JSON
+            channels asked for; else None.
+    """
+
+    path: Path
+    format: str
+    frames: FrameBatch
+    stats: ReadStats
+    mcap: McapData | None = field(default=None)
+
+
+def detect_format(path: str | Path) -> str:
+    """``"mcap"``, ``"candump"`` or a python-can suffix such as ``"asc"``; by suffix, then content.
+
+    Raises:
+        LogFormatError: missing/unreadable/empty file, or a format nobody reads.
+    """
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            head = fh.read(4096)
+    except FileNotFoundError as exc:
+        raise LogFormatError(f"{p}: no such file") from exc
+    except OSError as exc:
+        raise LogFormatError(f"{p}: cannot read: {exc}") from exc
+    if not head:
+        raise LogFormatError(f"{p}: empty file")
+    suffix = p.suffix.lower()
+    if head.startswith(MCAP_MAGIC):
+        return "mcap"
+    if suffix == ".mcap":
+        raise LogFormatError(f"{p}: not an MCAP file (no MCAP magic)")
+    if suffix in CANDUMP_SUFFIXES or suffix not in _pycan_suffixes():
+        if looks_like_candump(head):
+            return "candump"
+        if suffix in CANDUMP_SUFFIXES and suffix not in (".log",):
+            raise LogFormatError(f"{p}: not a candump -L log (first line does not parse)")
+    if suffix in _pycan_suffixes():
+        return suffix.lstrip(".")
+    raise LogFormatError(
+        f"{p}: unknown log format (suffix {suffix or 'none'!r}; readable: .mcap, candump -L text, "
+        f"{', '.join(sorted(_pycan_suffixes()))})"
+    )
+
+
+def _pycan_suffixes() -> set[str]:
+    from .pycan import pycan_suffixes
+
+    return pycan_suffixes() - {".mcap"}
+
+
+def read_log(path: str | Path, *, fmt: str | None = None, json_topics: Iterable[str] | str | None = None) -> LogData:
+    """Read a CAN log into a :class:`LogData` (format by :func:`detect_format` unless ``fmt``).
+
+    Raises:
+        LogFormatError: unreadable, corrupt, empty or non-CAN file, or a file with no frames at all.
+    """
+    p = Path(path)
+    fmt = fmt or detect_format(p)
+    if fmt == "mcap":
+        data = read_mcap(p, json_topics=json_topics)
+        stats = ReadStats(frames=len(data.frames), bad_messages=data.bad_can_messages)
+        out = LogData(p, "mcap", data.frames, stats, mcap=data)
+    elif fmt == "candump":
+        try:
+            raw = p.read_bytes()
+        except OSError as exc:
+            raise LogFormatError(f"{p}: cannot read: {exc}") from exc
+        parsed = parse_candump_bytes(raw)
+        stats = ReadStats(
+            frames=len(parsed.frames),
+            error_frames=parsed.error_frames,
+            remote_frames=parsed.remote_frames,
+            malformed_lines=parsed.malformed_lines,
+            truncated_last_line=parsed.truncated_last_line,
+            first_malformed_line=parsed.first_malformed_line,
+        )
+        out = LogData(p, "candump", parsed.frames.sort(), stats)
+    else:
+        from .pycan import read_pycan
+
+        parsed_pc = read_pycan(p)
+        stats = ReadStats(
+            frames=len(parsed_pc.frames), error_frames=parsed_pc.error_frames, remote_frames=parsed_pc.remote_frames
+        )
+        out = LogData(p, fmt, parsed_pc.frames.sort(), stats)
+    if len(out.frames) == 0:
+        raise LogFormatError(f"{p}: no CAN data frames in this {fmt} log ({_describe(stats)})")
+    return out
+
+
+def _describe(s: ReadStats) -> str:
+    parts = [f"{s.frames} frames"]
+    for name in ("error_frames", "remote_frames", "malformed_lines", "truncated_last_line", "bad_messages"):
+        v = getattr(s, name)
+        if v:
+            parts.append(f"{v} {name.replace('_', ' ')}")
+    return ", ".join(parts)
+
+
+def frames_are_sorted(frames: FrameBatch) -> bool:
+    return bool(np.all(np.diff(frames.t_ns) >= 0))

@@ -1,0 +1,870 @@
+"""MCAP recordings of raw CAN frames plus JSON channels, with a numpy/numba bulk path.
+
+Layout (documented for users in ``docs/mcap.md``):
+
+* ``/can/rx`` — frames lde received, ``/can/tx`` — frames lde sent. Message encoding ``cdr``,
+  schema ``lde_msgs/msg/CanFrame`` (encoding ``ros2msg``, text in :data:`CAN_SCHEMA_TEXT`),
+  ``log_time`` = ``publish_time`` = the frame's timestamp in ns (the log's own time base). Every CAN
+  message has the same size: a 4-byte CDR encapsulation header (``00 01 00 00``, little endian) and
+  15 bytes of fields::
+
+      offset  field            type
+      0       id               uint32   arbitration id (11 or 29 bit)
+      4       is_extended      bool
+      5       is_rx            bool     False for frames lde sent
+      6       dlc              uint8    data length in bytes (0..64; > 8 = CAN FD)
+      7       data             uint8[8] first 8 data bytes, zero padded
+
+* any number of JSON channels (message encoding ``json``, schema encoding ``jsonschema``): one flat
+  object of numbers per message (estimates, diagnostics, simulator truth), registered with
+  :meth:`McapWriter.add_json_channel`.
+
+Writing: :class:`McapWriter` buffers messages, sorts them by ``log_time`` and writes zstd-compressed
+chunks (records built by a numba kernel), message indexes, chunk indexes, statistics and the summary,
+readable by the ``mcap`` library and by Foxglove.
+
+Reading: :func:`read_mcap` reads the summary with the ``mcap`` library, then every chunk record
+directly: it decompresses the chunk (zstd / lz4 / none) and a numba kernel walks the records, filling
+the :class:`~lde.frames.FrameBatch` columns of the CAN channels and the (channel, log_time, offset,
+length) table of the others. A file without chunk indexes is read with the ``mcap`` library's own
+(per-message, slower) reader.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import struct
+import zlib
+from collections.abc import Iterable, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numba
+import numpy as np
+
+from ..errors import LogFormatError
+from ..frames import FrameBatch
+
+try:
+    import zstandard
+except ImportError:  # pragma: no cover - zstandard is a dependency of mcap's zstd support
+    zstandard = None
+try:
+    import lz4.frame as lz4frame
+except ImportError:  # pragma: no cover
+    lz4frame = None
+
+__all__ = [
+    "CAN_SCHEMA_NAME",
+    "CAN_SCHEMA_TEXT",
+    "CAN_PAYLOAD_SIZE",
+    "TOPIC_RX",
+    "TOPIC_TX",
+    "McapWriter",
+    "McapData",
+    "TopicInfo",
+    "read_mcap",
+    "can_payloads",
+]
+
+MAGIC = b"\x89MCAP0\r\n"
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE = 0x01, 0x02, 0x03, 0x04, 0x05
+OP_CHUNK, OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS = 0x06, 0x07, 0x08, 0x0B
+OP_SUMMARY_OFFSET, OP_DATA_END = 0x0E, 0x0F
+
+TOPIC_RX = "/can/rx"
+TOPIC_TX = "/can/tx"
+CAN_SCHEMA_NAME = "lde_msgs/msg/CanFrame"
+CAN_SCHEMA_TEXT = """\
+# One raw CAN frame as lde received (/can/rx) or sent (/can/tx) it.
+# Fixed size (15 bytes of CDR after the 4-byte encapsulation header) so that logs decode in bulk.
+uint32 id          # arbitration id (11 or 29 bit)
+bool is_extended   # 29-bit identifier
+bool is_rx         # false for frames lde itself sent
+uint8 dlc          # data length in bytes (0..64; above 8 only the first 8 bytes are kept)
+uint8[8] data      # first 8 data bytes, zero padded
+"""
+CDR_HEADER = b"\x00\x01\x00\x00"  # CDR, little endian
+CAN_PAYLOAD_SIZE = 4 + 15
+_MSG_OVERHEAD = 1 + 8 + 2 + 4 + 8 + 8  # opcode, record length, channel, sequence, log_time, publish_time
+
+
+# ----------------------------------------------------------------------------- numba kernels
+@numba.njit(cache=True, inline="always")
+def _put(out, o, value, nbytes):
+    v = np.uint64(value)
+    for j in range(nbytes):
+        out[o + j] = np.uint8((v >> np.uint64(8 * j)) & np.uint64(0xFF))
+
+
+@numba.njit(cache=True, inline="always")
+def _get(buf, o, nbytes):
+    v = np.uint64(0)
+    for j in range(nbytes):
+        v |= np.uint64(buf[o + j]) << np.uint64(8 * j)
+    return v
+
+
+@numba.njit(cache=True)
+def _build_records(order, chan, seq, t, pay, pay_off, pay_len, out, rec_off):
+    """Message records of the messages ``order`` (in that order) into ``out`` at ``rec_off``."""
+    for k in range(order.shape[0]):
+        i = order[k]
+        o = rec_off[k]
+        n = pay_len[i]
+        out[o] = OP_MESSAGE
+        _put(out, o + 1, 22 + n, 8)
+        _put(out, o + 9, chan[i], 2)
+        _put(out, o + 11, seq[i], 4)
+        _put(out, o + 15, t[i], 8)
+        _put(out, o + 23, t[i], 8)
+        p = pay_off[i]
+        for j in range(n):
+            out[o + 31 + j] = pay[p + j]
+
+
+@numba.njit(cache=True)
+def _scan_records(buf, kind, counts):
+    """Count message records (also per channel into ``counts``): returns (n_can, n_other, status);
+    status < 0 = corrupt record stream."""
+    n = buf.shape[0]
+    i = 0
+    n_can = 0
+    n_other = 0
+    while i < n:
+        if i + 9 > n:
+            return n_can, n_other, -1
+        length = _get(buf, i + 1, 8)
+        if length > np.uint64(n - i - 9):
+            return n_can, n_other, -2
+        if buf[i] == OP_MESSAGE:
+            if length < 22:
+                return n_can, n_other, -3
+            ch = int(_get(buf, i + 9, 2))
+            counts[ch] += 1
+            if kind[ch] == 1:
+                n_can += 1
+            else:
+                n_other += 1
+        i += 9 + int(length)
+    return n_can, n_other, 0
+
+
+@numba.njit(cache=True)
+def _fill_records(buf, kind, t, cid, ext, dlc, data, rx, o_chan, o_t, o_off, o_len):
+    """Second pass: CAN message fields into the frame columns, other messages into the index table.
+
+    Returns (n_can_filled, n_other, n_bad_can): a CAN-channel message of the wrong size or byte
+    order is counted as bad and skipped.
+    """
+    n = buf.shape[0]
+    i = 0
+    k = 0
+    m = 0
+    bad = 0
+    while i < n:
+        length = int(_get(buf, i + 1, 8))
+        if buf[i] == OP_MESSAGE:
+            ch = int(_get(buf, i + 9, 2))
+            lt = np.int64(_get(buf, i + 15, 8))
+            p = i + 31
+            plen = length - 22
+            if kind[ch] == 1:
+                if plen != 19 or buf[p] != 0 or buf[p + 1] != 1:
+                    bad += 1
+                else:
+                    t[k] = lt
+                    cid[k] = np.uint32(_get(buf, p + 4, 4))
+                    ext[k] = buf[p + 8] != 0
+                    rx[k] = buf[p + 9] != 0
+                    dlc[k] = buf[p + 10]
+                    for j in range(8):
+                        data[k, j] = buf[p + 11 + j]
+                    k += 1
+            else:
+                o_chan[m] = ch
+                o_t[m] = lt
+                o_off[m] = p
+                o_len[m] = plen
+                m += 1
+        i += 9 + length
+    return k, m, bad
+
+
+# ----------------------------------------------------------------------------- record helpers
+def _str(s: str) -> bytes:
+    b = s.encode("utf-8")
+    return struct.pack("<I", len(b)) + b
+
+
+def _record(op: int, body: bytes) -> bytes:
+    return struct.pack("<BQ", op, len(body)) + body
+
+
+def _map_str(d: Mapping[str, str]) -> bytes:
+    body = b"".join(_str(k) + _str(v) for k, v in d.items())
+    return struct.pack("<I", len(body)) + body
+
+
+def can_payloads(frames: FrameBatch) -> np.ndarray:
+    """CDR payloads of ``frames`` as a ``uint8[n, 19]`` array (layout in the module doc)."""
+    n = len(frames)
+    p = np.zeros((n, CAN_PAYLOAD_SIZE), np.uint8)
+    p[:, 1] = 1
+    p[:, 4:8] = frames.can_id.astype("<u4").view(np.uint8).reshape(n, 4)
+    p[:, 8] = frames.is_extended
+    p[:, 9] = frames.is_rx
+    p[:, 10] = frames.dlc
+    p[:, 11:19] = frames.data
+    return p
+
+
+@dataclass
+class _Block:
+    chan: np.ndarray  # uint16
+    seq: np.ndarray  # uint32
+    t: np.ndarray  # int64
+    pay: np.ndarray  # uint8 flat
+    off: np.ndarray  # int64
+    length: np.ndarray  # int64
+
+
+class McapWriter:
+    """Writes an lde MCAP recording (CAN channels ``/can/rx`` and ``/can/tx`` + JSON channels).
+
+    Messages are buffered and written sorted by ``log_time`` when the buffer passes
+    ``buffer_bytes`` (and at :meth:`close`), in chunks of about ``chunk_size`` uncompressed bytes.
+    Within one flush the order is by time, so a live recorder (monotonic times) gives a file in time
+    order; bulk writers may write the CAN frames and the JSON records in any order before closing.
+
+    Args:
+        path: output file.
+        compression: ``"zstd"`` (default), ``"lz4"`` or ``""``.
+        chunk_size: uncompressed bytes per chunk [B].
+        buffer_bytes: flush threshold of the message buffer [B].
+        metadata: key/value strings stored as an MCAP metadata record ``lde``.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        compression: str = "zstd",
+        chunk_size: int = 4 << 20,
+        buffer_bytes: int = 256 << 20,
+        profile: str = "",
+        metadata: Mapping[str, str] | None = None,
+    ) -> None:
+        if compression == "zstd" and zstandard is None:  # pragma: no cover
+            raise LogFormatError("zstd compression needs the 'zstandard' package")
+        if compression == "lz4" and lz4frame is None:  # pragma: no cover
+            raise LogFormatError("lz4 compression needs the 'lz4' package")
+        if compression not in ("zstd", "lz4", ""):
+            raise ValueError(f"unknown MCAP compression {compression!r}")
+        self.path = Path(path)
+        try:
+            self._f = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        except OSError as exc:
+            raise LogFormatError(f"{path}: cannot write: {exc}") from exc
+        self._compression = compression
+        self._chunk_size = int(chunk_size)
+        self._buffer_bytes = int(buffer_bytes)
+        self._schemas: list[bytes] = []
+        self._channels: list[bytes] = []
+        self._topics: dict[int, str] = {}
+        self._seq: dict[int, int] = {}
+        self._counts: dict[int, int] = {}
+        self._chunk_indexes: list[bytes] = []
+        self._pending: list[_Block] = []
+        self._pending_bytes = 0
+        self._single: list[tuple[int, int, bytes]] = []  # (channel, t, payload) of one-at-a-time writes
+        self._t_min: int | None = None
+        self._t_max = 0
+        self._n_chunks = 0
+        self._closed = False
+        self._crc = zlib.crc32(MAGIC)
+        from .. import __version__ as lde_version
+
+        self._write(MAGIC, crc=False)
+        self._write(_record(OP_HEADER, _str(profile) + _str(f"lde {lde_version}")))
+        can_schema = self._add_schema(CAN_SCHEMA_NAME, "ros2msg", CAN_SCHEMA_TEXT.encode())
+        self.rx_channel = self._add_channel(TOPIC_RX, "cdr", can_schema)
+        self.tx_channel = self._add_channel(TOPIC_TX, "cdr", can_schema)
+        self._json_keys: dict[int, tuple[str, ...]] = {}
+        self._n_metadata = 0
+        if metadata:
+            self._write(_record(0x0C, _str("lde") + _map_str(dict(metadata))))
+            self._n_metadata = 1
+
+    # ------------------------------------------------------------------ low level
+    def _write(self, b: bytes, crc: bool = True) -> None:
+        if crc:
+            self._crc = zlib.crc32(b, self._crc)
+        self._f.write(b)
+
+    def _add_schema(self, name: str, encoding: str, data: bytes) -> int:
+        sid = len(self._schemas) + 1
+        rec = _record(OP_SCHEMA, struct.pack("<H", sid) + _str(name) + _str(encoding) + _str_bytes(data))
+        self._schemas.append(rec)
+        self._write(rec)
+        return sid
+
+    def _add_channel(self, topic: str, encoding: str, schema_id: int, meta: Mapping[str, str] | None = None) -> int:
+        if topic in self._topics.values():
+            raise ValueError(f"MCAP channel {topic!r} registered twice")
+        cid = len(self._channels) + 1
+        body = struct.pack("<HH", cid, schema_id) + _str(topic) + _str(encoding) + _map_str(dict(meta or {}))
+        rec = _record(OP_CHANNEL, body)
+        self._channels.append(rec)
+        self._topics[cid] = topic
+        self._seq[cid] = 0
+        self._counts[cid] = 0
+        self._write(rec)
+        return cid
+
+    # ------------------------------------------------------------------ public API
+    def add_json_channel(
+        self, topic: str, schema_props: Mapping[str, Mapping[str, Any]] | Iterable[str], title: str | None = None
+    ) -> int:
+        """Register a JSON channel of flat objects; returns its channel id.
+
+        ``schema_props`` maps each field name to its JSON-schema property (e.g.
+        ``{"Fw": {"type": "number", "description": "N, left positive"}}``); a plain list of names
+        makes them all numbers.
+        """
+        if not isinstance(schema_props, Mapping):
+            schema_props = {k: {"type": "number"} for k in schema_props}
+        schema = {"type": "object", "title": title or topic, "properties": {k: dict(v) for k, v in schema_props.items()}}
+        sid = self._add_schema(title or topic.strip("/").replace("/", "_"), "jsonschema", json.dumps(schema).encode())
+        cid = self._add_channel(topic, "json", sid)
+        self._json_keys[cid] = tuple(schema_props)
+        return cid
+
+    def write_frames(self, frames: FrameBatch) -> None:
+        """Queue CAN frames: rx frames on ``/can/rx``, the others on ``/can/tx``."""
+        n = len(frames)
+        if n == 0:
+            return
+        pay = can_payloads(frames).reshape(-1)
+        chan = np.where(frames.is_rx, self.rx_channel, self.tx_channel).astype(np.uint16)
+        seq = np.empty(n, np.uint32)
+        for c in (self.rx_channel, self.tx_channel):
+            sel = chan == c
+            k = int(np.count_nonzero(sel))
+            seq[sel] = (np.arange(k, dtype=np.int64) + self._seq[c]) % (1 << 32)
+            self._seq[c] += k
+            self._counts[c] += k
+        off = np.arange(n, dtype=np.int64) * CAN_PAYLOAD_SIZE
+        self._queue(_Block(chan, seq, frames.t_ns.astype(np.int64), pay, off, np.full(n, CAN_PAYLOAD_SIZE, np.int64)))
+
+    def write_frame(self, t_ns: int, can_id: int, is_extended: bool, dlc: int, data: bytes, is_rx: bool) -> None:
+        """Queue one CAN frame (the live recorder's path)."""
+        d = bytes(data[:8]).ljust(8, b"\x00")
+        pay = CDR_HEADER + struct.pack("<I??B", can_id, bool(is_extended), bool(is_rx), dlc) + d
+        self._queue_single(self.rx_channel if is_rx else self.tx_channel, int(t_ns), pay)
+
+    def write_json(self, channel_id: int, t_ns: int, record: Mapping[str, Any]) -> None:
+        """Queue one JSON message (a flat object of numbers) on a channel from :meth:`add_json_channel`."""
+        if channel_id not in self._json_keys:
+            raise ValueError(f"channel {channel_id} is not a JSON channel of this writer")
+        self._queue_single(channel_id, int(t_ns), json.dumps(_plain(record), allow_nan=True).encode())
+
+    def write_json_columns(self, channel_id: int, t_ns: np.ndarray, columns: Mapping[str, np.ndarray]) -> None:
+        """Queue one JSON message per row of ``columns`` (bulk form of :meth:`write_json`)."""
+        if channel_id not in self._json_keys:
+            raise ValueError(f"channel {channel_id} is not a JSON channel of this writer")
+        t = np.asarray(t_ns, dtype=np.int64)
+        n = t.size
+        if n == 0:
+            return
+        texts = _json_rows(columns, n)
+        pay = np.frombuffer("".join(texts).encode(), np.uint8)
+        length = np.fromiter((len(s) for s in texts), np.int64, n)
+        off = np.zeros(n, np.int64)
+        np.cumsum(length[:-1], out=off[1:])
+        seq = (np.arange(n, dtype=np.int64) + self._seq[channel_id]) % (1 << 32)
+        self._seq[channel_id] += n
+        self._counts[channel_id] += n
+        self._queue(_Block(np.full(n, channel_id, np.uint16), seq.astype(np.uint32), t, pay, off, length))
+
+    def flush(self) -> None:
+        """Write every queued message (sorted by time) as chunks."""
+        self._flush_single()
+        if not self._pending:
+            return
+        blocks = self._pending
+        self._pending = []
+        self._pending_bytes = 0
+        chan = np.concatenate([b.chan for b in blocks])
+        seq = np.concatenate([b.seq for b in blocks])
+        t = np.concatenate([b.t for b in blocks])
+        length = np.concatenate([b.length for b in blocks])
+        pays = [b.pay for b in blocks]
+        base = np.cumsum([0] + [p.size for p in pays[:-1]])
+        off = np.concatenate([b.off + base[i] for i, b in enumerate(blocks)])
+        pay = np.concatenate(pays) if len(pays) > 1 else pays[0]
+        order = np.argsort(t, kind="stable")
+        rec_len = _MSG_OVERHEAD + length[order]
+        rec_end = np.cumsum(rec_len)
+        rec_off = rec_end - rec_len
+        out = np.empty(int(rec_end[-1]), np.uint8)
+        _build_records(order, chan, seq, t, pay, off, length, out, rec_off)
+        # chunk boundaries: cut after the record that crosses each multiple of chunk_size
+        cuts = np.searchsorted(rec_end, np.arange(self._chunk_size, int(rec_end[-1]), self._chunk_size), side="left")
+        bounds = np.unique(np.concatenate([[0], cuts + 1, [order.size]]))
+        bounds = bounds[bounds <= order.size]
+        for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
+            if b > a:
+                self._write_chunk(out, rec_off, rec_end, order, chan, t, a, b)
+        t_lo, t_hi = int(t.min()), int(t.max())
+        self._t_min = t_lo if self._t_min is None else min(self._t_min, t_lo)
+        self._t_max = max(self._t_max, t_hi)
+
+    def close(self) -> None:
+        """Flush, then write the data end, the summary (schemas, channels, statistics, chunk
+        indexes, summary offsets), the footer and the closing magic."""
+        if self._closed:
+            return
+        self.flush()
+        self._write(_record(OP_DATA_END, struct.pack("<I", self._crc)))
+        summary_start = self._f.tell()
+        parts: list[bytes] = []
+        offsets: list[bytes] = []
+        pos = summary_start
+        n_msgs = sum(self._counts.values())
+        stats = struct.pack(
+            "<QHIIIIQQ",
+            n_msgs,
+            len(self._schemas),
+            len(self._channels),
+            0,
+            self._n_metadata,
+            self._n_chunks,
+            self._t_min or 0,
+            self._t_max,
+        )
+        counts = b"".join(struct.pack("<HQ", c, k) for c, k in self._counts.items())
+        stats += struct.pack("<I", len(counts)) + counts
+        for op, recs in (
+            (OP_SCHEMA, self._schemas),
+            (OP_CHANNEL, self._channels),
+            (OP_STATISTICS, [_record(OP_STATISTICS, stats)]),
+            (OP_CHUNK_INDEX, self._chunk_indexes),
+        ):
+            group = b"".join(recs)
+            if not group:
+                continue
+            offsets.append(_record(OP_SUMMARY_OFFSET, struct.pack("<BQQ", op, pos, len(group))))
+            parts.append(group)
+            pos += len(group)
+        summary_offset_start = pos
+        summary = b"".join(parts) + b"".join(offsets)
+        footer_head = struct.pack("<BQQQ", OP_FOOTER, 20, summary_start, summary_offset_start)
+        crc = zlib.crc32(footer_head, zlib.crc32(summary))
+        self._f.write(summary)
+        self._f.write(footer_head + struct.pack("<I", crc))
+        self._f.write(MAGIC)
+        self._f.close()
+        self._closed = True
+
+    def __enter__(self) -> McapWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ internals
+    def _queue(self, block: _Block) -> None:
+        self._pending.append(block)
+        self._pending_bytes += int(block.pay.size) + _MSG_OVERHEAD * int(block.t.size)
+        if self._pending_bytes > self._buffer_bytes:
+            self.flush()
+
+    def _queue_single(self, chan: int, t_ns: int, payload: bytes) -> None:
+        self._single.append((chan, t_ns, payload))
+        self._counts[chan] += 1
+        if len(self._single) >= 65536:
+            self._flush_single()
+
+    def _flush_single(self) -> None:
+        if not self._single:
+            return
+        items = self._single
+        self._single = []
+        n = len(items)
+        chan = np.fromiter((c for c, _, _ in items), np.uint16, n)
+        t = np.fromiter((t for _, t, _ in items), np.int64, n)
+        length = np.fromiter((len(p) for _, _, p in items), np.int64, n)
+        off = np.zeros(n, np.int64)
+        np.cumsum(length[:-1], out=off[1:])
+        pay = np.frombuffer(b"".join(p for _, _, p in items), np.uint8)
+        seq = np.empty(n, np.uint32)
+        for c in np.unique(chan).tolist():
+            sel = chan == c
+            k = int(np.count_nonzero(sel))
+            seq[sel] = (np.arange(k, dtype=np.int64) + self._seq[c]) % (1 << 32)
+            self._seq[c] += k
+        block = _Block(chan, seq, t, pay, off, length)
+        self._pending.append(block)
+        self._pending_bytes += int(pay.size) + _MSG_OVERHEAD * n
+        if self._pending_bytes > self._buffer_bytes:
+            self.flush()
+
+    def _write_chunk(self, out, rec_off, rec_end, order, chan, t, a: int, b: int) -> None:
+        start = int(rec_off[a])
+        raw = out[start : int(rec_end[b - 1])].tobytes()
+        idx = order[a:b]
+        ts = t[idx]
+        t0, t1 = int(ts.min()), int(ts.max())
+        if self._compression == "zstd":
+            comp = zstandard.ZstdCompressor(level=1).compress(raw)
+        elif self._compression == "lz4":
+            comp = lz4frame.compress(raw)
+        else:
+            comp = raw
+        body = struct.pack("<QQQI", t0, t1, len(raw), zlib.crc32(raw)) + _str(self._compression)
+        chunk_rec = struct.pack("<BQ", OP_CHUNK, len(body) + 8 + len(comp)) + body + struct.pack("<Q", len(comp))
+        chunk_start = self._f.tell()
+        self._write(chunk_rec)
+        self._write(comp)
+        chunk_len = len(chunk_rec) + len(comp)
+        # message indexes: per channel (log_time, offset of the record in the uncompressed chunk)
+        ch = chan[idx]
+        rel = (rec_off[a:b] - start).astype(np.uint64)
+        mi_start = self._f.tell()
+        mi_offsets: list[tuple[int, int]] = []
+        pos = mi_start
+        for c in np.unique(ch).tolist():
+            sel = ch == c
+            pairs = np.empty((int(np.count_nonzero(sel)), 2), "<u8")
+            pairs[:, 0] = ts[sel]
+            pairs[:, 1] = rel[sel]
+            body_mi = struct.pack("<HI", c, pairs.nbytes) + pairs.tobytes()
+            rec = _record(OP_MESSAGE_INDEX, body_mi)
+            self._write(rec)
+            mi_offsets.append((c, pos))
+            pos += len(rec)
+        offsets_blob = b"".join(struct.pack("<HQ", c, o) for c, o in mi_offsets)
+        ci = (
+            struct.pack("<QQQQ", t0, t1, chunk_start, chunk_len)
+            + struct.pack("<I", len(offsets_blob))
+            + offsets_blob
+            + struct.pack("<Q", pos - mi_start)
+            + _str(self._compression)
+            + struct.pack("<QQ", len(comp), len(raw))
+        )
+        self._chunk_indexes.append(_record(OP_CHUNK_INDEX, ci))
+        self._n_chunks += 1
+
+
+def _str_bytes(b: bytes) -> bytes:
+    return struct.pack("<I", len(b)) + b
+
+
+def _plain(record: Mapping[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in record.items():
+        if isinstance(v, (bool, np.bool_)):
+            out[k] = bool(v)
+        elif isinstance(v, (int, np.integer)):
+            out[k] = int(v)
+        else:
+            f = float(v)
+            out[k] = f if math.isfinite(f) else None
+    return out
+
+
+def _json_rows(columns: Mapping[str, np.ndarray], n: int) -> list[str]:
+    """One compact JSON object per row (floats with repr precision; NaN/inf -> null)."""
+    cols: list[list[str]] = []
+    for name, col in columns.items():
+        a = np.asarray(col)
+        if a.shape != (n,):
+            raise ValueError(f"JSON column {name!r} has shape {a.shape}, expected ({n},)")
+        key = json.dumps(name)
+        if a.dtype == np.bool_:
+            vals = ["true" if x else "false" for x in a.tolist()]
+        elif np.issubdtype(a.dtype, np.integer):
+            vals = [str(x) for x in a.tolist()]
+        else:
+            vals = [repr(x) if math.isfinite(x) else "null" for x in a.astype(np.float64).tolist()]
+        cols.append([f"{key}:{v}" for v in vals])
+    return ["{" + ",".join(row) + "}" for row in zip(*cols, strict=True)] if cols else ["{}"] * n
+
+
+# ----------------------------------------------------------------------------- reading
+@dataclass(frozen=True)
+class TopicInfo:
+    """One channel of an MCAP file: topic, encodings, schema name and message count."""
+
+    topic: str
+    channel_id: int
+    message_encoding: str
+    schema_name: str
+    schema_encoding: str
+    count: int
+
+
+@dataclass
+class McapData:
+    """What :func:`read_mcap` returns.
+
+    Attributes:
+        frames: the CAN frames of every ``lde_msgs/msg/CanFrame`` channel, sorted by time.
+        topics: topic -> :class:`TopicInfo` for every channel with messages or declared.
+        times: topic -> int64 ``log_time`` array [ns] of every non-CAN channel (cheap, always there).
+        json: topic -> {field: float64 array} (+ ``"t_ns"``) for the JSON topics asked for.
+        bad_can_messages: CAN-channel messages of the wrong size or encoding (skipped).
+        fast_path: True if the chunk-level numba reader was used (else the ``mcap`` library's).
+    """
+
+    frames: FrameBatch
+    topics: dict[str, TopicInfo] = field(default_factory=dict)
+    times: dict[str, np.ndarray] = field(default_factory=dict)
+    json: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    bad_can_messages: int = 0
+    fast_path: bool = True
+
+
+def _decompress(compression: str, data: bytes, size: int) -> bytes:
+    if compression == "":
+        return data
+    if compression == "zstd":
+        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+    if compression == "lz4":
+        return lz4frame.decompress(data)
+    raise LogFormatError(f"unsupported MCAP chunk compression {compression!r}")
+
+
+def _summary(f: io.BufferedReader):
+    from mcap.reader import SeekingReader
+
+    return SeekingReader(f).get_summary()
+
+
+def read_mcap(
+    path: str | Path,
+    json_topics: Iterable[str] | str | None = None,
+    *,
+    require_can: bool = True,
+    force_library: bool = False,
+    validate_crcs: bool = False,
+) -> McapData:
+    """Read an lde MCAP file (layout in the module doc).
+
+    Args:
+        json_topics: JSON topics to return as columns (``"all"`` for every JSON channel).
+        require_can: raise :class:`LogFormatError` if the file has no CAN channel.
+        force_library: use the ``mcap`` library's per-message reader (the reference path).
+        validate_crcs: check each chunk's CRC-32 (costs ~10% of the read time).
+
+    Raises:
+        LogFormatError: not an MCAP file, corrupt, or (with ``require_can``) no CAN channel.
+    """
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise LogFormatError(f"{p}: cannot read: {exc}") from exc
+    if len(raw) == 0:
+        raise LogFormatError(f"{p}: empty file")
+    if not raw.startswith(MAGIC):
+        raise LogFormatError(f"{p}: not an MCAP file (no MCAP magic)")
+    try:
+        summary = None if force_library else _summary(io.BytesIO(raw))
+    except Exception:  # noqa: BLE001 - a damaged summary: the linear library reader decides
+        summary = None
+    try:
+        if summary is not None and summary.chunk_indexes:
+            data = _read_fast(raw, summary, validate_crcs)
+        else:
+            data = _read_library(raw)
+    except LogFormatError as exc:
+        raise LogFormatError(f"{p}: {exc}") from exc
+    except Exception as exc:  # noqa: BLE001 - the mcap library raises many types on corrupt input
+        raise LogFormatError(f"{p}: corrupt MCAP file ({type(exc).__name__}: {exc})") from exc
+    if require_can and not any(ti.schema_name == CAN_SCHEMA_NAME for ti in data.topics.values()):
+        names = ", ".join(sorted(data.topics)) or "none"
+        raise LogFormatError(f"{p}: no CAN channel (schema {CAN_SCHEMA_NAME}) in this MCAP file; topics: {names}")
+    _fill_json(data, json_topics, raw)
+    return data
+
+
+def _read_fast(raw: bytes, summary, validate_crcs: bool) -> McapData:
+    kind = np.zeros(65536, np.int8)
+    topics: dict[str, TopicInfo] = {}
+    for cid, ch in summary.channels.items():
+        sch = summary.schemas.get(ch.schema_id)
+        sname = sch.name if sch else ""
+        if sname == CAN_SCHEMA_NAME:
+            kind[cid] = 1
+        topics[ch.topic] = TopicInfo(ch.topic, cid, ch.message_encoding, sname, sch.encoding if sch else "", 0)
+    mv = memoryview(raw)
+
+    def load(ci) -> bytes:
+        o = ci.chunk_start_offset
+        if raw[o] != OP_CHUNK:
+            raise LogFormatError(f"chunk index points at opcode {raw[o]:#x}, not a chunk, at offset {o}")
+        _t0, _t1, usize, ucrc = struct.unpack_from("<QQQI", raw, o + 9)
+        (clen,) = struct.unpack_from("<I", raw, o + 37)
+        comp = bytes(mv[o + 41 : o + 41 + clen]).decode()
+        (dlen,) = struct.unpack_from("<Q", raw, o + 41 + clen)
+        start = o + 49 + clen
+        if start + dlen > len(raw):
+            raise LogFormatError(f"chunk at offset {o} runs past the end of the file (truncated?)")
+        out = _decompress(comp, mv[start : start + dlen], usize)
+        if len(out) != usize:
+            raise LogFormatError(f"chunk at offset {o}: {len(out)} bytes after decompression, expected {usize}")
+        if validate_crcs and ucrc and zlib.crc32(out) != ucrc:
+            raise LogFormatError(f"chunk at offset {o}: CRC mismatch")
+        return out
+
+    chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    if len(chunks) > 4:
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            parts = list(pool.map(load, chunks))
+    else:
+        parts = [load(c) for c in chunks]
+    buf = np.frombuffer(b"".join(parts) if len(parts) != 1 else parts[0], np.uint8)
+    counts = np.zeros(65536, np.int64)
+    n_can, n_other, st = _scan_records(buf, kind, counts)
+    if st < 0:
+        raise LogFormatError("corrupt record inside a chunk")
+    t = np.empty(n_can, np.int64)
+    cid = np.empty(n_can, np.uint32)
+    ext = np.empty(n_can, np.bool_)
+    dlc = np.empty(n_can, np.uint8)
+    data = np.empty((n_can, 8), np.uint8)
+    rx = np.empty(n_can, np.bool_)
+    o_chan = np.empty(n_other, np.uint16)
+    o_t = np.empty(n_other, np.int64)
+    o_off = np.empty(n_other, np.int64)
+    o_len = np.empty(n_other, np.int64)
+    k, m, bad = _fill_records(buf, kind, t, cid, ext, dlc, data, rx, o_chan, o_t, o_off, o_len)
+    frames = FrameBatch(t_ns=t[:k], can_id=cid[:k], is_extended=ext[:k], dlc=dlc[:k], data=data[:k], is_rx=rx[:k])
+    frames = frames.sort()
+    out = McapData(frames=frames, topics=topics, bad_can_messages=int(bad), fast_path=True)
+    out._other = (buf, o_chan[:m], o_t[:m], o_off[:m], o_len[:m])  # type: ignore[attr-defined]
+    _finish_topics(out, kind, counts)
+    return out
+
+
+def _finish_topics(out: McapData, kind: np.ndarray, counts: np.ndarray) -> None:
+    """Message counts per topic and the sorted log times of the non-CAN topics."""
+    _buf, o_chan, o_t, _o_off, _o_len = out._other  # type: ignore[attr-defined]
+    for topic, ti in list(out.topics.items()):
+        out.topics[topic] = TopicInfo(**{**ti.__dict__, "count": int(counts[ti.channel_id])})
+        if kind[ti.channel_id] != 1:
+            ts = o_t[o_chan == ti.channel_id]
+            out.times[topic] = ts[np.argsort(ts, kind="stable")]
+
+
+def _read_library(raw: bytes) -> McapData:
+    """The reference path: the ``mcap`` library's reader, one Python object per message."""
+    from mcap.reader import make_reader
+
+    reader = make_reader(io.BytesIO(raw))
+    t: list[int] = []
+    payload = bytearray()
+    o_chan: list[int] = []
+    o_t: list[int] = []
+    o_off: list[int] = []
+    o_len: list[int] = []
+    other = bytearray()
+    topics: dict[str, TopicInfo] = {}
+    kind = np.zeros(65536, np.int8)
+    bad = 0
+    counts = np.zeros(65536, np.int64)
+    for schema, channel, message in reader.iter_messages(log_time_order=True):
+        counts[channel.id] += 1
+        if channel.topic not in topics:
+            sname = schema.name if schema else ""
+            topics[channel.topic] = TopicInfo(
+                channel.topic, channel.id, channel.message_encoding, sname, schema.encoding if schema else "", 0
+            )
+            kind[channel.id] = 1 if sname == CAN_SCHEMA_NAME else 0
+        if kind[channel.id] == 1:
+            d = message.data
+            if len(d) != CAN_PAYLOAD_SIZE or d[:2] != CDR_HEADER[:2]:
+                bad += 1
+                continue
+            t.append(message.log_time)
+            payload += d
+        else:
+            o_chan.append(channel.id)
+            o_t.append(message.log_time)
+            o_off.append(len(other))
+            o_len.append(len(message.data))
+            other += message.data
+    # channels declared without messages (summary), when there is one
+    summary = reader.get_summary()
+    if summary is not None:
+        for cid, ch in summary.channels.items():
+            if ch.topic not in topics:
+                sch = summary.schemas.get(ch.schema_id)
+                sname = sch.name if sch else ""
+                kind[cid] = 1 if sname == CAN_SCHEMA_NAME else 0
+                topics[ch.topic] = TopicInfo(ch.topic, cid, ch.message_encoding, sname, sch.encoding if sch else "", 0)
+    n = len(t)
+    p = np.frombuffer(bytes(payload), np.uint8).reshape(n, CAN_PAYLOAD_SIZE)
+    frames = FrameBatch(
+        t_ns=np.array(t, np.int64),
+        can_id=p[:, 4:8].copy().view("<u4").reshape(n),
+        is_extended=p[:, 8] != 0,
+        dlc=p[:, 10],
+        data=p[:, 11:19],
+        is_rx=p[:, 9] != 0,
+    ).sort()
+    out = McapData(frames=frames, topics=topics, bad_can_messages=bad, fast_path=False)
+    out._other = (  # type: ignore[attr-defined]
+        np.frombuffer(bytes(other), np.uint8),
+        np.array(o_chan, np.uint16),
+        np.array(o_t, np.int64),
+        np.array(o_off, np.int64),
+        np.array(o_len, np.int64),
+    )
+    _finish_topics(out, kind, counts)
+    return out
+
+
+def _fill_json(data: McapData, json_topics: Iterable[str] | str | None, raw: bytes) -> None:
+    buf, o_chan, o_t, o_off, o_len = data._other  # type: ignore[attr-defined]
+    del data._other  # type: ignore[attr-defined]
+    if json_topics is None:
+        return
+    if json_topics == "all":
+        wanted = [t for t, ti in data.topics.items() if ti.message_encoding == "json"]
+    else:
+        wanted = [json_topics] if isinstance(json_topics, str) else list(json_topics)
+    for topic in wanted:
+        ti = data.topics.get(topic)
+        if ti is None:
+            raise LogFormatError(f"no topic {topic!r} in this MCAP file")
+        if ti.message_encoding != "json":
+            raise LogFormatError(f"topic {topic!r} is {ti.message_encoding!r}, not json")
+        idx = np.flatnonzero(o_chan == ti.channel_id)
+        idx = idx[np.argsort(o_t[idx], kind="stable")]
+        b = memoryview(buf)
+        offs = o_off[idx].tolist()
+        lens = o_len[idx].tolist()
+        text = b"[" + b",".join(b[o : o + n] for o, n in zip(offs, lens, strict=True)) + b"]"
+        try:
+            rows = json.loads(text)
+        except ValueError as exc:
+            raise LogFormatError(f"topic {topic!r}: a message is not valid JSON ({exc})") from exc
+        keys: dict[str, None] = {}
+        for r in rows:
+            if not isinstance(r, dict):
+                raise LogFormatError(f"topic {topic!r}: a message is not a JSON object")
+            for k in r:
+                keys.setdefault(k, None)
+        cols: dict[str, np.ndarray] = {"t_ns": o_t[idx].copy()}
+        nan = float("nan")
+        for k in keys:
+            vals = [r.get(k, nan) for r in rows]
+            cols[k] = np.array([nan if v is None else v for v in vals], dtype=np.float64)
+        data.json[topic] = cols
