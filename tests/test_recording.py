@@ -1,0 +1,181 @@
+"""Recording: round trip, flat JSON channels, recovery of an unfinished file, SIGKILL loses < ~1 s."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import can
+import numpy as np
+import pytest
+
+from lde.diagnostics import StepTiming
+from lde.errors import LogFormatError
+from lde.frames import seconds_to_ns
+from lde.logio.mcapfile import read_mcap
+from lde.recording import DIAG_TOPIC, ESTIMATE_TOPIC, INPUTS_TOPIC, Recorder, read_recording
+from lde.service import StepResult
+from lde.units import STEP_NS
+
+T0 = 1_700_000_000_000_000_000  # ns, an epoch-like time base
+
+
+def _result(k: int, rng: np.random.Generator) -> StepResult:
+    return StepResult(
+        t_ns=T0 + k * STEP_NS,
+        fw=float(rng.normal(0, 500)),
+        mw=float(rng.normal(0, 300)),
+        t_align=float(rng.normal(0, 10)),
+        t_overlay=float(rng.uniform(-3, 3)),
+        overlay_state=int(k % 5),
+        overlay_active=bool(k % 2),
+        status=int(rng.integers(0, 256)),
+        frames_used=int(k % 3),
+        timing=StepTiming(int(rng.integers(-100, 2_000_000)), 150_000, 300_000, False, k // 10),
+    )
+
+
+def _inputs(rng: np.random.Generator) -> SimpleNamespace:
+    return SimpleNamespace(
+        column_torque=float(rng.normal()),
+        assist_torque=float(rng.normal()),
+        steering_angle=0.01,
+        steering_rate=0.0,
+        yaw_rate=0.001,
+        lat_accel=0.1,
+        speed=27.0,
+        mdps_ok=True,
+        esc_ok=False,
+    )
+
+
+def _record(rec: Recorder, n: int, seed: int = 1) -> list[StepResult]:
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(n):
+        t = T0 + k * STEP_NS
+        rx = can.Message(timestamp=(t - 500_000) / 1e9, arbitration_id=0x2A0, data=bytes([k % 256] * 8))
+        tx = can.Message(timestamp=(t + 200_000) / 1e9, arbitration_id=0x3D1, data=bytes(range(8)))
+        rec.rx(rx)
+        res = _result(k, rng)
+        rec.step(res, _inputs(rng), e2e_rejects=k // 100, skipped=0)
+        rec.tx(tx)
+        out.append(res)
+    return out
+
+
+def test_round_trip_all_channels(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    with Recorder(path, metadata={"profile": "lde", "backend": "float"}) as rec:
+        results = _record(rec, 300)
+    r = read_recording(path)
+    assert r.complete
+    assert r.metadata["profile"] == "lde"
+    assert len(r.rx) == 300 and len(r.tx) == 300
+    assert r.rx.is_rx.all() and not r.tx.is_rx.any()
+    assert r.rx.t_ns[5] == seconds_to_ns((T0 + 5 * STEP_NS - 500_000) / 1e9)
+    assert r.rx.data[7].tolist() == [7] * 8
+    np.testing.assert_array_equal(r.step_times_ns, [x.t_ns for x in results])
+    # floats survive JSON exactly (repr round trip): replay compares bit for bit
+    np.testing.assert_array_equal(r.estimate["Fw"], [x.fw for x in results])
+    np.testing.assert_array_equal(r.estimate["T_overlay"], [x.t_overlay for x in results])
+    np.testing.assert_array_equal(r.estimate["status"], [x.status for x in results])
+    np.testing.assert_array_equal(r.estimate["deadline_miss"], [(x.status >> 7) & 1 for x in results])
+    assert r.inputs["speed"][0] == 27.0 and r.inputs["esc_ok"][0] == 0
+    assert r.diag["step_time_us"][0] == 150.0
+
+
+def test_file_is_readable_by_logio_and_flat_json(tmp_path: Path) -> None:
+    """The same file through lde.logio's reader: CAN frames and flat numeric JSON columns."""
+    path = tmp_path / "run.mcap"
+    with Recorder(path) as rec:
+        _record(rec, 50)
+    d = read_mcap(path, json_topics=[ESTIMATE_TOPIC, DIAG_TOPIC, INPUTS_TOPIC])
+    assert len(d.frames) == 100
+    for topic in (ESTIMATE_TOPIC, DIAG_TOPIC, INPUTS_TOPIC):
+        cols = d.json[topic]
+        assert len(cols["t_ns"]) == 50
+        for name, col in cols.items():
+            assert col.dtype.kind in "fi", (topic, name)
+
+
+def test_recovers_file_without_footer(tmp_path: Path) -> None:
+    """A copy taken while the recorder is open (as after a SIGKILL) has no footer and still reads."""
+    path = tmp_path / "open.mcap"
+    rec = Recorder(path, flush_interval_s=3600.0)  # the thread never flushes on its own here
+    try:
+        _record(rec, 200)
+        rec._drain()  # what the writer thread does every flush interval
+        _record(rec, 50, seed=2)  # queued, not yet written: lost in a crash
+        copy = tmp_path / "crashed.mcap"
+        shutil.copyfile(path, copy)
+    finally:
+        rec.close()
+    r = read_recording(copy)
+    assert not r.complete
+    assert len(r.step_times_ns) == 200
+    assert len(r.rx) == 200
+    # and a file cut in the middle of a chunk: everything before that chunk survives
+    raw = copy.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(raw[: len(raw) - 100])
+    r2 = read_recording(cut)
+    assert 0 < len(r2.step_times_ns) <= 200
+    np.testing.assert_array_equal(r2.step_times_ns, r.step_times_ns[: len(r2.step_times_ns)])
+
+
+def test_not_mcap_is_a_clear_error(tmp_path: Path) -> None:
+    p = tmp_path / "x.mcap"
+    p.write_bytes(b"hello world, not mcap")
+    with pytest.raises(LogFormatError):
+        read_recording(p)
+
+
+_CHILD = textwrap.dedent(
+    """
+    import sys, time
+    import numpy as np
+    sys.path.insert(0, {tests!r})
+    from test_recording import _result, _inputs
+    from lde.recording import Recorder
+    from lde.units import STEP_NS
+    import dataclasses
+    rec = Recorder({path!r})
+    rng = np.random.default_rng(0)
+    k = 0
+    print("ready", flush=True)
+    while True:
+        res = dataclasses.replace(_result(k, rng), t_ns=time.time_ns())
+        rec.step(res, _inputs(rng))
+        k += 1
+        time.sleep(STEP_NS / 1e9)
+    """
+)
+
+
+def test_sigkill_loses_at_most_about_one_second(tmp_path: Path) -> None:
+    path = tmp_path / "killed.mcap"
+    code = _CHILD.format(tests=str(Path(__file__).parent), path=str(path))
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, env=env)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == b"ready"
+        time.sleep(2.0)
+        t_kill = time.time_ns()
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    r = read_recording(path)
+    assert not r.complete
+    assert len(r.step_times_ns) > 0
+    lost_s = (t_kill - int(r.step_times_ns[-1])) / 1e9
+    assert lost_s < 1.0, f"the last {lost_s:.2f} s were lost"
