@@ -1,0 +1,280 @@
+"""Identify the linear-equivalent tire parameters from a drive without disturbance (issue 6, item 4).
+
+Inputs are the estimator's SI inputs on the step grid (:class:`DriveData`): steering-wheel angle
+and rate, yaw rate, lateral acceleration, speed, column and assist torque. The body parameters
+(m, Iz, lf, lr, N) come from a base vehicle file; identified are the per-tire cornering
+stiffnesses ``Cf``, ``Cr``, the aligning-torque rate ``K``, and — because they bias the estimate
+exactly like a disturbance would — the steering Coulomb friction, a steering-angle offset and an
+aligning-torque (torque-sensor) offset.
+
+Method (least squares on the bicycle-model equations, no disturbance: Fw = Mw = 0). With
+``a_y`` the measured lateral acceleration and ``r_dot`` the derivative of the yaw rate, eqs. (7)-(8)
+give the per-tire axle forces from measurements and body parameters only:
+
+    2 F_f = (lr m a_y + Iz r_dot) / L          2 F_r = (lf m a_y - Iz r_dot) / L          (a)
+
+Eq. (9): ``alpha_f - alpha_r = delta_f - L r / vx`` (beta cancels). With ``F = C alpha`` and a
+road-wheel angle offset ``d0`` (measured delta_f = true delta_f + d0):
+
+    delta_f,meas - L r / vx = F_f (1/Cf) - F_r (1/Cr) + d0                                 (b)
+
+linear in the compliances (1/Cf, 1/Cr) and d0. Transients (r_dot != 0) separate Cf from Cr; a
+steady-state-only drive gives only the understeer gradient (the fit reports its conditioning).
+Eq. (12) with alpha_f = F_f / Cf, plus the column friction the paper neglects (eq. 11):
+
+    N (T_column + T_assist) = (K/Cf) 2 F_f + N T_fric S(tanh(delta_sw_dot / w)) + T_0       (c)
+
+linear in the trail ``K/Cf`` [m], the Coulomb friction ``T_fric`` [Nm at the column] and the
+offset ``T_0`` [Nm]; ``K = Cf (K/Cf)``. ``w`` (:data:`FRICTION_RATE_WIDTH`) smooths the sign and
+``S`` is the low-pass below, applied to the regressor as to the torque it explains.
+
+All signals go through the same zero-phase Gaussian low-pass (sigma :data:`SMOOTH_S`) before
+``r_dot`` is taken, so that no signal leads another. Samples are used where the speed exceeds
+the estimator's minimum speed and the lateral acceleration stays in the tires' linear range
+(|a_y| < :data:`MAX_LAT_ACCEL`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ConfigError, LdeError
+from .params import VEHICLE_DIR, Vehicle
+from .units import DEG, KMH
+
+#: zero-phase Gaussian smoothing of every signal before differentiation [s]
+SMOOTH_S = 0.04
+#: the linear tire range used for the fit [m/s^2]
+MAX_LAT_ACCEL = 4.0
+#: steering-wheel rate scale of the smoothed friction sign tanh(rate / w) [rad/s]
+FRICTION_RATE_WIDTH = 2.0 * DEG
+#: a (b) regression worse conditioned than this cannot separate Cf from Cr
+MAX_COND = 1.0e4
+#: fewer usable samples than this is an error
+MIN_SAMPLES = 500
+
+
+class CalibrationError(LdeError, ValueError):
+    """The drive cannot identify the parameters (too short, too slow, no excitation)."""
+
+
+@dataclass(frozen=True)
+class DriveData:
+    """Estimator inputs on the step grid (SI; ISO 8855 signs), one row per step.
+
+    Attributes:
+        t: time [s]; steering_angle: steering wheel [rad]; steering_rate: steering wheel [rad/s];
+        yaw_rate [rad/s]; lat_accel [m/s^2]; speed [m/s]; column_torque [Nm]; assist_torque [Nm]
+        (motor assist referred to the column); valid: bool, the row's inputs are fresh and trusted.
+    """
+
+    t: np.ndarray
+    steering_angle: np.ndarray
+    steering_rate: np.ndarray
+    yaw_rate: np.ndarray
+    lat_accel: np.ndarray
+    speed: np.ndarray
+    column_torque: np.ndarray
+    assist_torque: np.ndarray
+    valid: np.ndarray
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Identified parameters (SI) and fit diagnostics.
+
+    Attributes:
+        cf, cr: cornering stiffness per tire [N/rad].
+        align_rate: K, aligning-torque rate per front tire [Nm/rad].
+        trail: K / Cf [m] (pneumatic plus mechanical trail).
+        friction: Coulomb friction of the steering referred to the column [Nm].
+        steer_offset: steering-wheel angle offset [rad] (measured minus true).
+        align_offset: offset of N (T_column + T_assist) [Nm] at the steering axis.
+        n: samples used; rms_slip: residual of (b) [rad]; rms_align: residual of (c) [Nm].
+        cond: condition number of the (b) regression (large: Cf and Cr not separable).
+    """
+
+    cf: float
+    cr: float
+    align_rate: float
+    trail: float
+    friction: float
+    steer_offset: float
+    align_offset: float
+    n: int
+    rms_slip: float
+    rms_align: float
+    cond: float
+
+    def summary(self) -> str:
+        return (
+            f"Cf = {self.cf:.0f} N/rad, Cr = {self.cr:.0f} N/rad, K = {self.align_rate:.0f} Nm/rad "
+            f"(trail {1000 * self.trail:.1f} mm), steering friction {self.friction:.3f} Nm at the column, "
+            f"steering-angle offset {self.steer_offset / DEG:.2f} deg, T_align offset {self.align_offset:.2f} Nm; "
+            f"{self.n} samples, residuals {self.rms_slip / DEG:.3f} deg and {self.rms_align:.2f} Nm, "
+            f"cond {self.cond:.0f}"
+        )
+
+
+def gaussian_smooth(x: np.ndarray, sigma_samples: float) -> np.ndarray:
+    """Zero-phase Gaussian low-pass (kernel truncated at 4 sigma; edges by point reflection)."""
+    x = np.asarray(x, dtype=np.float64)
+    if sigma_samples <= 0.0:
+        return x.copy()
+    half = max(1, int(math.ceil(4.0 * sigma_samples)))
+    k = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma_samples) ** 2)
+    k /= k.sum()
+    if x.size <= half:
+        return np.full_like(x, x.mean() if x.size else 0.0)
+    # point reflection about the end samples keeps a linear trend through the edges
+    padded = np.concatenate([2.0 * x[0] - x[half:0:-1], x, 2.0 * x[-1] - x[-2 : -half - 2 : -1]])
+    return np.convolve(padded, k, mode="valid")
+
+
+def calibrate(drive: DriveData, base: Vehicle, *, smooth_s: float = SMOOTH_S) -> Calibration:
+    """Least-squares identification of Cf, Cr, K, friction and offsets (module docstring (a)-(c))."""
+    t = np.asarray(drive.t, dtype=np.float64)
+    n_all = t.size
+    if n_all < MIN_SAMPLES:
+        raise CalibrationError(f"the drive has {n_all} samples; at least {MIN_SAMPLES} are needed")
+    dt = float(np.median(np.diff(t)))
+    if not dt > 0.0:
+        raise CalibrationError("drive time must increase")
+    b = base.body
+    m, iz, lf, lr, L, N = b.mass, b.yaw_inertia, b.lf, b.lr, b.wheelbase, base.steering.ratio
+    sig = smooth_s / dt
+
+    def sm(a: np.ndarray) -> np.ndarray:
+        a = np.asarray(a, dtype=np.float64)
+        if a.shape != t.shape:
+            raise CalibrationError(f"signal of shape {a.shape} does not match time {t.shape}")
+        return gaussian_smooth(np.where(np.isfinite(a), a, 0.0), sig)
+
+    r = sm(drive.yaw_rate)
+    ay = sm(drive.lat_accel)
+    vx = sm(drive.speed)
+    delta_f = sm(drive.steering_angle) / N
+    # the friction regressor is smoothed like the torque it explains (a smoothed sign step)
+    fric_sign = sm(np.tanh(np.asarray(drive.steering_rate, dtype=np.float64) / FRICTION_RATE_WIDTH))
+    t_align = N * (sm(drive.column_torque) + sm(drive.assist_torque))
+    r_dot = np.gradient(r, t)
+
+    ok = np.asarray(drive.valid, dtype=bool).copy()
+    for a in (drive.yaw_rate, drive.lat_accel, drive.speed, drive.steering_angle, drive.column_torque):
+        ok &= np.isfinite(np.asarray(a, dtype=np.float64))
+    # a bad sample spoils its smoothing neighbourhood: widen the mask by the kernel half width
+    bad = gaussian_smooth((~ok).astype(np.float64), sig) > 1e-3
+    use = ~bad & (vx > base.estimator.min_speed) & (np.abs(ay) < MAX_LAT_ACCEL)
+    edge = int(math.ceil(4.0 * sig))
+    use[:edge] = False
+    use[n_all - edge :] = False
+    n = int(np.count_nonzero(use))
+    if n < MIN_SAMPLES:
+        raise CalibrationError(
+            f"only {n} usable samples (speed above {base.estimator.min_speed / KMH:.0f} km/h, "
+            f"|a_y| < {MAX_LAT_ACCEL} m/s^2, valid inputs); at least {MIN_SAMPLES} are needed"
+        )
+
+    # (a) per-tire axle forces from the measurements
+    ff = (lr * m * ay + iz * r_dot) / (2.0 * L)
+    fr = (lf * m * ay - iz * r_dot) / (2.0 * L)
+    # (b) delta_f - L r / vx = Ff/Cf - Fr/Cr + d0
+    X1 = np.column_stack([ff[use], -fr[use], np.ones(n)])
+    y1 = delta_f[use] - L * r[use] / vx[use]
+    col = np.linalg.norm(X1, axis=0)
+    if np.any(col == 0.0):
+        raise CalibrationError("no lateral excitation in the drive (no steering)")
+    c1, *_ = np.linalg.lstsq(X1 / col, y1, rcond=None)
+    c1 = c1 / col
+    cond = float(np.linalg.cond(X1 / col))
+    comp_f, comp_r, d0 = (float(v) for v in c1)
+    if cond > MAX_COND:
+        raise CalibrationError(
+            f"the drive cannot separate Cf from Cr (condition number {cond:.3g}): it needs transient "
+            "steering such as a lane change or a slalom, not only steady cornering"
+        )
+    if not (comp_f > 0.0 and comp_r > 0.0):
+        raise CalibrationError(
+            f"identified compliances are not positive (1/Cf = {comp_f:.3g}, 1/Cr = {comp_r:.3g} rad/N): "
+            "the drive lacks transient steering (a lane change or a slalom identifies Cf and Cr)"
+        )
+    cf, cr = 1.0 / comp_f, 1.0 / comp_r
+    res1 = y1 - X1 @ c1
+    # (c) N (Tcol + Tassist) = trail 2Ff + N T_fric tanh(rate/w) + T_0
+    X2 = np.column_stack([2.0 * ff[use], N * fric_sign[use], np.ones(n)])
+    y2 = t_align[use]
+    c2, *_ = np.linalg.lstsq(X2, y2, rcond=None)
+    trail, fric, t0 = (float(v) for v in c2)
+    res2 = y2 - X2 @ c2
+    if not trail > 0.0:
+        raise CalibrationError(f"identified trail K/Cf = {trail:.3g} m is not positive")
+    return Calibration(
+        cf=cf,
+        cr=cr,
+        align_rate=trail * cf,
+        trail=trail,
+        friction=fric,
+        steer_offset=d0 * N,
+        align_offset=t0,
+        n=n,
+        rms_slip=float(np.sqrt(np.mean(res1**2))),
+        rms_align=float(np.sqrt(np.mean(res2**2))),
+        cond=cond,
+    )
+
+
+def vehicle_toml(cal: Calibration, base: Vehicle, name: str = "calibrated", log: str = "") -> str:
+    """A vehicle file that ``extends`` the base vehicle and overrides ``[tires]``.
+
+    Friction and offsets are written as comments: the vehicle schema has no keys for them yet.
+    """
+    src = Path(base.source) if base.source else None
+    if src is not None and src.parent == VEHICLE_DIR:
+        extends = src.stem
+    elif src is not None and src.exists():
+        extends = str(src.resolve())
+    else:
+        extends = base.name
+    from_log = f" from {log}" if log else ""
+    lines = [
+        f"# Written by `lde calibrate`{from_log}: linear-equivalent tire parameters identified by least",
+        "# squares on the bicycle-model equations over a drive without disturbance (src/lde/calibrate.py).",
+        f"# {cal.n} samples; residuals {cal.rms_slip / DEG:.4f} deg (slip balance) and "
+        f"{cal.rms_align:.3f} Nm (aligning torque); condition number {cal.cond:.1f}.",
+        f"# Also identified (not yet in the vehicle schema): steering Coulomb friction {cal.friction:.3f} Nm "
+        "at the column,",
+        f"# steering-wheel angle offset {cal.steer_offset / DEG:.3f} deg, "
+        f"T_align offset {cal.align_offset:.3f} Nm.",
+        f"extends = {_toml_str(extends)}",
+        f"name = {_toml_str(name)}",
+        f"description = {_toml_str(f'{base.name} with tires calibrated by lde calibrate{from_log}')}",
+        "",
+        "[tires]",
+        f"cf_N_per_rad = {cal.cf:.1f}",
+        f"cr_N_per_rad = {cal.cr:.1f}",
+        f"align_rate_Nm_per_rad = {cal.align_rate:.1f}",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _toml_str(s: str) -> str:
+    return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def write_vehicle(
+    cal: Calibration, base: Vehicle, path: Path, name: str = "calibrated", log: str = ""
+) -> Path:
+    """Write :func:`vehicle_toml` to ``path`` and check that it loads."""
+    from .params import load_vehicle
+
+    try:
+        path.write_text(vehicle_toml(cal, base, name=name, log=log))
+    except OSError as exc:
+        raise ConfigError(f"cannot write {path}: {exc}") from exc
+    load_vehicle(path)
+    return path
