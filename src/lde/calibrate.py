@@ -114,7 +114,8 @@ class Calibration:
         return (
             f"Cf = {self.cf:.0f} N/rad, Cr = {self.cr:.0f} N/rad, K = {self.align_rate:.0f} Nm/rad "
             f"(trail {1000 * self.trail:.1f} mm), steering friction {self.friction:.3f} Nm at the column, "
-            f"steering-angle offset {self.steer_offset / DEG:.2f} deg, T_align offset {self.align_offset:.2f} Nm; "
+            f"steering-angle offset {self.steer_offset / DEG:.2f} deg, "
+            f"T_align offset {self.align_offset:.2f} Nm; "
             f"{self.n} samples, residuals {self.rms_slip / DEG:.3f} deg and {self.rms_align:.2f} Nm, "
             f"cond {self.cond:.0f}"
         )
