@@ -20,11 +20,14 @@ from ..frames import FrameBatch
 from .candump import format_candump, looks_like_candump, parse_candump_bytes, write_candump
 from .mcapfile import (
     CAN_SCHEMA_NAME,
+    CAN_SCHEMA_TEXT,
     TOPIC_RX,
     TOPIC_TX,
     McapData,
     McapWriter,
     TopicInfo,
+    can_payload,
+    can_payloads,
     read_mcap,
 )
 
@@ -41,6 +44,9 @@ __all__ = [
     "TopicInfo",
     "read_mcap",
     "CAN_SCHEMA_NAME",
+    "CAN_SCHEMA_TEXT",
+    "can_payload",
+    "can_payloads",
     "TOPIC_RX",
     "TOPIC_TX",
 ]
@@ -73,7 +79,11 @@ class ReadStats:
     @property
     def skipped(self) -> int:
         return (
-            self.error_frames + self.remote_frames + self.malformed_lines + self.truncated_last_line + self.bad_messages
+            self.error_frames
+            + self.remote_frames
+            + self.malformed_lines
+            + self.truncated_last_line
+            + self.bad_messages
         )
 
 
@@ -121,7 +131,7 @@ def detect_format(path: str | Path) -> str:
     if suffix in CANDUMP_SUFFIXES or suffix not in _pycan_suffixes():
         if looks_like_candump(head):
             return "candump"
-        if suffix in CANDUMP_SUFFIXES and suffix not in (".log",):
+        if suffix in CANDUMP_SUFFIXES:
             raise LogFormatError(f"{p}: not a candump -L log (first line does not parse)")
     if suffix in _pycan_suffixes():
         return suffix.lstrip(".")
@@ -137,7 +147,9 @@ def _pycan_suffixes() -> set[str]:
     return pycan_suffixes() - {".mcap"}
 
 
-def read_log(path: str | Path, *, fmt: str | None = None, json_topics: Iterable[str] | str | None = None) -> LogData:
+def read_log(
+    path: str | Path, *, fmt: str | None = None, json_topics: Iterable[str] | str | None = None
+) -> LogData:
     """Read a CAN log into a :class:`LogData` (format by :func:`detect_format` unless ``fmt``).
 
     Raises:
@@ -169,7 +181,9 @@ def read_log(path: str | Path, *, fmt: str | None = None, json_topics: Iterable[
 
         parsed_pc = read_pycan(p)
         stats = ReadStats(
-            frames=len(parsed_pc.frames), error_frames=parsed_pc.error_frames, remote_frames=parsed_pc.remote_frames
+            frames=len(parsed_pc.frames),
+            error_frames=parsed_pc.error_frames,
+            remote_frames=parsed_pc.remote_frames,
         )
         out = LogData(p, fmt, parsed_pc.frames.sort(), stats)
     if len(out.frames) == 0:

@@ -12,8 +12,9 @@ Line format (one frame per line)::
 Timestamps are parsed from their text to integer nanoseconds exactly (seconds and up to 9 fraction
 digits; more digits are truncated), never through a float. The parser is a numba kernel over the raw
 bytes so that a million-line log reads in well under a second. Remote and error frames carry no
-payload for lde and are skipped with a count; a line that does not parse is counted as malformed, and
-a malformed *last* line without a newline (a log cut while being written) is counted as truncated.
+payload for lde and are skipped with a count; a line that does not parse is counted as malformed.
+candump ends every line with a newline, so a last line *without* one is a log cut while being written:
+it is skipped and counted as truncated even if what is left of it parses (its payload may be cut).
 Classic frames may carry python-can's ``_<dlc>`` suffix (len8_dlc), which is ignored.
 """
 
@@ -243,11 +244,15 @@ def parse_candump_bytes(raw: bytes | bytearray | memoryview) -> CandumpParse:
     # the kernel sees an empty last "line" after a final newline: it is blank
     truncated = 0
     bad = status == ST_MALFORMED
-    if not ends_with_newline and bad[n_lines - 1]:
+    if not ends_with_newline and status[n_lines - 1] != ST_BLANK:
         truncated = 1
         bad[n_lines - 1] = False
+        if status[n_lines - 1] == ST_FRAME:
+            k -= 1  # frames are packed in line order: the last line's frame is the last row
     bad_idx = np.flatnonzero(bad)
-    frames = FrameBatch(t_ns=t[:k], can_id=cid[:k], is_extended=ext[:k], dlc=dlc[:k], data=data[:k], is_rx=rx[:k])
+    frames = FrameBatch(
+        t_ns=t[:k], can_id=cid[:k], is_extended=ext[:k], dlc=dlc[:k], data=data[:k], is_rx=rx[:k]
+    )
     return CandumpParse(
         frames=frames,
         lines=n_lines - (1 if ends_with_newline else 0),
@@ -263,7 +268,7 @@ def looks_like_candump(head: bytes) -> bool:
     """Content sniffing: does the first non-blank line of ``head`` parse as a candump ``-L`` line?"""
     for line in head.splitlines():
         if line.strip():
-            p = parse_candump_bytes(line + b"\n")
+            p = parse_candump_bytes(line.rstrip(b"\r\n") + b"\n")
             return len(p.frames) + p.error_frames + p.remote_frames == 1
     return False
 

@@ -55,7 +55,12 @@ class McapCanWriter(MessageWriter):
             return
         data = bytes(msg.data or b"")
         self._writer.write_frame(
-            seconds_to_ns(msg.timestamp), int(msg.arbitration_id), bool(msg.is_extended_id), len(data), data, bool(msg.is_rx)
+            seconds_to_ns(msg.timestamp),
+            int(msg.arbitration_id),
+            bool(msg.is_extended_id),
+            len(data),
+            data,
+            bool(msg.is_rx),
         )
 
     def stop(self) -> None:

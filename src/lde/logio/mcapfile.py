@@ -69,6 +69,8 @@ __all__ = [
     "TopicInfo",
     "read_mcap",
     "can_payloads",
+    "can_payload",
+    "CDR_HEADER",
 ]
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -210,6 +212,16 @@ def _map_str(d: Mapping[str, str]) -> bytes:
     return struct.pack("<I", len(body)) + body
 
 
+def can_payload(can_id: int, is_extended: bool, is_rx: bool, dlc: int, data: bytes) -> bytes:
+    """CDR payload (19 bytes) of one CAN frame on ``/can/rx``/``/can/tx`` (layout in the module doc).
+
+    For writers that use the ``mcap`` library directly (the live recorder): register the schema
+    ``CAN_SCHEMA_NAME`` / ``"ros2msg"`` / ``CAN_SCHEMA_TEXT`` and channels with encoding ``"cdr"``.
+    """
+    d = bytes(data[:8]).ljust(8, b"\x00")
+    return CDR_HEADER + struct.pack("<I??B", int(can_id), bool(is_extended), bool(is_rx), int(dlc)) + d
+
+
 def can_payloads(frames: FrameBatch) -> np.ndarray:
     """CDR payloads of ``frames`` as a ``uint8[n, 19]`` array (layout in the module doc)."""
     n = len(frames)
@@ -313,7 +325,9 @@ class McapWriter:
         self._write(rec)
         return sid
 
-    def _add_channel(self, topic: str, encoding: str, schema_id: int, meta: Mapping[str, str] | None = None) -> int:
+    def _add_channel(
+        self, topic: str, encoding: str, schema_id: int, meta: Mapping[str, str] | None = None
+    ) -> int:
         if topic in self._topics.values():
             raise ValueError(f"MCAP channel {topic!r} registered twice")
         cid = len(self._channels) + 1
@@ -328,7 +342,10 @@ class McapWriter:
 
     # ------------------------------------------------------------------ public API
     def add_json_channel(
-        self, topic: str, schema_props: Mapping[str, Mapping[str, Any]] | Iterable[str], title: str | None = None
+        self,
+        topic: str,
+        schema_props: Mapping[str, Mapping[str, Any]] | Iterable[str],
+        title: str | None = None,
     ) -> int:
         """Register a JSON channel of flat objects; returns its channel id.
 
@@ -338,8 +355,14 @@ class McapWriter:
         """
         if not isinstance(schema_props, Mapping):
             schema_props = {k: {"type": "number"} for k in schema_props}
-        schema = {"type": "object", "title": title or topic, "properties": {k: dict(v) for k, v in schema_props.items()}}
-        sid = self._add_schema(title or topic.strip("/").replace("/", "_"), "jsonschema", json.dumps(schema).encode())
+        schema = {
+            "type": "object",
+            "title": title or topic,
+            "properties": {k: dict(v) for k, v in schema_props.items()},
+        }
+        sid = self._add_schema(
+            title or topic.strip("/").replace("/", "_"), "jsonschema", json.dumps(schema).encode()
+        )
         cid = self._add_channel(topic, "json", sid)
         self._json_keys[cid] = tuple(schema_props)
         return cid
@@ -359,12 +382,15 @@ class McapWriter:
             self._seq[c] += k
             self._counts[c] += k
         off = np.arange(n, dtype=np.int64) * CAN_PAYLOAD_SIZE
-        self._queue(_Block(chan, seq, frames.t_ns.astype(np.int64), pay, off, np.full(n, CAN_PAYLOAD_SIZE, np.int64)))
+        self._queue(
+            _Block(chan, seq, frames.t_ns.astype(np.int64), pay, off, np.full(n, CAN_PAYLOAD_SIZE, np.int64))
+        )
 
-    def write_frame(self, t_ns: int, can_id: int, is_extended: bool, dlc: int, data: bytes, is_rx: bool) -> None:
+    def write_frame(
+        self, t_ns: int, can_id: int, is_extended: bool, dlc: int, data: bytes, is_rx: bool
+    ) -> None:
         """Queue one CAN frame (the live recorder's path)."""
-        d = bytes(data[:8]).ljust(8, b"\x00")
-        pay = CDR_HEADER + struct.pack("<I??B", can_id, bool(is_extended), bool(is_rx), dlc) + d
+        pay = can_payload(can_id, is_extended, is_rx, dlc, data)
         self._queue_single(self.rx_channel if is_rx else self.tx_channel, int(t_ns), pay)
 
     def write_json(self, channel_id: int, t_ns: int, record: Mapping[str, Any]) -> None:
@@ -373,7 +399,9 @@ class McapWriter:
             raise ValueError(f"channel {channel_id} is not a JSON channel of this writer")
         self._queue_single(channel_id, int(t_ns), json.dumps(_plain(record), allow_nan=True).encode())
 
-    def write_json_columns(self, channel_id: int, t_ns: np.ndarray, columns: Mapping[str, np.ndarray]) -> None:
+    def write_json_columns(
+        self, channel_id: int, t_ns: np.ndarray, columns: Mapping[str, np.ndarray]
+    ) -> None:
         """Queue one JSON message per row of ``columns`` (bulk form of :meth:`write_json`)."""
         if channel_id not in self._json_keys:
             raise ValueError(f"channel {channel_id} is not a JSON channel of this writer")
@@ -414,7 +442,9 @@ class McapWriter:
         out = np.empty(int(rec_end[-1]), np.uint8)
         _build_records(order, chan, seq, t, pay, off, length, out, rec_off)
         # chunk boundaries: cut after the record that crosses each multiple of chunk_size
-        cuts = np.searchsorted(rec_end, np.arange(self._chunk_size, int(rec_end[-1]), self._chunk_size), side="left")
+        cuts = np.searchsorted(
+            rec_end, np.arange(self._chunk_size, int(rec_end[-1]), self._chunk_size), side="left"
+        )
         bounds = np.unique(np.concatenate([[0], cuts + 1, [order.size]]))
         bounds = bounds[bounds <= order.size]
         for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
@@ -521,13 +551,15 @@ class McapWriter:
         ts = t[idx]
         t0, t1 = int(ts.min()), int(ts.max())
         if self._compression == "zstd":
-            comp = zstandard.ZstdCompressor(level=1).compress(raw)
+            comp = zstandard.ZstdCompressor(level=1, write_checksum=True).compress(raw)
         elif self._compression == "lz4":
             comp = lz4frame.compress(raw)
         else:
             comp = raw
         body = struct.pack("<QQQI", t0, t1, len(raw), zlib.crc32(raw)) + _str(self._compression)
-        chunk_rec = struct.pack("<BQ", OP_CHUNK, len(body) + 8 + len(comp)) + body + struct.pack("<Q", len(comp))
+        chunk_rec = (
+            struct.pack("<BQ", OP_CHUNK, len(body) + 8 + len(comp)) + body + struct.pack("<Q", len(comp))
+        )
         chunk_start = self._f.tell()
         self._write(chunk_rec)
         self._write(comp)
@@ -652,7 +684,7 @@ def read_mcap(
     *,
     require_can: bool = True,
     force_library: bool = False,
-    validate_crcs: bool = False,
+    validate_crcs: bool = True,
 ) -> McapData:
     """Read an lde MCAP file (layout in the module doc).
 
@@ -660,7 +692,7 @@ def read_mcap(
         json_topics: JSON topics to return as columns (``"all"`` for every JSON channel).
         require_can: raise :class:`LogFormatError` if the file has no CAN channel.
         force_library: use the ``mcap`` library's per-message reader (the reference path).
-        validate_crcs: check each chunk's CRC-32 (costs ~10% of the read time).
+        validate_crcs: check each chunk's CRC-32 (a corrupt chunk then always raises).
 
     Raises:
         LogFormatError: not an MCAP file, corrupt, or (with ``require_can``) no CAN channel.
@@ -689,7 +721,9 @@ def read_mcap(
         raise LogFormatError(f"{p}: corrupt MCAP file ({type(exc).__name__}: {exc})") from exc
     if require_can and not any(ti.schema_name == CAN_SCHEMA_NAME for ti in data.topics.values()):
         names = ", ".join(sorted(data.topics)) or "none"
-        raise LogFormatError(f"{p}: no CAN channel (schema {CAN_SCHEMA_NAME}) in this MCAP file; topics: {names}")
+        raise LogFormatError(
+            f"{p}: no CAN channel (schema {CAN_SCHEMA_NAME}) in this MCAP file; topics: {names}"
+        )
     _fill_json(data, json_topics, raw)
     return data
 
@@ -702,7 +736,9 @@ def _read_fast(raw: bytes, summary, validate_crcs: bool) -> McapData:
         sname = sch.name if sch else ""
         if sname == CAN_SCHEMA_NAME:
             kind[cid] = 1
-        topics[ch.topic] = TopicInfo(ch.topic, cid, ch.message_encoding, sname, sch.encoding if sch else "", 0)
+        topics[ch.topic] = TopicInfo(
+            ch.topic, cid, ch.message_encoding, sname, sch.encoding if sch else "", 0
+        )
     mv = memoryview(raw)
 
     def load(ci) -> bytes:
@@ -718,7 +754,9 @@ def _read_fast(raw: bytes, summary, validate_crcs: bool) -> McapData:
             raise LogFormatError(f"chunk at offset {o} runs past the end of the file (truncated?)")
         out = _decompress(comp, mv[start : start + dlen], usize)
         if len(out) != usize:
-            raise LogFormatError(f"chunk at offset {o}: {len(out)} bytes after decompression, expected {usize}")
+            raise LogFormatError(
+                f"chunk at offset {o}: {len(out)} bytes after decompression, expected {usize}"
+            )
         if validate_crcs and ucrc and zlib.crc32(out) != ucrc:
             raise LogFormatError(f"chunk at offset {o}: CRC mismatch")
         return out
@@ -745,7 +783,9 @@ def _read_fast(raw: bytes, summary, validate_crcs: bool) -> McapData:
     o_off = np.empty(n_other, np.int64)
     o_len = np.empty(n_other, np.int64)
     k, m, bad = _fill_records(buf, kind, t, cid, ext, dlc, data, rx, o_chan, o_t, o_off, o_len)
-    frames = FrameBatch(t_ns=t[:k], can_id=cid[:k], is_extended=ext[:k], dlc=dlc[:k], data=data[:k], is_rx=rx[:k])
+    frames = FrameBatch(
+        t_ns=t[:k], can_id=cid[:k], is_extended=ext[:k], dlc=dlc[:k], data=data[:k], is_rx=rx[:k]
+    )
     frames = frames.sort()
     out = McapData(frames=frames, topics=topics, bad_can_messages=int(bad), fast_path=True)
     out._other = (buf, o_chan[:m], o_t[:m], o_off[:m], o_len[:m])  # type: ignore[attr-defined]
@@ -784,7 +824,12 @@ def _read_library(raw: bytes) -> McapData:
         if channel.topic not in topics:
             sname = schema.name if schema else ""
             topics[channel.topic] = TopicInfo(
-                channel.topic, channel.id, channel.message_encoding, sname, schema.encoding if schema else "", 0
+                channel.topic,
+                channel.id,
+                channel.message_encoding,
+                sname,
+                schema.encoding if schema else "",
+                0,
             )
             kind[channel.id] = 1 if sname == CAN_SCHEMA_NAME else 0
         if kind[channel.id] == 1:
@@ -808,7 +853,9 @@ def _read_library(raw: bytes) -> McapData:
                 sch = summary.schemas.get(ch.schema_id)
                 sname = sch.name if sch else ""
                 kind[cid] = 1 if sname == CAN_SCHEMA_NAME else 0
-                topics[ch.topic] = TopicInfo(ch.topic, cid, ch.message_encoding, sname, sch.encoding if sch else "", 0)
+                topics[ch.topic] = TopicInfo(
+                    ch.topic, cid, ch.message_encoding, sname, sch.encoding if sch else "", 0
+                )
     n = len(t)
     p = np.frombuffer(bytes(payload), np.uint8).reshape(n, CAN_PAYLOAD_SIZE)
     frames = FrameBatch(

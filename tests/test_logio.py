@@ -1,0 +1,330 @@
+"""lde.logio: candump -L, MCAP (fast path vs the mcap library), python-can formats, bad files."""
+
+from __future__ import annotations
+
+import io
+import struct
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from lde.errors import LogFormatError
+from lde.frames import FrameBatch
+from lde.logio import (
+    CAN_SCHEMA_NAME,
+    McapWriter,
+    detect_format,
+    parse_candump_bytes,
+    read_log,
+    read_mcap,
+    write_candump,
+)
+from lde.logio.mcap_can import McapCanReader, McapCanWriter
+
+T0 = 1_700_000_000_000_000_000  # ns
+
+
+def random_frames(n: int, seed: int = 0, us_exact: bool = True, classic: bool = False) -> FrameBatch:
+    rng = np.random.default_rng(seed)
+    t = T0 + np.sort(rng.integers(0, 60 * 10**9, n))
+    if us_exact:
+        t = t // 1000 * 1000
+    ext = rng.random(n) < 0.2
+    cid = np.where(ext, rng.integers(0, 1 << 29, n), rng.integers(0, 0x800, n))
+    dlc = rng.integers(0, 9, n)
+    if not classic:
+        dlc[rng.random(n) < 0.05] = 8  # classic only: FD beyond 8 bytes is lossy by design
+    data = rng.integers(0, 256, (n, 8)).astype(np.uint8)
+    data[np.arange(8)[None, :] >= dlc[:, None]] = 0
+    return FrameBatch(t_ns=t, can_id=cid, is_extended=ext, dlc=dlc, data=data, is_rx=rng.random(n) < 0.7)
+
+
+def assert_frames_equal(
+    a: FrameBatch, b: FrameBatch, fields=("t_ns", "can_id", "is_extended", "dlc", "data", "is_rx")
+):
+    assert len(a) == len(b)
+    for name in fields:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+# ----------------------------------------------------------------------------- candump
+def test_candump_line_kinds_and_exact_timestamps():
+    text = (
+        b"(1700000000.123456) vcan0 2A0#0011223344556677\n"
+        b"(1700000000.999999999) can1 12345678#0011 T\n"
+        b"(1700000001.2) vcan0 2A8##1001122334455667788990011\n"
+        b"(1700000001.300000) vcan0 2A0#R\n"
+        b"(1700000001.300001) vcan0 2A0#R8\n"
+        b"(1700000001.400000) vcan0 20000080#0000000000000000\n"
+        b"\n"
+        b"this is not a frame\n"
+        b"(1700000001.500000) vcan0 3D1#01_9\n"
+    )
+    p = parse_candump_bytes(text)
+    f = p.frames
+    # parsed from the text: no float rounding even at 1 ns resolution
+    assert f.t_ns.tolist() == [
+        1700000000123456000,
+        1700000000999999999,
+        1700000001200000000,
+        1700000001500000000,
+    ]
+    assert f.can_id.tolist() == [0x2A0, 0x12345678, 0x2A8, 0x3D1]
+    assert f.is_extended.tolist() == [False, True, False, False]
+    assert f.dlc.tolist() == [8, 2, 12, 1]
+    assert f.is_rx.tolist() == [True, False, True, True]
+    assert f.data[0].tolist() == [0x00, 0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77]
+    assert f.data[2].tolist() == [0x00, 0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77]  # first 8 FD bytes
+    assert f.data[3].tolist() == [1, 0, 0, 0, 0, 0, 0, 0]
+    assert (p.error_frames, p.remote_frames, p.malformed_lines, p.truncated_last_line) == (1, 2, 1, 0)
+    assert p.first_malformed_line == 8
+
+
+def test_candump_truncated_last_line_is_counted_not_fatal(tmp_path: Path):
+    frames = random_frames(50, classic=True)
+    path = tmp_path / "cut.log"
+    write_candump(path, frames)
+    raw = path.read_bytes()
+    path.write_bytes(raw[:-9])  # cut inside the last line (and its newline)
+    data = read_log(path)
+    assert data.format == "candump"
+    assert data.stats.truncated_last_line == 1
+    assert data.stats.malformed_lines == 0
+    assert_frames_equal(data.frames, frames[:-1])
+
+
+@pytest.mark.parametrize("us_exact", [True, False])
+def test_candump_round_trip(tmp_path: Path, us_exact: bool):
+    frames = random_frames(2000, seed=1, us_exact=us_exact, classic=True)
+    path = tmp_path / "x.log"
+    write_candump(path, frames)
+    back = read_log(path)
+    assert back.format == "candump"
+    assert back.stats.skipped == 0
+    assert_frames_equal(back.frames, frames)
+
+
+def test_candump_readable_by_python_can(tmp_path: Path):
+    frames = random_frames(100, seed=2, classic=True)
+    path = tmp_path / "x.log"
+    write_candump(path, frames)
+    msgs = list(can.LogReader(str(path)))
+    assert [m.arbitration_id for m in msgs] == frames.can_id.tolist()
+    assert [bytes(m.data) for m in msgs] == [frames.data[i, : frames.dlc[i]].tobytes() for i in range(100)]
+
+
+def test_candump_sniffed_without_suffix(tmp_path: Path):
+    frames = random_frames(10, classic=True)
+    path = tmp_path / "trace"
+    write_candump(path, frames)
+    assert detect_format(path) == "candump"
+
+
+# ----------------------------------------------------------------------------- MCAP
+def write_recording(
+    path: Path, frames: FrameBatch, compression: str = "zstd", chunk_size: int = 64 << 10
+) -> None:
+    with McapWriter(path, compression=compression, chunk_size=chunk_size) as w:
+        w.write_frames(frames)
+        est = w.add_json_channel("/lde/estimate", {"Fw": {"type": "number"}, "Mw": {"type": "number"}})
+        t = frames.t_ns[::7]
+        w.write_json_columns(est, t, {"Fw": np.arange(t.size) * 0.5, "Mw": -np.arange(t.size, dtype=float)})
+        w.write_json(est, int(frames.t_ns[3]) + 1, {"Fw": 1.25, "Mw": float("nan")})
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", ""])
+def test_mcap_fast_path_equals_library_reader(tmp_path: Path, compression: str):
+    frames = random_frames(5000, seed=3)
+    path = tmp_path / "x.mcap"
+    write_recording(path, frames, compression)
+    fast = read_mcap(path, json_topics="all", validate_crcs=True)
+    lib = read_mcap(path, json_topics="all", force_library=True)
+    assert fast.fast_path and not lib.fast_path
+    assert_frames_equal(fast.frames, frames)
+    assert_frames_equal(lib.frames, frames)
+    assert fast.topics == lib.topics
+    assert fast.topics["/can/rx"].count == int(frames.is_rx.sum())
+    assert fast.topics["/can/tx"].count == int((~frames.is_rx).sum())
+    assert fast.topics["/lde/estimate"].count == len(frames.t_ns[::7]) + 1
+    for k in ("t_ns", "Fw", "Mw"):
+        np.testing.assert_array_equal(fast.json["/lde/estimate"][k], lib.json["/lde/estimate"][k])
+    np.testing.assert_array_equal(fast.times["/lde/estimate"], fast.json["/lde/estimate"]["t_ns"])
+    assert np.isnan(fast.json["/lde/estimate"]["Mw"][1])  # the single write_json record, sorted in at t[3]+1
+
+
+def test_mcap_fast_path_matches_independent_library_iteration(tmp_path: Path):
+    """The mcap library's own SeekingReader (CRCs checked) sees the same messages we decode."""
+    from mcap.reader import make_reader
+
+    frames = random_frames(3000, seed=4)
+    path = tmp_path / "x.mcap"
+    write_recording(path, frames)
+    fast = read_mcap(path)
+    ids, ts = [], []
+    with path.open("rb") as fh:
+        reader = make_reader(fh, validate_crcs=True)
+        stats = reader.get_summary().statistics
+        for schema, _channel, message in reader.iter_messages(topics=["/can/rx", "/can/tx"]):
+            assert schema.name == CAN_SCHEMA_NAME
+            assert len(message.data) == 19
+            (cid,) = struct.unpack_from("<I", message.data, 4)
+            ids.append(cid)
+            ts.append(message.log_time)
+    assert ts == fast.frames.t_ns.tolist()
+    assert ids == fast.frames.can_id.tolist()
+    assert stats.message_count == len(frames) + len(frames.t_ns[::7]) + 1
+
+
+def test_mcap_without_chunks_uses_library_fallback(tmp_path: Path):
+    from mcap.writer import Writer
+
+    from lde.logio import CAN_SCHEMA_TEXT, can_payload
+
+    frames = random_frames(200, seed=5)
+    path = tmp_path / "plain.mcap"
+    with path.open("wb") as fh:
+        w = Writer(fh, use_chunking=False)
+        w.start()
+        sid = w.register_schema(CAN_SCHEMA_NAME, "ros2msg", CAN_SCHEMA_TEXT.encode())
+        rx = w.register_channel("/can/rx", "cdr", sid)
+        tx = w.register_channel("/can/tx", "cdr", sid)
+        for i in range(len(frames)):
+            pay = can_payload(
+                frames.can_id[i],
+                frames.is_extended[i],
+                frames.is_rx[i],
+                frames.dlc[i],
+                frames.data[i].tobytes(),
+            )
+            w.add_message(rx if frames.is_rx[i] else tx, int(frames.t_ns[i]), pay, int(frames.t_ns[i]))
+        w.finish()
+    data = read_mcap(path)
+    assert not data.fast_path
+    assert_frames_equal(data.frames, frames)
+
+
+def test_mcap_streaming_writer_many_flushes(tmp_path: Path):
+    frames = random_frames(3000, seed=6)
+    path = tmp_path / "s.mcap"
+    w = McapWriter(path, buffer_bytes=4096, chunk_size=2048)
+    for i in range(len(frames)):
+        w.write_frame(
+            int(frames.t_ns[i]),
+            int(frames.can_id[i]),
+            bool(frames.is_extended[i]),
+            int(frames.dlc[i]),
+            frames.data[i].tobytes(),
+            bool(frames.is_rx[i]),
+        )
+    w.close()
+    assert_frames_equal(read_mcap(path).frames, frames)
+    assert_frames_equal(read_mcap(path, force_library=True).frames, frames)
+
+
+def test_python_can_mcap_plugins(tmp_path: Path):
+    frames = random_frames(300, seed=7, classic=True)
+    path = tmp_path / "pc.mcap"
+    logger = can.Logger(str(path))
+    assert isinstance(logger, McapCanWriter)
+    for m in frames.to_messages():
+        logger.on_message_received(m)
+    logger.stop()
+    reader = can.LogReader(str(path))
+    assert isinstance(reader, McapCanReader)
+    msgs = list(reader)
+    assert [m.arbitration_id for m in msgs] == frames.can_id.tolist()
+    assert [m.is_rx for m in msgs] == frames.is_rx.tolist()
+    assert [bytes(m.data) for m in msgs] == [
+        frames.data[i, : frames.dlc[i]].tobytes() for i in range(len(frames))
+    ]
+    assert_frames_equal(read_log(path).frames, frames)
+
+
+# ----------------------------------------------------------------------------- python-can formats
+@pytest.mark.parametrize("suffix", [".asc", ".blf"])
+def test_python_can_formats_round_trip(tmp_path: Path, suffix: str):
+    frames = random_frames(500, seed=8, classic=True)
+    path = tmp_path / f"x{suffix}"
+    with can.Logger(str(path)) as logger:
+        for m in frames.to_messages(channel=0):
+            logger.on_message_received(m)
+    data = read_log(path)
+    assert data.format == suffix[1:]
+    assert_frames_equal(data.frames, frames, fields=("can_id", "is_extended", "dlc", "data"))
+    # ASC keeps timestamps relative to its start; both keep the spacing to the microsecond
+    dt = np.diff(data.frames.t_ns) - np.diff(frames.t_ns)
+    assert np.max(np.abs(dt)) <= 1000
+
+
+# ----------------------------------------------------------------------------- bad files
+def _bad_files(tmp: Path) -> dict[str, Path]:
+    good = tmp / "good.mcap"
+    write_recording(good, random_frames(2000, seed=9))
+    raw = good.read_bytes()
+    from mcap.reader import make_reader
+
+    with good.open("rb") as fh:
+        c0 = make_reader(fh).get_summary().chunk_indexes[1]
+    g = c0.chunk_start_offset + c0.chunk_length // 2  # inside the compressed records of chunk 1
+    files = {
+        "empty.log": b"",
+        "empty.mcap": b"",
+        "text.mcap": b"hello world\n",
+        "binary.log": bytes(range(256)) * 4,
+        "not_candump.log": b"this is not a log\nat all\n",
+        "cut.mcap": raw[: len(raw) // 2],
+        "garbled_chunk.mcap": raw[:g] + bytes(64) + raw[g + 64 :],
+        "bad.asc": b"date Mon Jan 1 00:00:00 2024\nbase hex timestamps absolute\n   garbage garbage\n",
+        "bad.blf": b"LOGG" + bytes(100),
+        "x.unknownsuffix": b"\x00\x01\x02",
+    }
+    out = {}
+    for name, content in files.items():
+        p = tmp / name
+        p.write_bytes(content)
+        out[name] = p
+    # a valid MCAP without CAN channels
+    from mcap.writer import Writer
+
+    p = tmp / "json_only.mcap"
+    with p.open("wb") as fh:
+        w = Writer(fh)
+        w.start()
+        sid = w.register_schema("x", "jsonschema", b"{}")
+        ch = w.register_channel("/truth", "json", sid)
+        w.add_message(ch, 1, b'{"a": 1}', 1)
+        w.finish()
+    out["json_only.mcap"] = p
+    return out
+
+
+def test_bad_files_raise_log_format_error(tmp_path: Path):
+    for name, path in _bad_files(tmp_path).items():
+        with pytest.raises(LogFormatError) as info:
+            read_log(path)
+        msg = str(info.value)
+        assert str(path) in msg, name
+        assert "\n" not in msg, name
+    with pytest.raises(LogFormatError, match="no such file"):
+        read_log(tmp_path / "missing.log")
+
+
+def test_json_only_mcap_names_its_topics(tmp_path: Path):
+    path = _bad_files(tmp_path)["json_only.mcap"]
+    with pytest.raises(LogFormatError, match="no CAN channel.*/truth"):
+        read_log(path)
+    data = read_mcap(path, json_topics="all", require_can=False)
+    assert data.json["/truth"]["a"].tolist() == [1.0]
+
+
+def test_mcap_writer_payload_layout_is_fixed_size():
+    from lde.logio import can_payloads
+
+    frames = random_frames(10, seed=10)
+    p = can_payloads(frames)
+    assert p.shape == (10, 19)
+    assert (p[:, :4] == np.array([0, 1, 0, 0], np.uint8)).all()
+    assert struct.unpack_from("<I", p[3].tobytes(), 4)[0] == frames.can_id[3]
+    _ = io  # keep import list honest for linters
