@@ -28,6 +28,7 @@ virtual bus). ``t_k = t_clock + offset`` with ``offset`` measured once at start
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -45,6 +46,8 @@ __all__ = ["Service", "StepResult", "STATUS_DEADLINE_MISS", "make_estimator"]
 
 log = logging.getLogger(__name__)
 
+STATUS_VALID = 0x01
+STATUS_DEGRADED = 0x02
 #: ``LDE_Estimate.Status`` bit7: this step ran more than 1 ms late (docs/ARCHITECTURE.md).
 STATUS_DEADLINE_MISS = 0x80
 
@@ -81,6 +84,10 @@ class StepResult:
     status: int
     frames_used: int
     timing: StepTiming | None
+
+
+def _finite(x: float) -> float:
+    return x if math.isfinite(x) else 0.0
 
 
 def make_estimator(vehicle: Any, backend: str = "fixed") -> Any:
@@ -180,6 +187,7 @@ class Service:
         self._newest_input_ns = -1  # receive time of the newest frame used so far
         self._stopping = False  # ramp-out requested (shutdown)
         self.steps = 0
+        self.send_errors = 0  # frames the bus refused (full tx queue, bus-off), counted, not raised
         self.last: StepResult | None = None
 
     # ------------------------------------------------------------------ one step
@@ -240,6 +248,10 @@ class Service:
         status = int(est.status) | (STATUS_DEADLINE_MISS if miss else 0)
         fw, mw, t_align = float(est.fw), float(est.mw), float(est.t_align)
         t_ov = float(ov.torque)
+        if not (math.isfinite(fw) and math.isfinite(mw) and math.isfinite(t_align) and math.isfinite(t_ov)):
+            # never put NaN on the bus: zeros, VALID cleared, DEGRADED set
+            fw, mw, t_align, t_ov = _finite(fw), _finite(mw), _finite(t_align), _finite(t_ov)
+            status = (status & ~STATUS_VALID) | STATUS_DEGRADED
         m_est = self._enc_estimate.message(
             {"LatForce": fw, "YawMoment": mw, "AligningTorque": t_align, "Status": status}, t_k
         )
@@ -286,8 +298,6 @@ class Service:
                 log.warning("CAN send failed (%d so far): %s", self.send_errors, exc)
         if self.recorder is not None:
             self.recorder.tx(msg)
-
-    send_errors = 0
 
     # ------------------------------------------------------------------ the loop
     def request_stop(self) -> None:

@@ -1,0 +1,168 @@
+"""``lde run``: the live estimator service on a CAN bus.
+
+The bus is opened the python-can way: ``--interface``/``--channel``/``--bitrate`` where given, else
+python-can's environment variables (``CAN_INTERFACE``, ``CAN_CHANNEL``, ``CAN_BITRATE``) or its
+config file (``~/can.conf``, ``$XDG_CONFIG_HOME/can.conf``, ...). SIGINT/SIGTERM end the service
+cleanly: the overlay request ramps to zero, then the recording is closed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import threading
+from types import FrameType
+
+from ..errors import BusError
+
+log = logging.getLogger("lde.service")
+
+
+def add_bus_arguments(p: argparse.ArgumentParser) -> None:
+    """python-can bus options (shared with ``lde sim``-style commands)."""
+    g = p.add_argument_group("CAN bus (python-can; omitted options come from its env/config)")
+    g.add_argument("-i", "--interface", help="python-can interface: socketcan, virtual, pcan, vector, ...")
+    g.add_argument("-c", "--channel", help="channel: vcan0, can0, PCAN_USBBUS1, ...")
+    g.add_argument("-b", "--bitrate", type=int, help="bit rate [bit/s] where the interface sets it")
+    g.add_argument(
+        "--bus-kwarg",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="extra keyword for can.Bus (repeatable), e.g. receive_own_messages=False",
+    )
+
+
+def bus_kwargs(args: argparse.Namespace) -> dict[str, object]:
+    kw: dict[str, object] = {"interface": args.interface, "channel": args.channel, "bitrate": args.bitrate}
+    for item in args.bus_kwarg:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise BusError(f"--bus-kwarg {item!r}: expected KEY=VALUE")
+        kw[key] = _parse_value(value)
+    return kw
+
+
+def _parse_value(v: str) -> object:
+    low = v.lower()
+    if low in ("true", "false"):
+        return low == "true"
+    for conv in (int, float):
+        try:
+            return conv(v)
+        except ValueError:
+            pass
+    return v
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "run",
+        help="run the live estimator service on a CAN bus",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_bus_arguments(p)
+    p.add_argument("--profile", default="lde", help="CAN profile: lde (default) or hyundai")
+    p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
+    p.add_argument("--backend", choices=("fixed", "float"), default="fixed", help="estimator backend")
+    p.add_argument("--record", metavar="FILE.mcap", help="record frames, estimates and diagnostics to MCAP")
+    p.add_argument("--duration", type=float, metavar="SEC", help="stop after this many seconds")
+    p.add_argument("--no-overlay", action="store_true", help="keep the overlay request at zero")
+    p.add_argument(
+        "--realtime", action="store_true", help="SCHED_FIFO, locked memory (falls back with a warning)"
+    )
+    p.add_argument("--priority", type=int, default=80, help="SCHED_FIFO priority with --realtime (1..99)")
+    p.add_argument("--cpu", type=int, action="append", metavar="N", help="pin to CPU N (repeatable)")
+    p.add_argument("--log-period", type=float, default=10.0, metavar="SEC", help="timing log line period")
+    p.set_defaults(func=run)
+
+
+def _realtime(args: argparse.Namespace) -> None:
+    from .. import clock
+
+    enable = getattr(clock, "enable_realtime", None)
+    if enable is None:
+        log.warning("--realtime: lde.clock.enable_realtime is not available; normal scheduling")
+        return
+    result = enable(priority=args.priority, cpus=args.cpu, lock_memory=True)
+    for w in getattr(result, "warnings", ()) or ():
+        log.warning("--realtime: %s", w)
+
+
+def run(args: argparse.Namespace) -> int:
+    from .. import service as svc_mod
+    from ..clock import MonotonicClock
+    from ..params import load_vehicle
+    from ..profiles import load_profile
+    from ..units import STEP_NS
+
+    logging.getLogger("lde.service").setLevel(logging.INFO)
+    profile = load_profile(args.profile)
+    vehicle = load_vehicle(args.vehicle)
+    if args.realtime:
+        _realtime(args)
+    elif args.cpu:
+        import os
+
+        os.sched_setaffinity(0, set(args.cpu))
+
+    bus = svc_mod.open_bus(**bus_kwargs(args))
+    recorder = None
+    stop = threading.Event()
+
+    def _on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        if args.record:
+            from ..recording import Recorder
+
+            recorder = Recorder(
+                args.record,
+                metadata={
+                    "profile": profile.name,
+                    "vehicle": vehicle.name,
+                    "vehicle_source": vehicle.source,
+                    "backend": args.backend,
+                    "step_ns": str(STEP_NS),
+                    "bus": str(getattr(bus, "channel_info", "")),
+                },
+            )
+        service = svc_mod.Service(
+            bus,
+            profile,
+            vehicle,
+            MonotonicClock(),
+            backend=args.backend,
+            recorder=recorder,
+            overlay_enabled=not args.no_overlay,
+            log_period_s=args.log_period,
+        )
+        on_step = None
+        if args.duration is not None:
+            n_steps = max(1, int(args.duration * 1e9 / STEP_NS))
+
+            def on_step(res: object) -> None:  # --duration ends like a signal: ramp out, then stop
+                if service.steps >= n_steps:
+                    stop.set()
+
+        log.info(
+            "lde run: %s, profile %s, vehicle %s, backend %s%s",
+            getattr(bus, "channel_info", "bus"),
+            profile.name,
+            vehicle.name,
+            args.backend,
+            f", recording to {args.record}" if args.record else "",
+        )
+        summary = service.run(stop_event=stop, on_step=on_step)
+        log.info("%s", summary.log_line())
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        if recorder is not None:
+            recorder.close()
+        bus.shutdown()
+    return 0
