@@ -37,6 +37,8 @@ from .errors import ConfigError, LdeError
 CANDIDATES = ("est1", "est2", "est3", "est4", "est5")
 #: the paper's two lateral-load scenarios (section 5 / Figs. 13-14)
 PAPER_SCENARIOS = ("heavy", "light")
+#: the accuracy set of ``lde evaluate`` (simulator scenario names)
+EVALUATE_SCENARIOS = ("heavy", "light", "bank", "lane_change")
 #: trace decimation: keep every n-th estimator step in returned traces (3.9 ms * 8 = 31 ms)
 TRACE_DECIMATION = 8
 
@@ -269,6 +271,7 @@ def candidate_specs(
     est_options: tuple[tuple[str, OptionValue], ...] = (),
     group: str = "candidates",
     trace_candidate: str | None = None,
+    backend: str = "float",
 ) -> list[RunSpec]:
     """The paper's study: every candidate set on every (scenario, payload, seed) load case.
 
@@ -287,6 +290,7 @@ def candidate_specs(
                             seed=seed,
                             duration=duration,
                             estimator=estimator,
+                            backend=backend,
                             sim_options=sim_options,
                             est_options=est_options,
                             group=group,
@@ -294,6 +298,99 @@ def candidate_specs(
                         )
                     )
     return specs
+
+
+def all_payloads() -> tuple[str, ...]:
+    """The simulator's payload case names (``vcan_sim.payload.PAYLOADS``)."""
+    try:
+        from vcan_sim.payload import PAYLOADS
+    except ImportError as exc:
+        raise LdeError("the simulator package vcan_sim is not importable") from exc
+    return tuple(PAYLOADS)
+
+
+def evaluation_specs(
+    scenarios: Sequence[str] = EVALUATE_SCENARIOS,
+    payloads: Sequence[str] = ("none",),
+    est_vehicle: str = "reference",
+    sim_vehicle: str = "reference",
+    seed: int = 0,
+    duration: float | None = None,
+    estimator: str = "replay",
+    backend: str = "float",
+    sim_options: tuple[tuple[str, OptionValue], ...] = (),
+    est_options: tuple[tuple[str, OptionValue], ...] = (),
+    trace: bool = False,
+    group: str = "evaluate",
+) -> list[RunSpec]:
+    """One run per (scenario, payload) with one estimator vehicle (``lde evaluate``)."""
+    return [
+        RunSpec(
+            scenario=sc,
+            est_vehicle=est_vehicle,
+            sim_vehicle=sim_vehicle,
+            payload=pl,
+            seed=seed,
+            duration=duration,
+            estimator=estimator,
+            backend=backend,
+            sim_options=sim_options,
+            est_options=est_options,
+            group=group,
+            trace=trace,
+        )
+        for sc in scenarios
+        for pl in payloads
+    ]
+
+
+def preset_specs(
+    preset: str,
+    seeds: Sequence[int] = (0, 1),
+    candidates: Sequence[str] | None = None,
+    scenarios: Sequence[str] | None = None,
+    payloads: Sequence[str] | None = None,
+    duration: float | None = None,
+    estimator: str = "replay",
+    backend: str = "float",
+    sim_options: tuple[tuple[str, OptionValue], ...] = (),
+    est_options: tuple[tuple[str, OptionValue], ...] = (),
+) -> list[RunSpec]:
+    """The specs of a named study (``lde study --preset``); None arguments take the preset's values.
+
+    ``paper``: candidates x (heavy, light) x every payload x seeds (5 x 2 x 6 x 2 = 120 runs by
+    default), traces of the unloaded runs of ``est3``. ``smoke``: est1/est3 x heavy/light, unloaded,
+    one seed, 6 s (4 runs).
+    """
+    if preset == "paper":
+        cands = tuple(candidates or CANDIDATES)
+        return candidate_specs(
+            scenarios=tuple(scenarios or PAPER_SCENARIOS),
+            payloads=tuple(payloads or all_payloads()),
+            candidates=cands,
+            seeds=tuple(seeds),
+            duration=duration,
+            sim_options=sim_options,
+            estimator=estimator,
+            est_options=est_options,
+            trace_candidate="est3" if "est3" in cands else cands[0],
+            backend=backend,
+        )
+    if preset == "smoke":
+        cands = tuple(candidates or ("est1", "est3"))
+        return candidate_specs(
+            scenarios=tuple(scenarios or PAPER_SCENARIOS),
+            payloads=tuple(payloads or ("none",)),
+            candidates=cands,
+            seeds=tuple(seeds)[:1],
+            duration=duration or 6.0,
+            sim_options=sim_options,
+            estimator=estimator,
+            est_options=est_options,
+            trace_candidate=cands[-1],
+            backend=backend,
+        )
+    raise ConfigError(f"unknown study preset {preset!r} (known: paper, smoke)")
 
 
 # --- summaries ---------------------------------------------------------------------------------------
@@ -453,6 +550,21 @@ TABLE_COLUMNS = (
     ("J_N", "J [N]", ".0f"),
     ("error", "error", ""),
 )
+
+
+def scores_table(scores: Sequence[CandidateScore]) -> str:
+    """The candidate ranking as text."""
+    rows = [asdict(s) for s in scores]
+    cols = (
+        ("candidate", "set", ""),
+        ("n_runs", "runs", "d"),
+        ("mean_j", "mean J [N]", ".1f"),
+        ("mean_rms_fw", "RMS e_F [N]", ".1f"),
+        ("mean_rms_mw", "RMS e_M [Nm]", ".1f"),
+        ("worst_nrmse_fw", "worst NRMSE Fw", ".1%"),
+        ("worst_nrmse_mw", "worst NRMSE Mw", ".1%"),
+    )
+    return metrics.format_table(rows, cols)
 
 
 def table(results: Sequence[RunResult]) -> str:
