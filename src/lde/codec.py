@@ -30,7 +30,7 @@ import numpy as np
 
 from .e2e import IntegrityKind, IntegrityScheme, p01_crc_batch, protect_frame, whl_spd11_checksum_batch
 from .errors import LdeError
-from .frames import ns_to_seconds
+from .frames import FrameBatch, ns_to_seconds
 from .profiles import Profile
 
 __all__ = [
@@ -39,6 +39,7 @@ __all__ = [
     "MessageCodec",
     "MessageEncoder",
     "encode_batch",
+    "encode_frames",
     "decode_frame",
     "si_to_dbc",
     "words_le",
@@ -278,6 +279,31 @@ def encode_batch(
             chk = chk >> np.uint64(length)
         data = w.view(np.uint8).reshape(n, 8)
     return data
+
+
+def encode_frames(
+    profile: Profile,
+    name: str,
+    t_ns: np.ndarray,
+    columns: Mapping[str, np.ndarray],
+    counter_start: int = 0,
+) -> FrameBatch:
+    """:func:`encode_batch` as a :class:`FrameBatch` at times ``t_ns`` (11-bit id, dlc = message length)."""
+    t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+    n = t.shape[0]
+    cols = {k: np.broadcast_to(np.asarray(v, dtype=np.float64), (n,)) for k, v in columns.items()}
+    if not cols:  # all signals at their default (physical 0)
+        cols = {MessageCodec(profile, name).values[0]: np.zeros(n)}
+    data = encode_batch(profile, name, cols, counter_start) if n else np.zeros((0, 8), dtype=np.uint8)
+    spec = profile.spec(name)
+    return FrameBatch(
+        t_ns=t,
+        can_id=np.full(n, spec.frame_id, dtype=np.uint32),
+        is_extended=np.zeros(n, dtype=np.bool_),
+        dlc=np.full(n, spec.length, dtype=np.uint8),
+        data=data,
+        is_rx=np.ones(n, dtype=np.bool_),
+    )
 
 
 def decode_frame(profile: Profile, name: str, data: bytes | bytearray) -> dict[str, float]:
