@@ -1,0 +1,136 @@
+"""Prototype estimator extensions (issue 6, items 3 and 5), measured in ``lde study`` / ``lde evaluate``.
+
+The product step (:func:`lde.step.run_batch`) implements the paper's filter. What the paper
+neglects enters its measurements directly:
+
+- Steering Coulomb friction (eq. 11 drops it): the column-level torque the MDPS sees is
+  ``T_column + T_assist = T_align / N + T_fric sgn(delta_sw_dot) + J delta_sw_ddot``, so
+  ``N (T_column + T_assist)`` over-reads the aligning torque by ``N T_fric`` while the wheel turns
+  left and under-reads it while it turns right. 0.35 Nm at the column is ~5 Nm at the kingpins,
+  a lateral force error of ~5 / trail ~ 100 N: a light-load scenario's whole signal.
+- A steering-angle offset ``d_sw`` or a yaw-rate bias ``b_r`` produces a steady aligning-torque and
+  yaw-rate residual that the filter can only explain as a disturbance.
+
+Compensations here are preprocessing of the grid inputs before the product step, so the step
+itself is unchanged (the exact integration wanted in :mod:`lde.step` is in ``docs/study.md``):
+
+    T_column'        = T_column - T_fric tanh(delta_sw_dot / w)                   (friction)
+    delta_sw'        = delta_sw - d_sw                                            (angle offset)
+    r'               = r - b_r                                                    (yaw-rate bias)
+    T_column'       -= T_0 / N                                                    (torque offset)
+
+with ``T_fric``, ``d_sw``, ``T_0`` from :func:`lde.calibrate.calibrate` on a drive without
+disturbance (or given as options). All SI; ISO 8855 signs; ``T_align`` with the paper's sign.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+from .calibrate import FRICTION_RATE_WIDTH, DriveData
+from .errors import ConfigError
+from .frames import FrameBatch
+from .grid import InputGrid, build_grid
+from .params import Vehicle
+from .profiles import load_profile
+from .signals import decode_batch
+from .step import BatchResult, run_batch
+
+
+@dataclass(frozen=True)
+class Compensation:
+    """Input corrections applied before the estimator step (module docstring).
+
+    Attributes:
+        friction: Coulomb friction of the steering referred to the column [Nm] (0: none).
+        friction_width: steering-wheel rate scale of tanh(rate / w) [rad/s].
+        steer_offset: steering-wheel angle offset [rad] (measured minus true).
+        yaw_bias: yaw-rate bias [rad/s] (measured minus true).
+        align_offset: offset of N (T_column + T_assist) [Nm] at the steering axis.
+    """
+
+    friction: float = 0.0
+    friction_width: float = FRICTION_RATE_WIDTH
+    steer_offset: float = 0.0
+    yaw_bias: float = 0.0
+    align_offset: float = 0.0
+
+    @classmethod
+    def from_options(cls, options: dict[str, object]) -> Compensation:
+        """From study options ``friction_Nm``, ``friction_width_deg_s``, ``steer_offset_deg``,
+        ``yaw_bias_deg_s``, ``align_offset_Nm`` (unknown keys are errors)."""
+        from .units import DEG
+
+        keymap = {
+            "friction_Nm": ("friction", 1.0),
+            "friction_width_deg_s": ("friction_width", DEG),
+            "steer_offset_deg": ("steer_offset", DEG),
+            "yaw_bias_deg_s": ("yaw_bias", DEG),
+            "align_offset_Nm": ("align_offset", 1.0),
+        }
+        kw = {}
+        for k, v in options.items():
+            if k not in keymap:
+                raise ConfigError(f"unknown compensation option {k!r} (known: {', '.join(keymap)})")
+            attr, f = keymap[k]
+            kw[attr] = float(v) * f  # type: ignore[arg-type]
+        return cls(**kw)
+
+    def is_identity(self) -> bool:
+        return all(getattr(self, f.name) == 0.0 for f in fields(self) if f.name != "friction_width")
+
+
+def grid_from_frames(frames: FrameBatch, profile: str = "lde") -> InputGrid:
+    """CAN frames -> estimator inputs on the 3.9 ms grid (the replay pipeline's first stages)."""
+    prof = load_profile(profile)
+    return build_grid(decode_batch(prof, frames), prof)
+
+
+def drive_from_grid(grid: InputGrid) -> DriveData:
+    """The grid as :class:`lde.calibrate.DriveData` (rows valid where both input groups are ok)."""
+    return DriveData(
+        t=grid.t_ns.astype(np.float64) * 1e-9,
+        steering_angle=grid.steering_angle,
+        steering_rate=grid.steering_rate,
+        yaw_rate=grid.yaw_rate,
+        lat_accel=grid.lat_accel,
+        speed=grid.speed,
+        column_torque=grid.column_torque,
+        assist_torque=grid.assist_torque,
+        valid=grid.mdps_ok & grid.esc_ok,
+    )
+
+
+def compensate(grid: InputGrid, vehicle: Vehicle, comp: Compensation) -> InputGrid:
+    """A copy of ``grid`` with the corrections of ``comp`` applied (module docstring)."""
+    if comp.is_identity():
+        return grid
+    n = vehicle.steering.ratio
+    col = grid.column_torque - comp.align_offset / n
+    if comp.friction != 0.0:
+        rate = np.where(np.isfinite(grid.steering_rate), grid.steering_rate, 0.0)
+        col = col - comp.friction * np.tanh(rate / comp.friction_width)
+    return replace(
+        grid,
+        column_torque=col,
+        steering_angle=grid.steering_angle - comp.steer_offset,
+        yaw_rate=grid.yaw_rate - comp.yaw_bias,
+    )
+
+
+def estimate(grid: InputGrid, vehicle: Vehicle, comp: Compensation | None = None) -> BatchResult:
+    """The product step over (compensated) grid inputs."""
+    g = compensate(grid, vehicle, comp or Compensation())
+    return run_batch(
+        g.t_ns,
+        g.speed,
+        g.steering_angle,
+        g.yaw_rate,
+        g.column_torque,
+        g.assist_torque,
+        g.mdps_ok,
+        g.esc_ok,
+        vehicle,
+    )
