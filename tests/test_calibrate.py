@@ -127,3 +127,43 @@ def test_gaussian_smooth_keeps_a_ramp_and_removes_noise():
     rng = np.random.default_rng(0)
     noisy = rng.normal(0.0, 1.0, 5000)
     assert np.std(calibrate.gaussian_smooth(noisy, 10.0)) < 0.2
+
+
+def test_compensation_removes_friction_offset_and_bias_from_grid_inputs():
+    from lde.adaptive import Compensation, compensate
+    from lde.grid import InputGrid
+
+    v = load_vehicle("reference")
+    n = 5
+    rate = np.array([-1.0, -0.001, 0.0, 0.001, 1.0])  # rad/s
+    ones = np.ones(n)
+    g = InputGrid(
+        t_ns=np.arange(n, dtype=np.int64),
+        column_torque=ones * 1.0,
+        assist_torque=ones * 2.0,
+        steering_angle=ones * 0.1,
+        steering_rate=rate,
+        yaw_rate=ones * 0.01,
+        lat_accel=ones * 0.0,
+        speed=ones * 25.0,
+        valid={},
+        age_ns={},
+        mdps_ok=np.ones(n, dtype=bool),
+        esc_ok=np.ones(n, dtype=bool),
+    )
+    assert compensate(g, v, Compensation()) is g
+    c = Compensation(friction=0.5, steer_offset=0.02, yaw_bias=0.001, align_offset=3.0)
+    h = compensate(g, v, c)
+    N = v.steering.ratio
+    # fast left steering: friction adds to the measured torque, so it is subtracted
+    assert h.column_torque[-1] == pytest.approx(1.0 - 3.0 / N - 0.5, abs=1e-9)
+    assert h.column_torque[0] == pytest.approx(1.0 - 3.0 / N + 0.5, abs=1e-9)
+    assert h.column_torque[2] == pytest.approx(1.0 - 3.0 / N)  # no rate: no friction
+    assert h.steering_angle[0] == pytest.approx(0.08)
+    assert h.yaw_rate[0] == pytest.approx(0.009)
+    assert np.array_equal(h.assist_torque, g.assist_torque)
+    assert Compensation.from_options(
+        {"friction_Nm": 0.5, "steer_offset_deg": 1.0}
+    ).steer_offset == pytest.approx(DEG)
+    with pytest.raises(Exception, match="unknown compensation option"):
+        Compensation.from_options({"frcition_Nm": 1})
