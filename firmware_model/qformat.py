@@ -140,9 +140,13 @@ def saturate(value: int, lo: int = INT32_MIN, hi: int = INT32_MAX) -> tuple[int,
 
 
 def shift_round(value: int, s: int) -> int:
-    """``value * 2**-s`` rounded HALF_UP for s > 0; a left shift for s <= 0 (exact)."""
+    """``value * 2**-s`` rounded HALF_UP for s > 0; a left shift for s <= 0 (exact).
+
+    Written as ``(value >> s) + bit s-1 of value``, which equals ``(value + 2**(s-1)) >> s`` but
+    cannot overflow an int64 (the numba twin computes in int64).
+    """
     if s > 0:
-        return (value + (1 << (s - 1))) >> s
+        return (value >> s) + ((value >> (s - 1)) & 1)
     return value << (-s)
 
 
@@ -156,9 +160,13 @@ def add_sat64(acc: int, p: int) -> tuple[int, bool]:
 
 
 def div_round(num: int, den: int) -> int:
-    """num / den rounded to nearest, ties away from zero; den > 0. Magnitudes only (portable)."""
+    """num / den rounded to nearest, ties away from zero; den > 0. On magnitudes (portable: no
+    dependence on a language's rule for negative division) and without overflow in int64."""
     a = -num if num < 0 else num
-    q = (a + (den >> 1)) // den
+    q = a // den
+    r = a - q * den
+    if r >= den - r:
+        q += 1
     return -q if num < 0 else q
 
 
