@@ -129,17 +129,22 @@ def test_estimate_becomes_valid_and_matches_frames(rig) -> None:
 
 
 def test_frames_after_step_time_wait_for_the_next_step(rig) -> None:
-    svc, feeder, _, clock = rig
+    """Step k uses exactly the frames received at or before t_k; later ones wait for step k+1."""
+    svc, feeder, feed_bus, clock = rig
     _lockstep(svc, feeder, clock, 10)
     t_k = T0 + 10 * STEP_NS
-    feeder.send_until(t_k + STEP_NS // 2)  # one MDPS frame lands after t_k (offset 0.3 ms before grid)
-    late = [t for t in (feeder.next_mdps - STEP_NS,) if t > t_k]
+    enc = feeder.mdps
+    vals = si_to_dbc(svc.profile, "MDPS_Sensors", {"column_torque": 0.5})
+    on_time = enc.message(vals, t_k)  # exactly at t_k: used
+    late = enc.message(vals, t_k + 1_000)  # 1 us after t_k: must wait
+    feed_bus.send(on_time)
+    feed_bus.send(late)
     r1 = svc.step_once(t_k)
+    assert r1.frames_used == 1
+    assert [t for t, _ in svc._pending] == [t_k + 1_000]
     r2 = svc.step_once(t_k + STEP_NS)
-    assert late, "the setup must produce a frame after t_k"
-    assert r2.frames_used >= 1
-    assert r1.frames_used >= 0
-    assert all(ts > t_k for ts, _ in svc._pending) or not svc._pending
+    assert r2.frames_used == 1
+    assert svc._pending == []
 
 
 def test_late_step_sets_deadline_miss(rig) -> None:

@@ -225,7 +225,7 @@ class Service:
         ready.sort(key=lambda p: p[0])  # stable: arrival order among equal timestamps
         feed = self.receiver.feed
         for t_rx, msg in ready:
-            feed(t_rx, msg.arbitration_id, bytes(msg.data), msg.dlc)
+            feed(t_rx, msg.arbitration_id, msg.data, msg.dlc, msg.is_extended_id)
         self._newest_input_ns = ready[-1][0]
         return len(ready)
 
@@ -263,7 +263,8 @@ class Service:
         t_sent = self.now_ns()
         latency = t_sent - self._newest_input_ns if self._newest_input_ns >= 0 else -1
         timing = self.stats.record(period_error, t_sent - t_start, latency)
-        m_diag = self._enc_diag.message(diag_signals(timing, self._e2e_rejects()), t_k)
+        rejects = self._e2e_rejects()
+        m_diag = self._enc_diag.message(diag_signals(timing, rejects), t_k)
         self._send(m_diag)
 
         self.steps += 1
@@ -281,7 +282,7 @@ class Service:
         )
         self.last = res
         if self.recorder is not None:
-            self.recorder.step(res, inputs, self._e2e_rejects(), self.stats.skipped)
+            self.recorder.step(res, inputs, rejects, self.stats.skipped)
         return res
 
     def _e2e_rejects(self) -> int:
