@@ -70,11 +70,12 @@ def test_pure_functions_class_and_inplace_agree(veh):
     cls = kalman.KalmanFilter(x0, P0)
     x, P = x0.copy(), P0.copy()
     xi, Pi, tmp = x0.copy(), P0.copy(), np.empty((4, 4))
+    ws = np.empty((kalman.UPDATE_WS, 4, 4))
     for k in range(300):
         d = model.discrete_matrices(veh, vx[k])
         cls.update(zs[k], d.H, d.D, delta[k], d.R, use[k])
         x, P, _ = kalman.kf_update(x, P, zs[k], d.H, d.D, delta[k], d.R, use[k])
-        kalman.update_inplace(xi, Pi, zs[k], d.H, d.D * delta[k], d.R, use[k])
+        kalman.update_inplace(xi, Pi, zs[k], d.H, d.D * delta[k], d.R, use[k], ws)
         cls.predict(d.Phi, d.E, delta[k], d.Qd)
         x, P = kalman.kf_predict(x, P, d.Phi, d.E, delta[k], d.Qd)
         kalman.predict_inplace(xi, Pi, d.Phi, d.E * delta[k], d.Qd, tmp)

@@ -24,6 +24,8 @@ Predict:
 A measurement row can be left out of an update (``use[i] = False``: a faulty input group); the
 update then runs on the remaining rows with the matching block of R (R may be full).
 
+The kernels are written for the model's 4 states (``NX``) and up to 4 measurement rows.
+
 Layers: ``*_inplace`` kernels (``@njit``, no allocation in the predict, used by :mod:`lde.step`),
 pure ``kf_predict`` / ``kf_update`` (``@njit``, return new arrays), the :class:`KalmanFilter` class
 around them, and :class:`FilterpyReference` (filterpy's ``KalmanFilter``; used in tests only).
@@ -34,13 +36,17 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+#: state dimension of every kernel here (the model's 4 states): a compile-time constant lets LLVM
+#: unroll the small matrix loops (3x faster than loops bounded by ``x.shape[0]``)
+NX = 4
+
 # --- kernels ------------------------------------------------------------------------------------
 
 
 @njit(cache=True)
 def predict_inplace(x, P, Phi, Eu, Qd, tmp):  # pragma: no cover - compiled
-    """x <- Phi x + Eu,  P <- Phi P Phi^T + Qd.  ``Eu`` is E u (n,); ``tmp`` is an (n, n) scratch."""
-    n = x.shape[0]
+    """x <- Phi x + Eu,  P <- Phi P Phi^T + Qd.  ``Eu`` is E u (4,); ``tmp`` is a (4, 4) scratch."""
+    n = NX
     # x = Phi x + E u   (tmp[:, 0] holds the old x)
     for i in range(n):
         tmp[i, 0] = x[i]
@@ -67,110 +73,108 @@ def predict_inplace(x, P, Phi, Eu, Qd, tmp):  # pragma: no cover - compiled
             P[j, i] = s
 
 
-@njit(cache=True)
-def update_inplace(x, P, z, H, Du, R, use):  # pragma: no cover - compiled
-    """Joseph-form update of x (n,), P (n, n) with the rows of z (m,) where ``use`` is True.
+#: number of (4, 4) scratch matrices :func:`update_inplace` needs (``ws`` shape (UPDATE_WS, 4, 4))
+UPDATE_WS = 9
+# scratch slots: used rows of H (m, n); innovation y (row 0, m); P H^T (n, m), later Kg R (n, m);
+# S = H P H^T + R (m, m); S^-1 (m, m); gain Kg (n, m); I - Kg H (n, n); (I - Kg H) P (n, n);
+# used block of R (m, m). Indexed as ws[slot, i, j] (no array views: they cost ~100 ns per update).
+_HC, _Y, _PHT, _S, _SI, _KG, _IKH, _T, _RC = 0, 1, 2, 3, 4, 5, 6, 7, 8
 
-    ``H`` (m, n), ``Du`` = D u (m,), ``R`` (m, m). Returns the normalised innovation squared
-    y^T S^-1 y over the used rows (0.0 when no row is used; then x and P are unchanged).
+
+@njit(cache=True)
+def update_inplace(x, P, z, H, Du, R, use, ws):  # pragma: no cover - compiled
+    """Joseph-form update of x (4,), P (4, 4) with the rows of z (m <= 4) where ``use`` is True.
+
+    ``H`` (m, n), ``Du`` = D u (m,), ``R`` (m, m); ``ws`` is a scratch array (UPDATE_WS, n, n)
+    (no allocation here: the estimator step runs millions of times in a replay). Returns the
+    normalised innovation squared y^T S^-1 y over the used rows (0.0 when no row is used; then x
+    and P are unchanged).
     """
-    n = x.shape[0]
-    m_all = z.shape[0]
+    # compact the used rows:  y = z - H x - D u
     m = 0
-    for i in range(m_all):
+    for i in range(z.shape[0]):
         if use[i]:
+            s = z[i] - Du[i]
+            for j in range(NX):
+                ws[_HC, m, j] = H[i, j]
+                s -= H[i, j] * x[j]
+            ws[_Y, 0, m] = s
+            b = 0
+            for i2 in range(z.shape[0]):
+                if use[i2]:
+                    ws[_RC, m, b] = R[i, i2]
+                    b += 1
             m += 1
     if m == 0:
         return 0.0
-    rows = np.empty(m, dtype=np.int64)
-    c = 0
-    for i in range(m_all):
-        if use[i]:
-            rows[c] = i
-            c += 1
-    # y = z - H x - D u
-    y = np.empty(m)
-    for a in range(m):
-        i = rows[a]
-        s = z[i] - Du[i]
-        for j in range(n):
-            s -= H[i, j] * x[j]
-        y[a] = s
-    # PHt = P H^T  (n, m)
-    PHt = np.empty((n, m))
+    n = NX
+    # PHt = P H^T
     for i in range(n):
         for a in range(m):
             s = 0.0
             for k in range(n):
-                s += P[i, k] * H[rows[a], k]
-            PHt[i, a] = s
-    # S = H P H^T + R  (m, m)
-    S = np.empty((m, m))
+                s += P[i, k] * ws[_HC, a, k]
+            ws[_PHT, i, a] = s
+    # S = H P H^T + R
     for a in range(m):
         for b in range(m):
-            s = R[rows[a], rows[b]]
+            s = ws[_RC, a, b]
             for k in range(n):
-                s += H[rows[a], k] * PHt[k, b]
-            S[a, b] = s
+                s += ws[_HC, a, k] * ws[_PHT, k, b]
+            ws[_S, a, b] = s
     # S^-1: closed form for 1 and 2 rows, LAPACK otherwise
     if m == 1:
-        Si = np.empty((1, 1))
-        Si[0, 0] = 1.0 / S[0, 0]
+        ws[_SI, 0, 0] = 1.0 / ws[_S, 0, 0]
     elif m == 2:
-        det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
-        Si = np.empty((2, 2))
-        Si[0, 0] = S[1, 1] / det
-        Si[0, 1] = -S[0, 1] / det
-        Si[1, 0] = -S[1, 0] / det
-        Si[1, 1] = S[0, 0] / det
+        det = ws[_S, 0, 0] * ws[_S, 1, 1] - ws[_S, 0, 1] * ws[_S, 1, 0]
+        ws[_SI, 0, 0] = ws[_S, 1, 1] / det
+        ws[_SI, 0, 1] = -ws[_S, 0, 1] / det
+        ws[_SI, 1, 0] = -ws[_S, 1, 0] / det
+        ws[_SI, 1, 1] = ws[_S, 0, 0] / det
     else:
-        Si = np.linalg.inv(S)
-    # Kg = P H^T S^-1  (n, m)
-    Kg = np.empty((n, m))
+        ws[_SI, :m, :m] = np.linalg.inv(ws[_S, :m, :m].copy())
+    # Kg = P H^T S^-1
     for i in range(n):
         for b in range(m):
             s = 0.0
             for a in range(m):
-                s += PHt[i, a] * Si[a, b]
-            Kg[i, b] = s
+                s += ws[_PHT, i, a] * ws[_SI, a, b]
+            ws[_KG, i, b] = s
     # x = x + Kg y
     for i in range(n):
         s = 0.0
         for a in range(m):
-            s += Kg[i, a] * y[a]
+            s += ws[_KG, i, a] * ws[_Y, 0, a]
         x[i] += s
-    # I_KH = I - Kg H  (n, n)
-    IKH = np.empty((n, n))
+    # I_KH = I - Kg H
     for i in range(n):
         for j in range(n):
             s = 1.0 if i == j else 0.0
             for a in range(m):
-                s -= Kg[i, a] * H[rows[a], j]
-            IKH[i, j] = s
+                s -= ws[_KG, i, a] * ws[_HC, a, j]
+            ws[_IKH, i, j] = s
     # T = I_KH P
-    T = np.empty((n, n))
     for i in range(n):
         for j in range(n):
             s = 0.0
             for k in range(n):
-                s += IKH[i, k] * P[k, j]
-            T[i, j] = s
-    # KR = Kg R_used  (n, m)
-    KR = np.empty((n, m))
+                s += ws[_IKH, i, k] * P[k, j]
+            ws[_T, i, j] = s
+    # KR = Kg R  (n, m), kept in the P H^T slot (no longer needed)
     for i in range(n):
         for b in range(m):
             s = 0.0
             for a in range(m):
-                s += Kg[i, a] * R[rows[a], rows[b]]
-            KR[i, b] = s
+                s += ws[_KG, i, a] * ws[_RC, a, b]
+            ws[_PHT, i, b] = s
     # P = T I_KH^T + Kg R Kg^T, then symmetrised
     for i in range(n):
         for j in range(n):
             s = 0.0
             for k in range(n):
-                s += T[i, k] * IKH[j, k]
+                s += ws[_T, i, k] * ws[_IKH, j, k]
             for b in range(m):
-                s += KR[i, b] * Kg[j, b]
+                s += ws[_PHT, i, b] * ws[_KG, j, b]
             P[i, j] = s
     for i in range(n):
         for j in range(i + 1, n):
@@ -181,7 +185,7 @@ def update_inplace(x, P, z, H, Du, R, use):  # pragma: no cover - compiled
     nis = 0.0
     for a in range(m):
         for b in range(m):
-            nis += y[a] * Si[a, b] * y[b]
+            nis += ws[_Y, 0, a] * ws[_SI, a, b] * ws[_Y, 0, b]
     return nis
 
 
@@ -202,7 +206,7 @@ def kf_update(x, P, z, H, D, u, R, use):  # pragma: no cover - compiled
     """Pure Joseph-form update: returns (x+, P+, NIS) as new arrays / float. ``D`` (m,), ``u`` scalar."""
     xn = x.copy()
     Pn = P.copy()
-    nis = update_inplace(xn, Pn, z, H, D * u, R, use)
+    nis = update_inplace(xn, Pn, z, H, D * u, R, use, np.empty((UPDATE_WS, NX, NX)))
     return xn, Pn, nis
 
 
@@ -297,3 +301,36 @@ class FilterpyReference:
             return
         zc = (z - D * u)[idx].reshape(-1, 1)
         self._kf.update(zc, R=R[np.ix_(idx, idx)], H=H[idx])
+
+
+# --- steady-state analysis (tuning; docs/tuning.md) -------------------------------------------
+
+
+def steady_state_gain(
+    Phi: np.ndarray, H: np.ndarray, Qd: np.ndarray, R: np.ndarray, tol: float = 1e-12, max_iter: int = 200_000
+) -> tuple[np.ndarray, np.ndarray]:
+    """Iterate the Riccati recursion of the constant model to its fixed point.
+
+    Returns (Kg, P_post): the steady-state Kalman gain (n, m) and a-posteriori covariance.
+    Raises ``RuntimeError`` if it has not converged (relative change < ``tol``) in ``max_iter``.
+    """
+    n = Phi.shape[0]
+    P = np.eye(n) * 1e6
+    for _ in range(max_iter):
+        # a-priori -> gain -> a-posteriori (Joseph) -> next a-priori
+        S = H @ P @ H.T + R
+        Kg = P @ H.T @ np.linalg.inv(S)
+        IKH = np.eye(n) - Kg @ H
+        Pp = IKH @ P @ IKH.T + Kg @ R @ Kg.T
+        Pn = Phi @ Pp @ Phi.T + Qd
+        if np.max(np.abs(Pn - P)) <= tol * np.max(np.abs(Pn)):
+            return Kg, Pp
+        P = Pn
+    raise RuntimeError("Riccati recursion did not converge")
+
+
+def closed_loop_time_constants(Phi: np.ndarray, H: np.ndarray, Kg: np.ndarray, dt: float) -> np.ndarray:
+    """Time constants [s] of the a-posteriori error dynamics e+ <- (I - Kg H) Phi e+, from the
+    eigenvalues lambda of that matrix: tau = -dt / ln|lambda|, slowest first."""
+    lam = np.linalg.eigvals((np.eye(Phi.shape[0]) - Kg @ H) @ Phi)
+    return np.sort(-dt / np.log(np.abs(lam)))[::-1]

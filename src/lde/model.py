@@ -106,19 +106,22 @@ def continuous_into(p, vx, A, B, H, D):  # pragma: no cover - compiled
     """Fill A (4x4), B (4,), H (2x4), D (2,) for speed ``vx`` [m/s] > 0 (every entry written)."""
     m, iz, lf, lr = p[P_M], p[P_IZ], p[P_LF], p[P_LR]
     cf, cr, k = p[P_CF], p[P_CR], p[P_K]
+    inv_v = 1.0 / vx
+    inv_mv = inv_v / m  # 1/(m vx)
+    inv_iz = 1.0 / iz
     for i in range(4):
         for j in range(4):
             A[i, j] = 0.0
     # beta_dot = -2(Cf+Cr)/(m vx) beta + (-1 - 2(lf Cf - lr Cr)/(m vx^2)) r + Fw/(m vx) + 2Cf/(m vx) delta_f
-    A[0, 0] = -2.0 * (cf + cr) / (m * vx)
-    A[0, 1] = -1.0 - 2.0 * (lf * cf - lr * cr) / (m * vx * vx)
-    A[0, 2] = 1.0 / (m * vx)
+    A[0, 0] = -2.0 * (cf + cr) * inv_mv
+    A[0, 1] = -1.0 - 2.0 * (lf * cf - lr * cr) * inv_mv * inv_v
+    A[0, 2] = inv_mv
     # r_dot = -2(lf Cf - lr Cr)/Iz beta - 2(lf^2 Cf + lr^2 Cr)/(Iz vx) r + Mw/Iz + 2 lf Cf/Iz delta_f
-    A[1, 0] = -2.0 * (lf * cf - lr * cr) / iz
-    A[1, 1] = -2.0 * (lf * lf * cf + lr * lr * cr) / (iz * vx)
-    A[1, 3] = 1.0 / iz
-    B[0] = 2.0 * cf / (m * vx)
-    B[1] = 2.0 * lf * cf / iz
+    A[1, 0] = -2.0 * (lf * cf - lr * cr) * inv_iz
+    A[1, 1] = -2.0 * (lf * lf * cf + lr * lr * cr) * inv_iz * inv_v
+    A[1, 3] = inv_iz
+    B[0] = 2.0 * cf * inv_mv
+    B[1] = 2.0 * lf * cf * inv_iz
     B[2] = 0.0
     B[3] = 0.0
     # z1 = r ;  z2 = T_align = 2K (delta_f - beta - lf r/vx)
@@ -127,7 +130,7 @@ def continuous_into(p, vx, A, B, H, D):  # pragma: no cover - compiled
         H[1, j] = 0.0
     H[0, 1] = 1.0
     H[1, 0] = -2.0 * k
-    H[1, 1] = -2.0 * k * lf / vx
+    H[1, 1] = -2.0 * k * lf * inv_v
     D[0] = 0.0
     D[1] = 2.0 * k
 
