@@ -419,6 +419,28 @@ class McapWriter:
         self._counts[channel_id] += n
         self._queue(_Block(np.full(n, channel_id, np.uint16), seq.astype(np.uint32), t, pay, off, length))
 
+    def write_json_payloads(
+        self, channel_id: int, t_ns: np.ndarray, text: np.ndarray, offsets: np.ndarray
+    ) -> None:
+        """Queue pre-formatted JSON messages: message ``i`` is ``text[offsets[i]:offsets[i + 1]]``
+        (the output of :func:`lde.logio.textfmt.format_rows`)."""
+        if channel_id not in self._json_keys:
+            raise ValueError(f"channel {channel_id} is not a JSON channel of this writer")
+        t = np.asarray(t_ns, dtype=np.int64)
+        n = t.size
+        off = np.asarray(offsets, np.int64)
+        if off.shape != (n + 1,):
+            raise ValueError(f"offsets must have {n + 1} entries, got {off.shape}")
+        if n == 0:
+            return
+        seq = (np.arange(n, dtype=np.int64) + self._seq[channel_id]) % (1 << 32)
+        self._seq[channel_id] += n
+        self._counts[channel_id] += n
+        pay = np.frombuffer(text, np.uint8) if not isinstance(text, np.ndarray) else text
+        self._queue(
+            _Block(np.full(n, channel_id, np.uint16), seq.astype(np.uint32), t, pay, off[:-1], np.diff(off))
+        )
+
     def flush(self) -> None:
         """Write every queued message (sorted by time) as chunks."""
         self._flush_single()
@@ -649,7 +671,9 @@ class McapData:
         frames: the CAN frames of every ``lde_msgs/msg/CanFrame`` channel, sorted by time.
         topics: topic -> :class:`TopicInfo` for every channel with messages or declared.
         times: topic -> int64 ``log_time`` array [ns] of every non-CAN channel (cheap, always there).
-        json: topic -> {field: float64 array} (+ ``"t_ns"``) for the JSON topics asked for.
+        json: topic -> {field: array} for the JSON topics asked for: int64 for fields that are
+            integers in every message (exact), else float64 (missing/null -> NaN); plus
+            ``"log_time"`` and, unless a field has that name, ``"t_ns"`` (both the log times).
         bad_can_messages: CAN-channel messages of the wrong size or encoding (skipped).
         fast_path: True if the chunk-level numba reader was used (else the ``mcap`` library's).
     """
@@ -909,9 +933,14 @@ def _fill_json(data: McapData, json_topics: Iterable[str] | str | None, raw: byt
                 raise LogFormatError(f"topic {topic!r}: a message is not a JSON object")
             for k in r:
                 keys.setdefault(k, None)
-        cols: dict[str, np.ndarray] = {"t_ns": o_t[idx].copy()}
-        nan = float("nan")
+        log_t = o_t[idx].copy()
+        cols: dict[str, np.ndarray] = {}
         for k in keys:
-            vals = [r.get(k, nan) for r in rows]
-            cols[k] = np.array([nan if v is None else v for v in vals], dtype=np.float64)
+            vals = [r.get(k) for r in rows]
+            if all(type(v) is int for v in vals):
+                cols[k] = np.array(vals, dtype=np.int64)  # exact (step times in ns)
+            else:
+                cols[k] = np.array([math.nan if v is None else v for v in vals], dtype=np.float64)
+        cols.setdefault("t_ns", log_t)
+        cols["log_time"] = log_t
         data.json[topic] = cols

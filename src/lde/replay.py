@@ -1,0 +1,536 @@
+"""Batch replay: log -> FrameBatch -> signals -> 3.9 ms grid -> estimator -> overlay -> CSV / MCAP.
+
+The same semantics as the live service (:mod:`lde.service`), over whole arrays::
+
+    frames (rx only)  --lde.signals.decode_batch-->  accepted samples per input (E2E receiver)
+                      --lde.grid.build_grid------->  inputs on the step grid (sample-and-hold)
+                      --backend run_batch--------->  Fw, Mw, T_align, status per step
+                      --lde.overlay--------------->  T_overlay per step (zeros until lde.overlay has
+                                                     ``run_batch_overlay``)
+
+Decoding (:func:`decode`) and the filter loop (:func:`estimate`) are separate functions so that each
+can be timed and tested alone; :func:`replay` runs both. Step times are the grid anchored at the
+first accepted MDPS frame, or, for an lde recording (``/can/tx`` and ``/lde/estimate`` present), the
+recorded step times, so that a live run is reproduced exactly.
+
+Outputs: :func:`write_csv` (one row per step; ``t`` in seconds in the log's own time base) and
+:func:`write_recording` (an MCAP recording that itself replays to the same estimates).
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import ConfigError, LogFormatError
+from .frames import FrameBatch
+from .grid import InputGrid, build_grid
+from .logio import LogData, McapWriter, read_log
+from .logio.textfmt import Column, format_rows, time_column
+from .params import Vehicle
+from .profiles import Profile
+from .signals import Decoded, decode_batch
+
+__all__ = [
+    "ReplayResult",
+    "FrameCounts",
+    "decode",
+    "estimate",
+    "replay",
+    "replay_log",
+    "recorded_step_times",
+    "resolve_backend",
+    "write_csv",
+    "write_recording",
+    "CSV_COLUMNS",
+    "ESTIMATE_TOPIC",
+    "INPUTS_TOPIC",
+    "DIAG_TOPIC",
+]
+
+ESTIMATE_TOPIC = "/lde/estimate"
+INPUTS_TOPIC = "/lde/inputs"
+DIAG_TOPIC = "/lde/diag"
+STATUS_BITS = (
+    "valid",
+    "degraded",
+    "mdps_fault",
+    "esc_fault",
+    "low_speed",
+    "not_converged",
+    "shadow_deviation",
+    "deadline_miss",
+)
+INPUT_FIELDS = (
+    "column_torque",
+    "assist_torque",
+    "steering_angle",
+    "steering_rate",
+    "yaw_rate",
+    "lat_accel",
+    "speed",
+)
+
+#: CSV columns: name, decimals, unit/meaning (the first four are the SPEC's contract)
+CSV_COLUMNS: tuple[tuple[str, int, str], ...] = (
+    ("t", 6, "s, step time in the log's own time base"),
+    ("Fw", 3, "N, disturbance force at the CG, left positive"),
+    ("Mw", 3, "Nm, disturbance yaw moment, left positive"),
+    ("T_overlay", 4, "Nm, overlay torque request at the column, left positive"),
+    ("T_align", 4, "Nm, estimated aligning torque at the steering axis, paper sign"),
+    ("status", 0, "LDE_Estimate.Status bit map"),
+    ("overlay_state", 0, "0 off, 1 ramp-in, 2 active, 3 ramp-out, 4 fault"),
+    ("beta", 7, "rad, estimated side slip"),
+    ("yaw_rate", 6, "rad/s, estimated yaw rate"),
+    ("speed", 4, "m/s, input speed (sample-and-hold)"),
+    ("mdps_ok", 0, "1: MDPS inputs fresh and trusted"),
+    ("esc_ok", 0, "1: ESC inputs fresh and trusted"),
+)
+
+
+# ----------------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class MessageCounts:
+    """Receiver counts of one input message over the replay."""
+
+    received: int
+    used: int
+    lost: int
+    repeated: int
+    wrong_sequence: int
+    wrong_crc: int
+    malformed: int
+
+    @property
+    def rejected(self) -> int:
+        return self.repeated + self.wrong_sequence + self.wrong_crc + self.malformed
+
+
+@dataclass(frozen=True)
+class FrameCounts:
+    """Frames of a replay: total, lde's own (tx, not inputs), ignored ids, per input message."""
+
+    total: int
+    tx: int
+    ignored: int
+    messages: dict[str, MessageCounts]
+
+    @property
+    def used(self) -> int:
+        return sum(m.used for m in self.messages.values())
+
+    @property
+    def rejected(self) -> int:
+        return sum(m.rejected for m in self.messages.values())
+
+    def rejected_by_cause(self) -> dict[str, int]:
+        out = {"repeated": 0, "wrong_sequence": 0, "wrong_crc": 0, "malformed": 0}
+        for m in self.messages.values():
+            for k in out:
+                out[k] += getattr(m, k)
+        return out
+
+
+@dataclass
+class ReplayResult:
+    """One row per estimator step (SI, ISO 8855 signs; ``t_align`` with the paper's sign).
+
+    Attributes:
+        t_ns: int64 step times [ns], the log's own time base.
+        fw [N], mw [Nm], t_align [Nm], t_overlay [Nm], beta [rad], yaw_rate [rad/s]: float64.
+        status: uint8 ``LDE_Estimate.Status`` bits.
+        overlay_state: uint8 limiter state; overlay_active: bool.
+        grid: the estimator inputs on the grid.
+        frames: frame counts (used / rejected by cause).
+        backend: ``"float"`` or ``"fixed"``; overlay: False when T_overlay is zeros (no lde.overlay).
+        recorded_steps: True when the step times came from a recording.
+        timings: seconds spent per stage (decode, grid, filter, overlay).
+    """
+
+    t_ns: np.ndarray
+    fw: np.ndarray
+    mw: np.ndarray
+    t_align: np.ndarray
+    t_overlay: np.ndarray
+    status: np.ndarray
+    overlay_state: np.ndarray
+    overlay_active: np.ndarray
+    beta: np.ndarray
+    yaw_rate: np.ndarray
+    grid: InputGrid
+    frames: FrameCounts
+    backend: str
+    overlay: bool
+    recorded_steps: bool = False
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_ns[-1] - self.t_ns[0]) * 1e-9 if len(self) else 0.0
+
+
+# ----------------------------------------------------------------------------- backends
+def resolve_backend(backend: str | None) -> tuple[str, Callable[..., Any], str]:
+    """(name, run_batch, note). ``None`` -> ``fixed`` if :mod:`firmware_model` has ``run_batch``,
+    else ``float`` with a note. Unknown names and an unavailable ``fixed`` raise ConfigError."""
+    fixed = None
+    try:
+        fm = importlib.import_module("firmware_model")
+        fixed = getattr(fm, "run_batch", None)
+    except ImportError:
+        fm = None
+    if backend is None:
+        if fixed is not None:
+            return "fixed", fixed, ""
+        from .step import run_batch
+
+        return "float", run_batch, "fixed-point backend not available (firmware_model.run_batch): using float"
+    if backend == "float":
+        from .step import run_batch
+
+        return "float", run_batch, ""
+    if backend == "fixed":
+        if fixed is None:
+            raise ConfigError("backend 'fixed' is not available: firmware_model has no run_batch")
+        return "fixed", fixed, ""
+    raise ConfigError(f"unknown backend {backend!r}: use 'fixed' or 'float'")
+
+
+# ----------------------------------------------------------------------------- pipeline
+def decode(frames: FrameBatch, profile: Profile) -> tuple[Decoded, int]:
+    """Decode the received frames (``is_rx``); returns (decoded, number of tx frames left out)."""
+    rx = frames.is_rx
+    n_tx = int(np.count_nonzero(~rx))
+    return decode_batch(profile, frames if n_tx == 0 else frames.select(rx)), n_tx
+
+
+def _frame_counts(decoded: Decoded, n_tx: int) -> FrameCounts:
+    msgs = {}
+    for name, m in decoded.messages.items():
+        s = m.stats
+        msgs[name] = MessageCounts(
+            received=s.received,
+            used=s.used,
+            lost=s.lost,
+            repeated=s.repeated,
+            wrong_sequence=s.wrong_sequence,
+            wrong_crc=s.wrong_crc,
+            malformed=s.malformed,
+        )
+    return FrameCounts(total=decoded.n_frames + n_tx, tx=n_tx, ignored=decoded.n_ignored, messages=msgs)
+
+
+def estimate(grid: InputGrid, vehicle: Vehicle, run_batch: Callable[..., Any]) -> Any:
+    """The filter loop over the grid (a backend's ``run_batch``) -> its BatchResult."""
+    return run_batch(
+        grid.t_ns,
+        grid.speed,
+        grid.steering_angle,
+        grid.yaw_rate,
+        grid.column_torque,
+        grid.assist_torque,
+        grid.mdps_ok,
+        grid.esc_ok,
+        vehicle,
+    )
+
+
+def _overlay(est: Any, grid: InputGrid, vehicle: Vehicle) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """T_overlay, state, active per step from ``lde.overlay.run_batch_overlay`` if it exists, else zeros."""
+    n = len(grid)
+    try:
+        ov = importlib.import_module("lde.overlay")
+    except ImportError:
+        ov = None
+    fn = getattr(ov, "run_batch_overlay", None) if ov is not None else None
+    if fn is None:
+        return np.zeros(n), np.zeros(n, np.uint8), np.zeros(n, np.bool_), False
+    pool: dict[str, Any] = {
+        "t_ns": grid.t_ns,
+        "fw": est.fw,
+        "mw": est.mw,
+        "status": est.status,
+        "t_align": est.t_align,
+        "estimate": est,
+        "result": est,
+        "batch": est,
+        "est": est,
+        "grid": grid,
+        "inputs": grid,
+        "vehicle": vehicle,
+        "limits": vehicle.overlay,
+        **{name: grid.values(name) for name in INPUT_FIELDS},
+        "mdps_ok": grid.mdps_ok,
+        "esc_ok": grid.esc_ok,
+    }
+    params = inspect.signature(fn).parameters
+    args = {k: pool[k] for k, p in params.items() if k in pool and p.kind is not p.VAR_KEYWORD}
+    missing = [
+        k
+        for k, p in params.items()
+        if p.default is p.empty and k not in args and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+    ]
+    if missing:
+        raise ConfigError(f"lde.overlay.run_batch_overlay needs {missing}, which replay cannot provide")
+    out = fn(**args)
+    torque = _first_attr(out, ("t_overlay", "torque", "overlay_torque"))
+    n_state = _first_attr(out, ("overlay_state", "state"), default=np.zeros(n, np.uint8))
+    active = _first_attr(out, ("overlay_active", "active"), default=np.asarray(torque) != 0)
+    return (
+        np.asarray(torque, np.float64),
+        np.asarray(n_state).astype(np.uint8),
+        np.asarray(active).astype(np.bool_),
+        True,
+    )
+
+
+def _first_attr(obj: Any, names: tuple[str, ...], default: Any = None) -> Any:
+    for n in names:
+        if isinstance(obj, dict) and n in obj:
+            return obj[n]
+        if hasattr(obj, n):
+            return getattr(obj, n)
+    if default is None:
+        raise ConfigError(f"lde.overlay.run_batch_overlay returned no {names[0]!r}")
+    return default
+
+
+def replay(
+    frames: FrameBatch,
+    profile: Profile,
+    vehicle: Vehicle,
+    backend: str | None = "float",
+    *,
+    step_times_ns: np.ndarray | None = None,
+) -> ReplayResult:
+    """Replay ``frames`` (any order) through the estimator.
+
+    Args:
+        frames: the log's frames; only received ones (``is_rx``) are inputs.
+        profile: CAN profile (:func:`lde.profiles.load_profile`).
+        vehicle: parameters and tuning (:func:`lde.params.load_vehicle`).
+        backend: ``"float"``, ``"fixed"`` or None (fixed if available, else float).
+        step_times_ns: explicit step times (a recording's); default the grid from the first
+            accepted MDPS frame to the last frame.
+    """
+    name, run_batch, _note = resolve_backend(backend)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    decoded, n_tx = decode(frames, profile)
+    t1 = time.perf_counter()
+    grid = build_grid(decoded, profile, step_times_ns=step_times_ns)
+    t2 = time.perf_counter()
+    est = estimate(grid, vehicle, run_batch)
+    t3 = time.perf_counter()
+    t_ov, ov_state, ov_active, have_overlay = _overlay(est, grid, vehicle)
+    t4 = time.perf_counter()
+    timings.update(decode=t1 - t0, grid=t2 - t1, filter=t3 - t2, overlay=t4 - t3)
+    return ReplayResult(
+        t_ns=np.asarray(grid.t_ns, np.int64),
+        fw=np.asarray(est.fw, np.float64),
+        mw=np.asarray(est.mw, np.float64),
+        t_align=np.asarray(est.t_align, np.float64),
+        t_overlay=t_ov,
+        status=np.asarray(est.status).astype(np.uint8),
+        overlay_state=ov_state,
+        overlay_active=ov_active,
+        beta=np.asarray(est.beta, np.float64),
+        yaw_rate=np.asarray(est.yaw_rate, np.float64),
+        grid=grid,
+        frames=_frame_counts(decoded, n_tx),
+        backend=name,
+        overlay=have_overlay,
+        recorded_steps=step_times_ns is not None,
+        timings=timings,
+    )
+
+
+def recorded_step_times(log: LogData) -> np.ndarray | None:
+    """Step times of an lde recording: ``/lde/estimate`` field ``t_ns`` (else its log times), when
+    the file has ``/can/tx`` and ``/lde/estimate``; None for any other log."""
+    m = log.mcap
+    if m is None or ESTIMATE_TOPIC not in m.topics or "/can/tx" not in m.topics:
+        return None
+    if m.topics[ESTIMATE_TOPIC].count == 0:
+        return None
+    cols = m.json.get(ESTIMATE_TOPIC)
+    if cols is not None and "t_ns" in cols and cols["t_ns"].dtype.kind == "i":
+        t = cols["t_ns"]
+    else:
+        t = m.times[ESTIMATE_TOPIC]
+    t = np.asarray(t, np.int64)
+    if np.any(np.diff(t) < 0):
+        raise LogFormatError(f"{log.path}: recorded step times on {ESTIMATE_TOPIC} are not in order")
+    return t
+
+
+def replay_log(
+    path: str | Path,
+    profile: Profile,
+    vehicle: Vehicle,
+    backend: str | None = "float",
+    *,
+    use_recorded_steps: bool = True,
+) -> tuple[LogData, ReplayResult]:
+    """Read a log (any format of :func:`lde.logio.read_log`) and replay it.
+
+    An lde recording is replayed on its recorded step times unless ``use_recorded_steps`` is False.
+    """
+    t0 = time.perf_counter()
+    p = Path(path)
+    log = read_log(p)
+    steps = None
+    if use_recorded_steps and log.mcap is not None and ESTIMATE_TOPIC in log.mcap.topics:
+        from .logio import read_mcap
+
+        if "t_ns" not in log.mcap.json.get(ESTIMATE_TOPIC, {}):
+            log.mcap.json.update(read_mcap(p, json_topics=[ESTIMATE_TOPIC]).json)
+        steps = recorded_step_times(log)
+    t1 = time.perf_counter()
+    res = replay(log.frames, profile, vehicle, backend, step_times_ns=steps)
+    res.timings = {"read": t1 - t0, **res.timings}
+    return log, res
+
+
+# ----------------------------------------------------------------------------- outputs
+def _csv_columns(res: ReplayResult) -> list[Column]:
+    data: dict[str, np.ndarray] = {
+        "Fw": res.fw,
+        "Mw": res.mw,
+        "T_overlay": res.t_overlay,
+        "T_align": res.t_align,
+        "status": res.status,
+        "overlay_state": res.overlay_state,
+        "beta": res.beta,
+        "yaw_rate": res.yaw_rate,
+        "speed": res.grid.speed,
+        "mdps_ok": res.grid.mdps_ok,
+        "esc_ok": res.grid.esc_ok,
+    }
+    cols = [time_column("t", res.t_ns)]
+    cols += [Column(name, data[name], dec) for name, dec, _ in CSV_COLUMNS[1:]]
+    return cols
+
+
+def write_csv(path: str | Path, res: ReplayResult) -> None:
+    """CSV with a header and one row per step (columns :data:`CSV_COLUMNS`; NaN as ``nan``).
+
+    ``t`` is the step time in seconds in the log's own time base, printed exactly from the integer
+    ns (6 decimals when all step times are whole microseconds, else 9).
+    """
+    cols = _csv_columns(res)
+    text, _ = format_rows(cols, [""] + [","] * (len(cols) - 1), "\n")
+    try:
+        with open(path, "wb") as fh:
+            fh.write((",".join(c.name for c in cols) + "\n").encode())
+            fh.write(text)
+    except OSError as exc:
+        raise LogFormatError(f"{path}: cannot write: {exc}") from exc
+
+
+def _json_payloads(columns: list[Column]) -> tuple[np.ndarray, np.ndarray]:
+    seps = [("{" if i == 0 else ",") + f'"{c.name}":' for i, c in enumerate(columns)]
+    return format_rows(columns, seps, "}", nan_text="null")
+
+
+def output_frames(res: ReplayResult, profile: Profile) -> FrameBatch:
+    """lde's sent frames per step, ``LDE_Estimate`` then ``LDE_Overlay`` (E2E counters and CRCs by
+    :func:`lde.codec.encode_batch`), stamped with the step time, ``is_rx`` False."""
+    from .codec import encode_batch
+
+    n = len(res)
+    est = encode_batch(
+        profile,
+        "LDE_Estimate",
+        {
+            "LatForce": np.nan_to_num(res.fw),
+            "YawMoment": np.nan_to_num(res.mw),
+            "AligningTorque": np.nan_to_num(res.t_align),
+            "Status": res.status.astype(np.float64),
+        },
+    )
+    ovl = encode_batch(
+        profile,
+        "LDE_Overlay",
+        {
+            "OverlayTorque": np.nan_to_num(res.t_overlay),
+            "Active": res.overlay_active.astype(np.float64),
+            "State": res.overlay_state.astype(np.float64),
+        },
+    )
+    batches = []
+    for name, data in (("LDE_Estimate", est), ("LDE_Overlay", ovl)):
+        spec = profile.spec(name)
+        batches.append(
+            FrameBatch(
+                t_ns=res.t_ns,
+                can_id=np.full(n, spec.frame_id),
+                is_extended=np.zeros(n, np.bool_),
+                dlc=np.full(n, spec.length),
+                data=data,
+                is_rx=np.zeros(n, np.bool_),
+            )
+        )
+    # interleave per step: estimate, overlay (stable sort keeps this order at equal times)
+    both = FrameBatch.concat(batches, sort=False)
+    order = np.argsort(np.concatenate([np.arange(n) * 2, np.arange(n) * 2 + 1]), kind="stable")
+    return both.take(order)
+
+
+def write_recording(
+    path: str | Path,
+    frames: FrameBatch,
+    res: ReplayResult,
+    profile: Profile,
+    *,
+    metadata: dict[str, str] | None = None,
+) -> None:
+    """An lde MCAP recording of a replay: the input frames (``/can/rx``), the frames lde sends
+    (``/can/tx``), and per step ``/lde/estimate``, ``/lde/inputs``, ``/lde/diag`` (JSON).
+
+    Replaying it (:func:`replay_log`) uses the recorded step times and gives the same estimates.
+    """
+    rx = frames.select(frames.is_rx) if not frames.is_rx.all() else frames
+    with McapWriter(path, metadata=metadata) as w:
+        w.write_frames(rx)
+        w.write_frames(output_frames(res, profile))
+        t = res.t_ns
+        bits = {b: (res.status >> i) & 1 for i, b in enumerate(STATUS_BITS)}
+        est_cols = [
+            Column("t_ns", t, 0),
+            time_column("t", t),
+            Column("Fw", res.fw, 3),
+            Column("Mw", res.mw, 3),
+            Column("T_align", res.t_align, 4),
+            Column("T_overlay", res.t_overlay, 4),
+            Column("overlay_state", res.overlay_state, 0),
+            Column("overlay_active", res.overlay_active, 0),
+            Column("status", res.status, 0),
+            Column("beta", res.beta, 7),
+            Column("yaw_rate", res.yaw_rate, 6),
+            *[Column(b, v, 0) for b, v in bits.items()],
+        ]
+        _write_json_channel(w, ESTIMATE_TOPIC, "lde.Estimate", t, est_cols)
+        g = res.grid
+        in_cols = [Column("t_ns", t, 0)] + [Column(n, g.values(n), 6) for n in INPUT_FIELDS]
+        in_cols += [Column("mdps_ok", g.mdps_ok, 0), Column("esc_ok", g.esc_ok, 0)]
+        _write_json_channel(w, INPUTS_TOPIC, "lde.Inputs", t, in_cols)
+        diag_cols = [Column("t_ns", t, 0), Column("status", res.status, 0)]
+        _write_json_channel(w, DIAG_TOPIC, "lde.Diag", t, diag_cols)
+
+
+def _write_json_channel(w: McapWriter, topic: str, title: str, t: np.ndarray, cols: list[Column]) -> None:
+    props = {c.name: {"type": "integer" if (c.decimals == 0 and not c.prescaled) else "number"} for c in cols}
+    cid = w.add_json_channel(topic, props, title=title)
+    text, off = _json_payloads(cols)
+    w.write_json_payloads(cid, t, text, off)
