@@ -1,0 +1,279 @@
+"""Frame decoding to SI: batch decoder, live receiver, and their lockstep equality."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from lde.codec import encode_frames, si_to_dbc
+from lde.e2e import E2EStatus
+from lde.frames import FrameBatch
+from lde.grid import build_grid
+from lde.profiles import INPUT_NAMES, load_profile
+from lde.signals import Receiver, decode_batch
+from lde.units import STEP_NS
+
+T0 = 1_700_000_000_000_000_000  # ns, an epoch-based log time base
+
+
+@pytest.fixture(scope="module")
+def lde():
+    return load_profile("lde")
+
+
+@pytest.fixture(scope="module")
+def hyundai():
+    return load_profile("hyundai")
+
+
+def si_columns(profile, message, n, rng):
+    """Random SI inputs of one message (inside the DBC ranges) -> (si dict, dbc signal dict)."""
+    si = {}
+    for name in profile.spec(message).inputs:
+        if name == "speed":
+            si[name] = rng.uniform(5.0, 40.0, n)
+        elif name == "steering_rate" and profile.name == "hyundai":
+            si[name] = rng.uniform(0.0, 5.0, n)  # SAS_Speed is unsigned on the car
+        elif name in ("steering_angle", "yaw_rate", "steering_rate"):
+            si[name] = rng.uniform(-0.5, 0.5, n)
+        elif name == "lat_accel":
+            si[name] = rng.uniform(-8.0, 8.0, n)
+        else:  # torques
+            si[name] = rng.uniform(-8.0, 8.0, n)
+    return si, si_to_dbc(profile, message, si)
+
+
+def make_traffic(profile, seconds, rng, jitter_ns=200_000):
+    """Periodic traffic of all input messages of ``profile`` -> (FrameBatch, {message: (t, si)})."""
+    parts, truth = [], {}
+    for k, spec in enumerate(profile.messages.values()):
+        n = int(seconds * 1e9 / spec.period_ns)
+        t = T0 + k * 1_000_000 + np.arange(n, dtype=np.int64) * spec.period_ns + rng.integers(0, jitter_ns, n)
+        si, dbc = si_columns(profile, spec.name, n, rng)
+        parts.append(encode_frames(profile, spec.name, t, dbc))
+        truth[spec.name] = (t, si)
+    return FrameBatch.concat(parts), truth
+
+
+def resolution_si(profile, name):
+    im = profile.inputs[name]
+    msg = profile.db.get_message_by_name(im.message)
+    return abs(im.factor) * max(msg.get_signal_by_name(s).scale for s in im.signals)
+
+
+@pytest.mark.parametrize("pname", ["lde", "hyundai"])
+def test_decode_of_encode_equals_input_within_resolution(pname):
+    p = load_profile(pname)
+    rng = np.random.default_rng(3)
+    fb, truth = make_traffic(p, 2.0, rng)
+    d = decode_batch(p, fb)
+    for name in INPUT_NAMES:
+        msg = p.inputs[name].message
+        t, si = truth[msg]
+        s = d.inputs[name]
+        # clean traffic: every frame but the INITIAL one and the sync frame before trust is used
+        assert np.array_equal(s.t_ns, t[2:])
+        assert np.max(np.abs(s.value - si[name][2:])) <= resolution_si(p, name) / 2 + 1e-12, name
+    for m in d.messages.values():
+        assert m.stats.rejected == 0 and m.stats.lost == 0 and m.stats.malformed == 0
+        assert m.stats.used == m.stats.received - 2
+
+
+@pytest.mark.parametrize("pname", ["lde", "hyundai"])
+def test_signs_left_positive_survive_the_bus(pname):
+    p = load_profile(pname)
+    si = {
+        "column_torque": 1.0,
+        "assist_torque": 3.0,
+        "steering_angle": 0.2,
+        "yaw_rate": 0.1,
+        "lat_accel": 2.0,
+    }
+    frames = []
+    for spec in p.messages.values():
+        vals = {k: np.full(4, v) for k, v in si.items() if k in spec.inputs}
+        if "speed" in spec.inputs:
+            vals["speed"] = np.full(4, 20.0)
+        t = T0 + np.arange(4, dtype=np.int64) * spec.period_ns
+        frames.append(encode_frames(p, spec.name, t, si_to_dbc(p, spec.name, vals)))
+    d = decode_batch(p, FrameBatch.concat(frames))
+    for name, v in si.items():
+        assert d.inputs[name].value[-1] == pytest.approx(v, abs=resolution_si(p, name))
+        assert np.sign(d.inputs[name].value[-1]) == 1
+    # and right (negative) stays negative
+    frames = []
+    for spec in p.messages.values():
+        vals = {k: np.full(4, -v) for k, v in si.items() if k in spec.inputs}
+        if "speed" in spec.inputs:
+            vals["speed"] = np.full(4, 20.0)
+        t = T0 + np.arange(4, dtype=np.int64) * spec.period_ns
+        frames.append(encode_frames(p, spec.name, t, si_to_dbc(p, spec.name, vals)))
+    d = decode_batch(p, FrameBatch.concat(frames))
+    for name, v in si.items():
+        assert d.inputs[name].value[-1] == pytest.approx(-v, abs=resolution_si(p, name))
+
+
+def test_unknown_and_extended_ids_are_ignored(lde):
+    rng = np.random.default_rng(4)
+    fb, _ = make_traffic(lde, 0.5, rng)
+    ref = decode_batch(lde, fb)
+    n = 50
+    noise = FrameBatch(
+        t_ns=T0 + rng.integers(0, 500_000_000, n),
+        can_id=np.where(np.arange(n) % 2 == 0, 0x2A0, 0x123).astype(np.uint32),  # 0x2A0 as a 29-bit id
+        is_extended=np.arange(n) % 2 == 0,
+        dlc=np.full(n, 8, np.uint8),
+        data=rng.integers(0, 256, (n, 8), dtype=np.uint8),
+        is_rx=np.ones(n, np.bool_),
+    )
+    d = decode_batch(lde, FrameBatch.concat([fb, noise]))
+    assert d.n_ignored == n
+    for name in INPUT_NAMES:
+        assert np.array_equal(d.inputs[name].value, ref.inputs[name].value)
+    assert d.stats == ref.stats
+    r = Receiver(lde)
+    assert r.feed(T0, 0x2A0, bytes(8), 8, is_extended=True).ignored
+    assert r.feed(T0, 0x7FF, bytes(8), 8).ignored
+    assert r.n_ignored == 2
+
+
+def test_malformed_frames_are_counted_never_raised(lde, hyundai):
+    rng = np.random.default_rng(5)
+    fb, _ = make_traffic(lde, 0.5, rng)
+    idx = np.flatnonzero(fb.can_id == 0x2A0)[10:60:10]
+    fb.dlc[idx] = 7  # truncated MDPS frames
+    fb.dlc[np.flatnonzero(fb.can_id == 0x2A8)[3]] = 12  # an FD frame longer than the message
+    d = decode_batch(lde, fb)
+    assert d.messages["MDPS_Sensors"].stats.malformed == 5
+    assert d.messages["ESC_Motion"].stats.malformed == 1
+    assert d.messages["MDPS_Sensors"].stats.lost == 5  # the receiver saw the counter gaps
+    assert d.messages["MDPS_Sensors"].stats.nonewdata == 0
+    r = Receiver(lde)
+    for data, dlc in [(b"", 0), (bytes(3), 3), (bytes(64), 64), (bytes(8), 7), (bytes(4), 8)]:
+        st = r.feed(T0, 0x2A0, data, dlc)
+        assert st.malformed and st.message == "MDPS_Sensors"
+    assert r.stats["MDPS_Sensors"].malformed == 5
+    assert r.e2e_rejects == 5
+    # SAS11 is 5 bytes on the car: 8 bytes is malformed there
+    rh = Receiver(hyundai)
+    assert rh.feed(T0, 688, bytes(8), 8).malformed
+    assert not rh.feed(T0, 688, bytes(5), 5).malformed
+
+
+def inject_faults(fb: FrameBatch, rng, n_crc=5, n_dup=4, n_drop=6, gap_at=None, gap_ns=0):
+    """Corrupt, duplicate and drop some frames; optionally open a gap (timeout) after ``gap_at``."""
+    n = len(fb)
+    crc_idx = rng.choice(np.arange(20, n - 20), n_crc, replace=False)
+    data = fb.data.copy()
+    data[crc_idx, 4] ^= 0x01
+    t = fb.t_ns.copy()
+    if gap_at is not None:
+        t[t > gap_at] += gap_ns
+    out = FrameBatch(t, fb.can_id, fb.is_extended, fb.dlc, data, fb.is_rx)
+    dup_idx = rng.choice(np.setdiff1d(np.arange(20, n - 20), crc_idx), n_dup, replace=False)
+    keep = np.ones(n, np.bool_)
+    drop_idx = rng.choice(
+        np.setdiff1d(np.arange(20, n - 20), np.concatenate([crc_idx, dup_idx])), n_drop, replace=False
+    )
+    keep[drop_idx] = False
+    dups = out.take(dup_idx)
+    dups = FrameBatch(dups.t_ns + 1000, dups.can_id, dups.is_extended, dups.dlc, dups.data, dups.is_rx)
+    return FrameBatch.concat([out.select(keep), dups]), crc_idx, dup_idx, drop_idx
+
+
+def test_faults_rejected_and_counted_by_cause(lde):
+    rng = np.random.default_rng(6)
+    mdps = encode_frames(
+        lde, "MDPS_Sensors", T0 + np.arange(1000, dtype=np.int64) * STEP_NS, {"ColumnTorque": 1.0}
+    )
+    fb, crc_idx, dup_idx, drop_idx = inject_faults(mdps, rng, n_crc=5, n_dup=4, n_drop=1)
+    d = decode_batch(lde, fb)
+    s = d.messages["MDPS_Sensors"].stats
+    assert s.wrong_crc == 5
+    assert s.repeated == 4
+    assert s.lost == 5 + 1  # the CRC-rejected frames and the dropped one are gaps in the sequence
+    assert s.wrong_sequence == 0
+    counts = d.messages["MDPS_Sensors"].status_counts()
+    assert counts[E2EStatus.WRONGCRC] == 5 and counts[E2EStatus.REPEATED] == 4
+    # after each fault the message is untrusted for sync_frames - 1 good frames
+    assert s.used == s.received - s.rejected - 2 - 5
+
+
+def _same(a, b):
+    return a == b or (isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b))
+
+
+def assert_samples_equal(a, b):
+    assert a.t_ns == b.t_ns
+    for name in INPUT_NAMES:
+        assert _same(a.value(name), b.value(name)), (name, a.value(name), b.value(name))
+    assert dict(a.valid) == dict(b.valid)
+    assert dict(a.age_ns) == dict(b.age_ns)
+    assert (a.mdps_ok, a.esc_ok) == (b.mdps_ok, b.esc_ok)
+
+
+@pytest.mark.parametrize("pname", ["lde", "hyundai"])
+def test_lockstep_live_receiver_equals_batch_decode_and_grid(pname):
+    """Feeding frames one by one and sampling at the grid times gives the batch grid exactly."""
+    p = load_profile(pname)
+    rng = np.random.default_rng(8)
+    fb, _ = make_traffic(p, 3.0, rng)
+    fb, *_ = inject_faults(
+        fb, rng, n_crc=12, n_dup=8, n_drop=15, gap_at=T0 + 1_500_000_000, gap_ns=150_000_000
+    )
+    n = 30
+    extra = FrameBatch(  # unknown ids, 29-bit frames, malformed frames
+        t_ns=T0 + rng.integers(0, 3_000_000_000, n),
+        can_id=rng.choice([m.frame_id for m in p.messages.values()] + [0x100], n).astype(np.uint32),
+        is_extended=rng.random(n) < 0.3,
+        dlc=rng.choice([3, 8], n).astype(np.uint8),
+        data=rng.integers(0, 256, (n, 8), dtype=np.uint8),
+        is_rx=np.ones(n, np.bool_),
+    )
+    fb = FrameBatch.concat([fb, extra])
+    d = decode_batch(p, fb)
+    g = build_grid(d, p)
+    assert len(g) > 500 and g.mdps_ok.any() and (~g.mdps_ok).any()
+
+    r = Receiver(p)
+    statuses = {m: [] for m in p.messages}
+    i = 0
+    for k in range(len(g)):
+        tk = int(g.t_ns[k])
+        while i < len(fb) and fb.t_ns[i] <= tk:
+            dlc = int(fb.dlc[i])
+            st = r.feed(
+                int(fb.t_ns[i]),
+                int(fb.can_id[i]),
+                fb.data[i, : min(dlc, 8)].tobytes(),
+                dlc,
+                bool(fb.is_extended[i]),
+            )
+            if st.status is not None:
+                statuses[st.message].append(int(st.status))
+            i += 1
+        assert_samples_equal(r.sample(tk), g.row(k))
+    for m, md in d.messages.items():
+        k = len(statuses[m])
+        assert statuses[m] == list(md.status[:k])
+    # feed the rest: the counters then equal the batch's
+    while i < len(fb):
+        dlc = int(fb.dlc[i])
+        r.feed(
+            int(fb.t_ns[i]),
+            int(fb.can_id[i]),
+            fb.data[i, : min(dlc, 8)].tobytes(),
+            dlc,
+            bool(fb.is_extended[i]),
+        )
+        i += 1
+    assert r.stats == d.stats
+    assert r.n_ignored == d.n_ignored
+
+
+def test_receiver_sample_before_any_frame_is_nan_and_not_ok(lde):
+    s = Receiver(lde).sample(T0)
+    assert all(math.isnan(s.value(n)) for n in INPUT_NAMES)
+    assert not any(s.valid.values()) and not s.mdps_ok and not s.esc_ok
