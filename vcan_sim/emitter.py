@@ -1,0 +1,183 @@
+"""Frames at their periods: the profile's input messages, encoded through the DBC with counters and
+CRCs (:func:`lde.codec.encode_frames`), and the pump that puts them on a python-can bus.
+
+Schedule: every input message of the profile is sent at its DBC period (``lde``: MDPS_Sensors every
+3.9 ms, ESC_Motion every 10 ms; ``hyundai``: MDPS12, SAS11 every 10 ms, ESP12, WHL_SPD11 every 20 ms),
+the anchor (MDPS torque) message from the simulation start, the others offset by a fixed phase
+(``PHASE_NS`` times their position) as on a real bus where ECUs are not synchronised. A frame at
+time t samples the plant at the last sub-step at or before t (see :mod:`vcan_sim.sensors`).
+Counters start at 0 and run on per message (Profile 1: 0..14).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import can
+import numpy as np
+
+from lde.codec import MessageCodec, encode_frames, si_to_dbc
+from lde.frames import FrameBatch, ns_to_seconds
+from lde.profiles import Profile
+
+from .config import SensorParams
+from .sensors import SensorNoise, measure
+
+log = logging.getLogger(__name__)
+
+#: phase offset between the input messages' schedules [ns] (message i starts at i * PHASE_NS)
+PHASE_NS = 1_300_000
+
+
+@dataclass
+class MessageStream:
+    """The whole run's schedule of one input message.
+
+    Attributes: name; inputs (estimator inputs it carries); t_rel_ns (frame times from the simulation
+    start); sample (plant sub-step index of each frame); noise (pre-drawn); unsigned (signals whose
+    DBC range starts at 0: the magnitude is sent); sent (frames emitted so far).
+    """
+
+    name: str
+    inputs: tuple[str, ...]
+    t_rel_ns: np.ndarray
+    sample: np.ndarray
+    noise: SensorNoise
+    unsigned: frozenset[str] = frozenset()
+    modulus: int = 15
+    sent: int = 0
+
+
+def build_streams(profile: Profile, duration_ns: int, h_ns: int, sp: SensorParams,
+                  rng: np.random.Generator) -> list[MessageStream]:
+    """Schedules of the profile's input messages (anchor message first)."""
+    names = [profile.anchor_message] + [m for m in profile.messages if m != profile.anchor_message]
+    streams = []
+    for i, name in enumerate(names):
+        spec = profile.messages[name]
+        t = np.arange(i * PHASE_NS, duration_ns, spec.period_ns, dtype=np.int64)
+        codec = MessageCodec(profile, name)
+        unsigned = frozenset(
+            inp for inp in spec.inputs
+            if all(not codec.signals[s].signed and (codec.signals[s].minimum or 0.0) >= 0.0
+                   for s in profile.inputs[inp].signals)
+        )
+        streams.append(MessageStream(
+            name=name, inputs=spec.inputs, t_rel_ns=t, sample=t // h_ns,
+            noise=SensorNoise.draw(spec.inputs, t.size, sp, rng), unsigned=unsigned,
+            modulus=spec.scheme.modulus,
+        ))
+    return streams
+
+
+def emit_range(profile: Profile, stream: MessageStream, k0: int, k1: int, out_ring: np.ndarray,
+               delay: int, sp: SensorParams, t0_ns: int) -> FrameBatch | None:
+    """Encode the frames of ``stream`` whose samples lie in sub-steps [k0, k1); advance ``stream.sent``.
+
+    ``out_ring`` holds plant output rows indexed ``k % len(out_ring)`` (it must still hold k0 - delay).
+    """
+    a = stream.sent
+    b = int(np.searchsorted(stream.sample, k1, side="left"))
+    if b <= a:
+        return None
+    idx = stream.sample[a:b]
+    if idx[0] < k0 - delay:
+        raise RuntimeError("emitter fell behind the plant's output ring")
+    r = out_ring.shape[0]
+    rows = out_ring[idx % r]
+    rows_d = out_ring[np.maximum(idx - delay, 0) % r]
+    si = measure(stream.inputs, rows, rows_d, stream.noise, slice(a, b), sp)
+    for name in stream.unsigned:
+        si[name] = np.abs(si[name])
+    cols = si_to_dbc(profile, stream.name, si)
+    frames = encode_frames(profile, stream.name, t0_ns + stream.t_rel_ns[a:b], cols,
+                           counter_start=_counter(a, stream.modulus))
+    stream.sent = b
+    return frames
+
+
+def _counter(n_sent: int, modulus: int) -> int:
+    # encode_frames counts (start + i) % modulus: Profile 1's modulus 15 already skips 15
+    return n_sent % modulus
+
+
+# ------------------------------------------------------------------------------ bus pump
+
+
+@dataclass
+class PumpStats:
+    """What :func:`pump` did: frames sent, overlay frames received / used, send errors, lateness."""
+
+    sent: int = 0
+    received: int = 0
+    overlay_used: int = 0
+    send_errors: int = 0
+    max_late_s: float = 0.0
+    wall_s: float = 0.0
+    sim_s: float = 0.0
+    frames: list[FrameBatch] = field(default_factory=list)
+
+
+def to_messages(frames: FrameBatch, channel: str | None = None) -> list[can.Message]:
+    """python-can messages with the frames' (simulated) timestamps."""
+    return [
+        can.Message(timestamp=ns_to_seconds(int(frames.t_ns[i])), arbitration_id=int(frames.can_id[i]),
+                    is_extended_id=bool(frames.is_extended[i]), dlc=int(frames.dlc[i]),
+                    data=bytes(frames.data[i, : frames.dlc[i]]), channel=channel)
+        for i in range(len(frames))
+    ]
+
+
+def pump(sim, bus: can.BusABC, *, realtime: bool = True, closed_loop: bool = True,
+         receiver=None, keep_frames: bool = False, stop: Callable[[], bool] | None = None) -> PumpStats:
+    """Run ``sim`` (a :class:`vcan_sim.run.Simulation`) to its end, sending its frames on ``bus``.
+
+    ``realtime``: each frame goes out when the wall clock reaches its simulated time (sleeping with
+    ``bus.recv(timeout)``, so overlay frames are taken in while waiting); else as fast as possible
+    with the simulated timestamps. ``closed_loop``: frames received from the bus go to ``receiver``
+    (a :class:`vcan_sim.closed_loop.OverlayReceiver`) and its request drives the overlay torque.
+    """
+    st = PumpStats()
+    wall0 = time.monotonic()
+    sim0 = sim.t_ns
+
+    def take(msg: can.Message | None) -> None:
+        if msg is None or receiver is None:
+            return
+        st.received += 1
+        if receiver.on_message(msg, sim.t_ns) is not None:
+            st.overlay_used += 1
+
+    while not sim.done:
+        if stop is not None and stop():
+            break
+        if closed_loop and receiver is not None and not realtime:
+            take(bus.recv(timeout=0.0))
+        req = receiver.request(sim.t_ns) if (closed_loop and receiver is not None) else None
+        frames = sim.step(req)
+        if keep_frames:
+            st.frames.append(frames)
+        for msg in to_messages(frames):
+            if realtime:
+                due = wall0 + (int(round(msg.timestamp * 1e9)) - sim0) * 1e-9
+                while True:
+                    wait = due - time.monotonic()
+                    if wait <= 0:
+                        st.max_late_s = max(st.max_late_s, -wait)
+                        break
+                    if closed_loop and receiver is not None:
+                        take(bus.recv(timeout=wait))
+                    else:
+                        time.sleep(wait)
+            try:
+                bus.send(msg)
+                st.sent += 1
+            except can.CanError as exc:
+                st.send_errors += 1
+                log.warning("send failed: %s", exc)
+    st.wall_s = time.monotonic() - wall0
+    st.sim_s = (sim.t_ns - sim0) * 1e-9
+    return st

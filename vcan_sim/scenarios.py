@@ -1,0 +1,271 @@
+"""Named, seeded, documented scenarios: disturbance, speed, lane and payload time profiles.
+
+A :class:`Scenario` is data (steps of wind speed and bank angle, turbulence, discrete gusts, lane
+changes, payload, speed, scripted overlay torque); :func:`disturbance_profile` turns it into
+arrays on the simulator's sub-step grid, deterministically under a seed. ``lde sim --list`` prints
+the registry (:data:`SCENARIOS`) with one line per scenario.
+
+Profiles are piecewise constant with smooth transitions: a :class:`Step` ``(t, rise, value)``
+moves the quantity from its previous value to ``value`` starting at ``t`` over ``rise`` seconds
+along a half cosine (``rise = 0`` is a true step). Wind direction: the direction the air moves
+toward, relative to the road (90 deg = toward the left, i.e. wind from the right). Turbulence is
+a seeded Ornstein-Uhlenbeck process (intensity times the mean wind, correlation time
+``turbulence_time``); discrete gusts are "1 - cos" pulses at seeded times.
+
+Random streams: the seed feeds a ``numpy.random.SeedSequence`` spawned into independent streams
+(wind, driver gains, driver noise, sensors) so one part's randomness never shifts another's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numba
+import numpy as np
+
+from lde.errors import ConfigError
+from lde.units import DEG, KMH
+
+#: independent random streams, in this order, from SeedSequence(seed).spawn(N_STREAMS)
+STREAM_WIND, STREAM_DRIVER_GAINS, STREAM_DRIVER_NOISE, STREAM_SENSORS = range(4)
+N_STREAMS = 4
+
+
+def rng_streams(seed: int) -> list[np.random.Generator]:
+    """Independent generators for the scenario's random parts."""
+    return [np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(N_STREAMS)]
+
+
+@dataclass(frozen=True)
+class Step:
+    """From ``t`` [s], move to ``value`` over ``rise`` [s] (half-cosine blend; 0 = a step)."""
+
+    t: float
+    rise: float
+    value: float
+
+
+@dataclass(frozen=True)
+class Gusts:
+    """``count`` discrete 1-cos gusts of up to ``amplitude`` [m/s] lasting ``length`` [s], at seeded
+    times in [t_start, t_end] (amplitudes uniform in 0.5..1 of ``amplitude``, random sign if
+    ``two_sided``)."""
+
+    count: int = 0
+    amplitude: float = 0.0
+    length: float = 2.0
+    t_start: float = 2.0
+    t_end: float = 1e9
+    two_sided: bool = False
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One named test drive. Units: s, m/s (wind), km/h (speed), deg (bank, direction), m (lane).
+
+    Attributes:
+        name, description: registry key and the one-line description ``lde sim --list`` prints.
+        duration: default length [s].
+        speed_kmh: initial speed; speed_steps: later speed targets (km/h).
+        wind_speed: steps of the mean wind speed [m/s]; wind_direction_deg: direction of the air's
+            motion relative to the road (90 = toward the left); turbulence: intensity (std / mean);
+            turbulence_floor: std [m/s] even at zero mean; turbulence_time: correlation time [s];
+            gusts: discrete gusts added to the wind speed.
+        bank_deg: steps of the bank angle [deg] (positive: left side lower).
+        lane: steps of the lane centre [m] (lane changes; positive left).
+        overlay: scripted overlay-torque request steps [Nm] (closed loop overrides it).
+        payload: name in :data:`vcan_sim.payload.PAYLOADS`.
+        driver: "lane" (holds the lane), "hands_off", or "angle" (follows ``steer_deg``).
+        steer_deg: steering-wheel angle steps [deg] for driver "angle".
+    """
+
+    name: str
+    description: str
+    duration: float = 30.0
+    speed_kmh: float = 100.0
+    speed_steps: tuple[Step, ...] = ()
+    wind_speed: tuple[Step, ...] = ()
+    wind_direction_deg: float = 90.0
+    turbulence: float = 0.0
+    turbulence_floor: float = 0.0
+    turbulence_time: float = 1.5
+    gusts: Gusts = field(default_factory=Gusts)
+    bank_deg: tuple[Step, ...] = ()
+    lane: tuple[Step, ...] = ()
+    overlay: tuple[Step, ...] = ()
+    payload: str = "none"
+    driver: str = "lane"
+    steer_deg: tuple[Step, ...] = ()
+
+    def with_speed(self, speed_kmh: float) -> Scenario:
+        """The same drive at another constant speed."""
+        return replace(self, speed_kmh=float(speed_kmh), speed_steps=())
+
+
+@dataclass(frozen=True)
+class DisturbanceProfile:
+    """Scenario inputs on the sub-step grid (n samples, SI).
+
+    Attributes: wind_x, wind_y: air velocity in world axes [m/s]; wind_speed [m/s]; bank [rad];
+    lane [m]; speed [m/s]; overlay [Nm]; steer [rad] (steering-wheel angle command).
+    """
+
+    wind_x: np.ndarray
+    wind_y: np.ndarray
+    wind_speed: np.ndarray
+    bank: np.ndarray
+    lane: np.ndarray
+    speed: np.ndarray
+    overlay: np.ndarray
+    steer: np.ndarray
+
+
+def steps_profile(t: np.ndarray, steps: tuple[Step, ...], initial: float = 0.0) -> np.ndarray:
+    """Piecewise-constant profile with half-cosine transitions (see module doc)."""
+    y = np.full(t.shape, float(initial))
+    prev = float(initial)
+    for s in sorted(steps, key=lambda s: s.t):
+        if s.rise <= 0.0:
+            blend = (t >= s.t).astype(np.float64)
+        else:
+            u = np.clip((t - s.t) / s.rise, 0.0, 1.0)
+            blend = 0.5 - 0.5 * np.cos(math.pi * u)
+        after = t >= s.t
+        y = np.where(after, prev + (s.value - prev) * blend, y)
+        prev = s.value
+    return y
+
+
+def ou_process(n: int, dt: float, sigma: float, tau: float, rng: np.random.Generator) -> np.ndarray:
+    """Stationary Ornstein-Uhlenbeck samples (std ``sigma``, correlation time ``tau``), exact AR(1)."""
+    if n == 0 or sigma <= 0.0:
+        return np.zeros(n)
+    a = math.exp(-dt / tau)
+    e = rng.standard_normal(n) * sigma * math.sqrt(1.0 - a * a)
+    e[0] = rng.standard_normal() * sigma
+    return _ar1(e, a)
+
+
+@numba.njit(cache=True)
+def _ar1(e: np.ndarray, a: float) -> np.ndarray:
+    """y[0] = e[0], y[k] = a y[k-1] + e[k]."""
+    y = np.empty_like(e)
+    acc = 0.0
+    for k in range(e.shape[0]):
+        acc = a * acc + e[k] if k else e[0]
+        y[k] = acc
+    return y
+
+
+def gust_profile(t: np.ndarray, g: Gusts, rng: np.random.Generator) -> np.ndarray:
+    """Sum of ``g.count`` 1-cos gusts at seeded times."""
+    out = np.zeros_like(t)
+    if g.count <= 0 or g.amplitude == 0.0:
+        return out
+    t_end = min(g.t_end, float(t[-1]) - g.length) if t.size else 0.0
+    starts = np.sort(rng.uniform(g.t_start, max(t_end, g.t_start), g.count))
+    amps = g.amplitude * rng.uniform(0.5, 1.0, g.count)
+    if g.two_sided:
+        amps *= rng.choice([-1.0, 1.0], g.count)
+    for ts, a in zip(starts, amps):
+        u = (t - ts) / g.length
+        inside = (u >= 0.0) & (u <= 1.0)
+        out[inside] += 0.5 * a * (1.0 - np.cos(2.0 * math.pi * u[inside]))
+    return out
+
+
+def disturbance_profile(sc: Scenario, t: np.ndarray, rng_wind: np.random.Generator) -> DisturbanceProfile:
+    """The scenario's inputs at times ``t`` [s] (uniform grid)."""
+    dt = float(t[1] - t[0]) if t.size > 1 else 1e-3
+    mean = steps_profile(t, sc.wind_speed)
+    sigma = 1.0  # unit OU, scaled by the local intensity below
+    turb = ou_process(t.size, dt, sigma, sc.turbulence_time, rng_wind)
+    speed = mean + turb * (sc.turbulence * np.abs(mean) + sc.turbulence_floor)
+    speed = speed + gust_profile(t, sc.gusts, rng_wind)
+    direction = sc.wind_direction_deg * DEG
+    return DisturbanceProfile(
+        wind_x=speed * math.cos(direction),
+        wind_y=speed * math.sin(direction),
+        wind_speed=np.abs(speed),
+        bank=steps_profile(t, sc.bank_deg) * DEG,
+        lane=steps_profile(t, sc.lane),
+        speed=steps_profile(t, sc.speed_steps, sc.speed_kmh) * KMH,
+        overlay=steps_profile(t, sc.overlay),
+        steer=steps_profile(t, sc.steer_deg) * DEG,
+    )
+
+
+# ---------------------------------------------------------------------------------- registry
+
+_HEAVY_BANK = (Step(14.0, 2.0, 3.0), Step(24.0, 3.0, -3.0), Step(33.0, 2.0, 0.0))
+_LIGHT_BANK = (Step(14.0, 2.0, 1.0), Step(24.0, 3.0, -1.0), Step(33.0, 2.0, 0.0))
+_PAYLOAD_DRIVE = dict(
+    duration=40.0, speed_kmh=100.0,
+    wind_speed=(Step(3.0, 1.5, 8.0), Step(20.0, 1.5, 0.0)), turbulence=0.1,
+    bank_deg=(Step(24.0, 2.0, 2.0), Step(32.0, 2.0, -2.0), Step(37.0, 1.0, 0.0)),
+)
+
+_LIST = [
+    Scenario("heavy_load", "paper heavy load: 15 m/s crosswind from the right (gusty), bank -3..3 deg, 100 km/h",
+             duration=40.0, speed_kmh=100.0,
+             wind_speed=(Step(3.0, 1.5, 15.0), Step(28.0, 2.0, 0.0)), turbulence=0.08,
+             bank_deg=_HEAVY_BANK),
+    Scenario("light_load", "paper light load: 2 m/s crosswind from the right, bank -1..1 deg, 100 km/h",
+             duration=40.0, speed_kmh=100.0,
+             wind_speed=(Step(3.0, 1.5, 2.0), Step(28.0, 2.0, 0.0)), turbulence=0.08,
+             bank_deg=_LIGHT_BANK),
+    Scenario("steady_wind", "steady 10 m/s crosswind from the right after a 2 s ramp, 120 km/h",
+             duration=30.0, speed_kmh=120.0, wind_speed=(Step(3.0, 2.0, 10.0),)),
+    Scenario("wind_step", "12 m/s crosswind step (0.3 s rise) at 5 s, off at 20 s, 100 km/h",
+             duration=30.0, speed_kmh=100.0, wind_speed=(Step(5.0, 0.3, 12.0), Step(20.0, 0.3, 0.0))),
+    Scenario("gusty_wind", "8 m/s mean crosswind, 25 % turbulence and 6 discrete gusts up to 8 m/s, 130 km/h",
+             duration=60.0, speed_kmh=130.0, wind_speed=(Step(2.0, 3.0, 8.0),), turbulence=0.25,
+             gusts=Gusts(count=6, amplitude=8.0, length=2.0, t_start=8.0)),
+    Scenario("wind_left", "10 m/s crosswind from the left (blowing right), 90 km/h",
+             duration=30.0, speed_kmh=90.0, wind_speed=(Step(3.0, 1.0, 10.0),), wind_direction_deg=-90.0),
+    Scenario("oblique_wind", "14 m/s wind from 45 deg ahead-right, 110 km/h",
+             duration=30.0, speed_kmh=110.0, wind_speed=(Step(3.0, 2.0, 14.0),), wind_direction_deg=135.0,
+             turbulence=0.1),
+    Scenario("bank_transition", "bank 0 -> +3 -> -3 -> 0 deg with 2-3 s transitions, no wind, 90 km/h",
+             duration=40.0, speed_kmh=90.0, bank_deg=(Step(5.0, 2.0, 3.0), Step(15.0, 3.0, -3.0),
+                                                       Step(28.0, 2.0, 0.0))),
+    Scenario("payload_full", "full load (+450 kg: 4 occupants + trunk), 8 m/s wind then bank +-2 deg, 100 km/h",
+             payload="full", **_PAYLOAD_DRIVE),
+    Scenario("payload_trunk", "+150 kg in the trunk (CG moves back), 8 m/s wind then bank +-2 deg, 100 km/h",
+             payload="trunk", **_PAYLOAD_DRIVE),
+    Scenario("payload_four", "+225 kg (3 passengers), 8 m/s wind then bank +-2 deg, 100 km/h",
+             payload="four_occupants", **_PAYLOAD_DRIVE),
+    Scenario("payload_left", "+160 kg on the rear left seat (lateral CG offset), 8 m/s wind then bank, 100 km/h",
+             payload="left_side", **_PAYLOAD_DRIVE),
+    Scenario("lane_change", "no disturbance: 3.5 m lane change to the left at 8 s and back at 20 s, 100 km/h",
+             duration=30.0, speed_kmh=100.0, lane=(Step(8.0, 4.0, 3.5), Step(20.0, 4.0, 0.0))),
+    Scenario("straight", "no disturbance, straight lane keeping, 100 km/h",
+             duration=30.0, speed_kmh=100.0),
+    Scenario("speed_sweep", "speed 60 -> 160 km/h with a 6 m/s crosswind and bank +-1.5 deg",
+             duration=60.0, speed_kmh=60.0, speed_steps=(Step(5.0, 45.0, 160.0),),
+             wind_speed=(Step(2.0, 2.0, 6.0),), turbulence=0.15,
+             bank_deg=(Step(20.0, 2.0, 1.5), Step(38.0, 3.0, -1.5), Step(52.0, 2.0, 0.0))),
+    Scenario("heavy_load_60", "paper heavy load at 60 km/h", duration=40.0, speed_kmh=60.0,
+             wind_speed=(Step(3.0, 1.5, 15.0), Step(28.0, 2.0, 0.0)), turbulence=0.08, bank_deg=_HEAVY_BANK),
+    Scenario("heavy_load_140", "paper heavy load at 140 km/h (wind 12 m/s so that the wheel stays within 15 deg)",
+             duration=40.0, speed_kmh=140.0,
+             wind_speed=(Step(3.0, 1.5, 12.0), Step(28.0, 2.0, 0.0)), turbulence=0.08, bank_deg=_HEAVY_BANK),
+    Scenario("overlay_step", "no disturbance, a scripted 2 Nm overlay torque from 5 s to 15 s: the driver's reaction",
+             duration=25.0, speed_kmh=100.0, overlay=(Step(5.0, 0.4, 2.0), Step(15.0, 0.4, 0.0))),
+]
+
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in _LIST}
+
+
+def get_scenario(name: str) -> Scenario:
+    """Scenario by name; ConfigError listing the names otherwise."""
+    try:
+        return SCENARIOS[name]
+    except KeyError:
+        raise ConfigError(f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)}; see lde sim --list)") from None
+
+
+def scenario_list() -> list[tuple[str, str]]:
+    """(name, one-line description) of every scenario, in registry order."""
+    return [(s.name, s.description) for s in _LIST]

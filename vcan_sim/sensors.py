@@ -1,0 +1,69 @@
+"""Sensors: what the MDPS and the ESC report about the plant, with noise, bias and delay.
+
+Each estimator input (SI, ISO signs; names of :data:`lde.profiles.INPUT_NAMES`) is read from the
+plant's output rows at the frame's sample (the last sub-step at or before the frame time)::
+
+    column_torque  = T_column(k - d) + b + n      torsion-bar torque, delayed by the MDPS
+    assist_torque  = T_assist(k - d) + b + n      total motor torque (boost + overlay), delayed
+    steering_angle = delta_sw(k) + b + n          steering-wheel angle
+    steering_rate  = omega_sw(k) + n
+    yaw_rate       = r(k) + b + n
+    lat_accel      = a_y,meas(k) + b + n          body accelerometer (tire + aero force / m + g sin roll)
+    speed          = vx(k) + n
+
+``d`` = round(mdps_delay / h) sub-steps (the paper's 3.9 ms computation delay), ``b`` the
+configured bias, ``n`` white Gaussian noise (seeded, drawn once per frame for the whole run so that
+stepping and the fast path give identical values). Quantisation is the DBC's scaling, applied when
+the frame is encoded (:mod:`lde.codec`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import SensorParams
+from .plant import O_AY, O_DSW, O_R, O_TAST, O_TCOL, O_VX, O_WSW
+
+#: input -> (output column, delayed by the MDPS, noise attribute, bias attribute or None)
+SENSOR_MAP: dict[str, tuple[int, bool, str, str | None]] = {
+    "column_torque": (O_TCOL, True, "column_torque_noise", "column_torque_bias"),
+    "assist_torque": (O_TAST, True, "assist_torque_noise", "assist_torque_bias"),
+    "steering_angle": (O_DSW, False, "steering_angle_noise", "steering_angle_bias"),
+    "steering_rate": (O_WSW, False, "steering_rate_noise", None),
+    "yaw_rate": (O_R, False, "yaw_rate_noise", "yaw_rate_bias"),
+    "lat_accel": (O_AY, False, "lat_accel_noise", "lat_accel_bias"),
+    "speed": (O_VX, False, "speed_noise", None),
+}
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """Pre-drawn noise of one message's inputs: input name -> array [n_frames] (SI)."""
+
+    values: dict[str, np.ndarray]
+
+    @classmethod
+    def draw(cls, inputs: tuple[str, ...], n: int, sp: SensorParams, rng: np.random.Generator) -> SensorNoise:
+        return cls({name: rng.standard_normal(n) * getattr(sp, SENSOR_MAP[name][2]) for name in inputs})
+
+
+def measure(inputs: tuple[str, ...], rows: np.ndarray, rows_delayed: np.ndarray, noise: SensorNoise,
+            sl: slice, sp: SensorParams) -> dict[str, np.ndarray]:
+    """SI measurements of ``inputs`` for frames ``sl`` of a message.
+
+    ``rows`` / ``rows_delayed``: plant output rows at the frames' samples and ``d`` sub-steps before.
+    """
+    out: dict[str, np.ndarray] = {}
+    for name in inputs:
+        col, delayed, _, bias_attr = SENSOR_MAP[name]
+        src = rows_delayed if delayed else rows
+        bias = getattr(sp, bias_attr) if bias_attr else 0.0
+        out[name] = src[:, col] + bias + noise.values[name][sl]
+    return out
+
+
+def delay_substeps(sp: SensorParams, h: float) -> int:
+    """The MDPS computation delay in whole sub-steps."""
+    return int(round(sp.mdps_delay / h))
