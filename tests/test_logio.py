@@ -328,3 +328,35 @@ def test_mcap_writer_payload_layout_is_fixed_size():
     assert (p[:, :4] == np.array([0, 1, 0, 0], np.uint8)).all()
     assert struct.unpack_from("<I", p[3].tobytes(), 4)[0] == frames.can_id[3]
     _ = io  # keep import list honest for linters
+
+
+# ----------------------------------------------------------------------------- text formatter
+def test_format_rows_matches_python_formatting():
+    from lde.logio.textfmt import Column, format_rows, time_column
+
+    rng = np.random.default_rng(11)
+    n = 500
+    f = rng.normal(0, 1000, n)
+    f[:5] = [0.0, -0.0004, 0.0005, 123456.7891, -1.5]
+    f[7] = np.nan
+    k = rng.integers(-300, 300, n)
+    t = T0 + np.arange(n, dtype=np.int64) * 3_900_000 + 123_000
+    text, off = format_rows(
+        [time_column("t", t), Column("f", f, 3), Column("k", k, 0), Column("b", k > 0, 0)],
+        ["", ",", ",", ","],
+        "\n",
+    )
+    lines = text.tobytes().decode().splitlines()
+    assert len(lines) == n and off[-1] == len(text) and off[1] == len(lines[0]) + 1
+    for i, line in enumerate(lines):
+        ts, fs, ks, bs = line.split(",")
+        assert ts == f"{t[i] // 10**9}.{t[i] % 10**9 // 1000:06d}"
+        if np.isnan(f[i]):
+            assert fs == "nan"
+        else:
+            assert float(fs) == pytest.approx(f[i], abs=5e-4 + 1e-12)
+            assert len(fs.split(".")[1]) == 3
+        assert int(ks) == k[i] and int(bs) == int(k[i] > 0)
+    # ns timestamps that are not whole microseconds print with 9 digits
+    text9, _ = format_rows([time_column("t", np.array([T0 + 1]))], [""], "")
+    assert text9.tobytes() == b"1700000000.000000001"

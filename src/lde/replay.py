@@ -20,7 +20,6 @@ Outputs: :func:`write_csv` (one row per step; ``t`` in seconds in the log's own 
 from __future__ import annotations
 
 import importlib
-import inspect
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -246,63 +245,29 @@ def estimate(grid: InputGrid, vehicle: Vehicle, run_batch: Callable[..., Any]) -
 
 
 def _overlay(est: Any, grid: InputGrid, vehicle: Vehicle) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    """T_overlay, state, active per step from ``lde.overlay.run_batch_overlay`` if it exists, else zeros."""
+    """T_overlay [Nm], limiter state, active per step from :func:`lde.overlay.run_batch_overlay` (the
+    live limiter's kernel), or zeros when :mod:`lde.overlay` is not there."""
     n = len(grid)
     try:
-        ov = importlib.import_module("lde.overlay")
+        from .overlay import run_batch_overlay
     except ImportError:
-        ov = None
-    fn = getattr(ov, "run_batch_overlay", None) if ov is not None else None
-    if fn is None:
         return np.zeros(n), np.zeros(n, np.uint8), np.zeros(n, np.bool_), False
-    pool: dict[str, Any] = {
-        "t_ns": grid.t_ns,
-        "fw": est.fw,
-        "mw": est.mw,
-        "status": est.status,
-        "t_align": est.t_align,
-        "estimate": est,
-        "result": est,
-        "batch": est,
-        "est": est,
-        "grid": grid,
-        "inputs": grid,
-        "vehicle": vehicle,
-        "limits": vehicle.overlay,
-        **{name: grid.values(name) for name in INPUT_FIELDS},
-        "mdps_ok": grid.mdps_ok,
-        "esc_ok": grid.esc_ok,
-    }
-    params = inspect.signature(fn).parameters
-    args = {k: pool[k] for k, p in params.items() if k in pool and p.kind is not p.VAR_KEYWORD}
-    missing = [
-        k
-        for k, p in params.items()
-        if p.default is p.empty and k not in args and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
-    ]
-    if missing:
-        raise ConfigError(f"lde.overlay.run_batch_overlay needs {missing}, which replay cannot provide")
-    out = fn(**args)
-    torque = _first_attr(out, ("t_overlay", "torque", "overlay_torque"))
-    n_state = _first_attr(out, ("overlay_state", "state"), default=np.zeros(n, np.uint8))
-    active = _first_attr(out, ("overlay_active", "active"), default=np.asarray(torque) != 0)
+    t_ov, active, state = run_batch_overlay(
+        grid.t_ns,
+        est.fw,
+        est.mw,
+        est.status,
+        grid.speed,
+        grid.steering_angle,
+        grid.column_torque,
+        vehicle,
+    )
     return (
-        np.asarray(torque, np.float64),
-        np.asarray(n_state).astype(np.uint8),
+        np.asarray(t_ov, np.float64),
+        np.asarray(state).astype(np.uint8),
         np.asarray(active).astype(np.bool_),
         True,
     )
-
-
-def _first_attr(obj: Any, names: tuple[str, ...], default: Any = None) -> Any:
-    for n in names:
-        if isinstance(obj, dict) and n in obj:
-            return obj[n]
-        if hasattr(obj, n):
-            return getattr(obj, n)
-    if default is None:
-        raise ConfigError(f"lde.overlay.run_batch_overlay returned no {names[0]!r}")
-    return default
 
 
 def replay(

@@ -48,14 +48,23 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
-def _out_path(opt: Path | None, log: Path, suffix: str, many: bool) -> Path | None:
+def _out_names(logs: list[Path]) -> dict[Path, str]:
+    """Output base name per log: its stem, or ``<stem>_<suffix>`` where stems collide."""
+    stems = [p.stem for p in logs]
+    return {
+        p: (f"{p.stem}_{p.suffix.lstrip('.')}" if stems.count(p.stem) > 1 and p.suffix else p.stem)
+        for p in logs
+    }
+
+
+def _out_path(opt: Path | None, name: str, suffix: str, many: bool) -> Path | None:
     if opt is None:
         return None
     if many:
         opt.mkdir(parents=True, exist_ok=True)
-        return opt / f"{log.stem}{suffix}"
+        return opt / f"{name}{suffix}"
     if opt.is_dir():
-        return opt / f"{log.stem}{suffix}"
+        return opt / f"{name}{suffix}"
     return opt
 
 
@@ -95,6 +104,9 @@ def run(args: argparse.Namespace) -> int:
     backend, _fn, note = resolve_backend(args.backend)
     if note and not args.quiet:
         print(f"lde replay: note: {note}", file=sys.stderr)
+    names = _out_names(logs)
+    if len(set(names.values())) < len(names):
+        raise ConfigError("several LOGs would write the same output file: give them different names")
     bar = None
     if many or any(p.is_file() and p.stat().st_size > _LARGE_LOG for p in logs):
         from tqdm import tqdm
@@ -103,12 +115,12 @@ def run(args: argparse.Namespace) -> int:
     for path in logs:
         t0 = time.perf_counter()
         log, res = replay_log(path, profile, vehicle, backend, use_recorded_steps=not args.no_recorded_steps)
-        csv_path = _out_path(args.csv, path, ".csv", many)
+        csv_path = _out_path(args.csv, names[path], ".csv", many)
         if csv_path is not None:
             t1 = time.perf_counter()
             write_csv(csv_path, res)
             res.timings["csv"] = time.perf_counter() - t1
-        mcap_path = _out_path(args.mcap, path, ".mcap", many)
+        mcap_path = _out_path(args.mcap, names[path], ".mcap", many)
         if mcap_path is not None:
             t1 = time.perf_counter()
             write_recording(

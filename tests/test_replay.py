@@ -1,0 +1,210 @@
+"""lde.replay and `lde replay`: the acceptance test on the linear-model sample log, CSV contract,
+MCAP recordings that replay to the same estimates, CLI behaviour."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lde.cli import main
+from lde.logio import read_log
+from lde.params import load_vehicle
+from lde.profiles import load_profile
+from lde.replay import CSV_COLUMNS, replay, replay_log, write_csv, write_recording
+
+DATA = Path(__file__).parent / "data"
+SAMPLE = DATA / "sample_linear.log"
+SAMPLE_MCAP = DATA / "sample_linear.mcap"
+TRUTH = DATA / "sample_linear_truth.csv"
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def profile():
+    return load_profile("lde")
+
+
+@pytest.fixture(scope="module")
+def vehicle():
+    return load_vehicle("reference")
+
+
+@pytest.fixture(scope="module")
+def sample_replay(profile, vehicle):
+    return replay_log(SAMPLE, profile, vehicle, "float")
+
+
+def read_truth() -> dict[str, np.ndarray]:
+    with TRUTH.open() as fh:
+        rows = list(csv.DictReader(fh))
+    t_ns = np.array([int(r["t"].replace(".", "")) * 1000 for r in rows], np.int64)  # 6 decimals exact
+    return {"t_ns": t_ns, **{k: np.array([float(r[k]) for r in rows]) for k in ("Fw", "Mw")}}
+
+
+def test_acceptance_linear_log_converges_to_truth(sample_replay):
+    """THE acceptance test: after settling, the replayed estimate is within 5% of the true Fw, Mw."""
+    _log, res = sample_replay
+    truth = read_truth()
+    j = np.searchsorted(truth["t_ns"], res.t_ns, side="right") - 1
+    fw_true, mw_true = truth["Fw"][j], truth["Mw"][j]
+    t_rel = (res.t_ns - truth["t_ns"][0]) * 1e-9
+    settled = (t_rel >= 10.0) & (t_rel < 20.0)  # disturbance from 5 s, 5 s to settle
+    assert np.all(fw_true[settled] == 800.0) and np.all(mw_true[settled] == -300.0)
+    assert np.all(res.status[settled] & 1)  # VALID
+    fw_mean, mw_mean = res.fw[settled].mean(), res.mw[settled].mean()
+    assert abs(fw_mean - 800.0) <= 0.05 * 800.0, fw_mean
+    assert abs(mw_mean + 300.0) <= 0.05 * 300.0, mw_mean
+    # every 1 s window of the settled part, not only the mean of all of it
+    for a in np.arange(10.0, 20.0, 1.0):
+        w = (t_rel >= a) & (t_rel < a + 1.0)
+        assert abs(res.fw[w].mean() - 800.0) <= 0.05 * 800.0, (a, res.fw[w].mean())
+        assert abs(res.mw[w].mean() + 300.0) <= 0.10 * 300.0, (a, res.mw[w].mean())
+    # before the disturbance the estimate stays near zero (after the filter's own start-up)
+    quiet = (t_rel >= 2.0) & (t_rel < 5.0)
+    assert abs(res.fw[quiet].mean()) < 0.05 * 800.0
+    assert abs(res.mw[quiet].mean()) < 0.1 * 300.0
+
+
+def test_sample_log_frames_are_all_used(sample_replay):
+    log, res = sample_replay
+    assert log.stats.skipped == 0
+    assert res.frames.rejected == 0
+    assert res.frames.ignored == 0
+    # the E2E receiver needs a few frames to trust each message; everything else is used
+    assert res.frames.used >= res.frames.total - 6
+
+
+def test_mcap_copy_replays_like_candump(sample_replay, profile, vehicle):
+    _log, res = sample_replay
+    _log2, res2 = replay_log(SAMPLE_MCAP, profile, vehicle, "float")
+    assert not res2.recorded_steps  # a plain log (no /can/tx, no /lde/estimate): grid from frames
+    np.testing.assert_array_equal(res.t_ns, res2.t_ns)
+    np.testing.assert_array_equal(res.fw, res2.fw)
+    np.testing.assert_array_equal(res.mw, res2.mw)
+
+
+def test_recording_replays_to_the_same_estimates(sample_replay, profile, vehicle, tmp_path: Path):
+    log, res = sample_replay
+    out = tmp_path / "rec.mcap"
+    write_recording(out, log.frames, res, profile)
+    rec_log, res2 = replay_log(out, profile, vehicle, "float")
+    assert res2.recorded_steps
+    assert rec_log.mcap is not None and {"/can/tx", "/lde/estimate", "/lde/inputs"} <= set(
+        rec_log.mcap.topics
+    )
+    assert res2.frames.tx == 2 * len(res)  # LDE_Estimate + LDE_Overlay per step
+    np.testing.assert_array_equal(res.t_ns, res2.t_ns)
+    np.testing.assert_array_equal(res.fw, res2.fw)
+    np.testing.assert_array_equal(res.mw, res2.mw)
+    np.testing.assert_array_equal(res.status, res2.status)
+    # the recorded estimates are the replayed ones (to the printed precision)
+    est = rec_log.mcap.json["/lde/estimate"]
+    np.testing.assert_array_equal(est["t_ns"], res.t_ns)
+    np.testing.assert_allclose(est["Fw"], np.round(res.fw, 3), atol=1e-9)
+
+
+def test_recorded_step_times_are_used(sample_replay, profile, vehicle, tmp_path: Path):
+    """Steps of a recording are its recorded ones even when they are not the frame-anchored grid."""
+    log, res = sample_replay
+    shifted = replay(log.frames, profile, vehicle, "float", step_times_ns=res.t_ns[::2] + 1_000_000)
+    out = tmp_path / "shifted.mcap"
+    write_recording(out, log.frames, shifted, profile)
+    _, again = replay_log(out, profile, vehicle, "float")
+    np.testing.assert_array_equal(again.t_ns, shifted.t_ns)
+    np.testing.assert_array_equal(again.fw, shifted.fw)
+    _, grid = replay_log(out, profile, vehicle, "float", use_recorded_steps=False)
+    np.testing.assert_array_equal(grid.t_ns, res.t_ns)
+
+
+def test_csv_contract(sample_replay, tmp_path: Path):
+    log, res = sample_replay
+    out = tmp_path / "o.csv"
+    write_csv(out, res)
+    with out.open() as fh:
+        rows = list(csv.reader(fh))
+    header, body = rows[0], rows[1:]
+    assert header[:4] == ["t", "Fw", "Mw", "T_overlay"]
+    assert header == [c for c, _, _ in CSV_COLUMNS]
+    assert len(body) == len(res)
+    # t: seconds in the log's own time base, printed exactly (microseconds)
+    first = int(log.frames.t_ns[0])
+    for i in (0, 1, len(res) // 2, len(res) - 1):
+        s, frac = body[i][0].split(".")
+        assert len(frac) == 6
+        assert int(s) * 10**9 + int(frac) * 1000 == res.t_ns[i]
+    assert abs(float(body[0][0]) - first * 1e-9) < 0.05
+    np.testing.assert_allclose([float(r[1]) for r in body], res.fw, atol=5e-4)
+    np.testing.assert_allclose([float(r[2]) for r in body], res.mw, atol=5e-4)
+    assert [int(r[5]) for r in body] == res.status.tolist()
+
+
+def test_cli_end_to_end(tmp_path: Path, capsys):
+    out = tmp_path / "o.csv"
+    rec = tmp_path / "o.mcap"
+    rc = main(["replay", str(SAMPLE), "--backend", "float", "--csv", str(out), "--mcap", str(rec)])
+    assert rc == 0
+    err = capsys.readouterr().err
+    assert "steps" in err and "frames used" in err
+    with out.open() as fh:
+        rows = list(csv.reader(fh))
+    assert rows[0][:4] == ["t", "Fw", "Mw", "T_overlay"]
+    n_steps = len(rows) - 1
+    assert f"{n_steps} steps" in err
+    t = np.array([float(r[0]) for r in rows[1:]])
+    assert t[0] > 1.7e9 and np.allclose(np.diff(t), 0.0039, atol=2e-6)
+    # the recording replays to the identical CSV
+    out2 = tmp_path / "o2.csv"
+    assert main(["replay", str(rec), "--backend", "float", "--csv", str(out2), "-q"]) == 0
+    assert out2.read_bytes() == out.read_bytes()
+
+
+def test_cli_several_logs_write_a_directory(tmp_path: Path):
+    outdir = tmp_path / "csv"
+    assert (
+        main(["replay", str(SAMPLE), str(SAMPLE_MCAP), "--backend", "float", "--csv", str(outdir), "-q"]) == 0
+    )
+    files = sorted(p.name for p in outdir.iterdir())
+    assert files == ["sample_linear_log.csv", "sample_linear_mcap.csv"]
+    # the MCAP copy holds the same frames: the same estimates
+    assert (outdir / files[0]).read_bytes() == (outdir / files[1]).read_bytes()
+
+
+def test_cli_errors_are_one_line(tmp_path: Path):
+    bad = tmp_path / "bad.log"
+    bad.write_text("not a log\n")
+    for args in (
+        ["replay", str(bad)],
+        ["replay", str(tmp_path / "missing.mcap")],
+        ["replay", str(SAMPLE), "--profile", "nope"],
+        ["replay", str(SAMPLE), "--vehicle", str(tmp_path / "missing.toml")],
+    ):
+        proc = subprocess.run(
+            [sys.executable, "-m", "lde", *args], capture_output=True, text=True, cwd=tmp_path, timeout=120
+        )
+        assert proc.returncode == 2, (args, proc.stderr)
+        lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("lde: error:")]
+        assert len(lines) == 1, proc.stderr
+        assert "Traceback" not in proc.stderr
+
+
+def test_sample_log_is_reproducible(tmp_path: Path):
+    """The committed sample files are exactly what the script makes under its seed."""
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "make_sample_log.py"), "--out-dir", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "sample_linear.log").read_bytes() == SAMPLE.read_bytes()
+    assert (tmp_path / "sample_linear_truth.csv").read_bytes() == TRUTH.read_bytes()
+    new = read_log(tmp_path / "sample_linear.mcap")
+    old = read_log(SAMPLE_MCAP)
+    np.testing.assert_array_equal(new.frames.data, old.frames.data)
+    total = sum(p.stat().st_size for p in DATA.glob("sample_linear*"))
+    assert total < 2_000_000
