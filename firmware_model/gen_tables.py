@@ -100,7 +100,9 @@ def normalisation_exponents(vehicle: Vehicle) -> tuple[list[int], int]:
     return e_state, e_t
 
 
-def coefficient_polys(vehicle: Vehicle, e_state: list[int], e_t: int, dt: float) -> dict[str, tuple[float, float, float]]:
+def coefficient_polys(
+    vehicle: Vehicle, e_state: list[int], e_t: int, dt: float
+) -> dict[str, tuple[float, float, float]]:
     """(c0, c1, c2) of every runtime coefficient: c(w) = c0 + c1 w + c2 w^2 with w = 1/vx [s/m].
 
     From lde.model (Phi = I + A dt, E = B dt) in normalised units X_i = x_i / s_i:
@@ -200,13 +202,15 @@ def generate(vehicle: Vehicle, dt_ns: int = STEP_NS) -> dict[str, Any]:
             # term j is c_j * w^j: raw Q(f) times Q(f_w) (j >= 1) -> shift right to Q(f_c)
             shift = (f + (f_w if j > 0 else 0) - f_c) if raw != 0 else 0
             terms.append([raw, f, shift])
-        coefs.append({"name": name, "group": COEF_GROUP[name], "n_frac": f_c, "terms": terms, "real": list(c)})
+        coefs.append({"name": name, "group": COEF_GROUP[name], "n_frac": f_c, "terms": terms,
+                      "real": list(c)})
 
     # measurement noise, process noise, initial covariance, in normalised Q15.16
     q_cov = QFormat(32, F_COV)
     r_n = [q_cov.to_raw(est.r_yaw / sig[1] ** 2)[0], q_cov.to_raw(est.r_align / sT**2)[0]]
-    qd_n = [q_cov.to_raw(q * dt / s**2)[0] for q, s in zip((est.q_beta, est.q_yaw, est.q_fw, est.q_mw), sig)]
-    p0_real = [p**2 / s**2 for p, s in zip((est.p0_beta, est.p0_yaw, est.p0_fw, est.p0_mw), sig)]
+    q_dens = (est.q_beta, est.q_yaw, est.q_fw, est.q_mw)
+    qd_n = [q_cov.to_raw(q * dt / s**2)[0] for q, s in zip(q_dens, sig, strict=True)]
+    p0_real = [p**2 / s**2 for p, s in zip((est.p0_beta, est.p0_yaw, est.p0_fw, est.p0_mw), sig, strict=True)]
     for i, p in enumerate(p0_real):
         if not q_cov.fits(p + qd_n[i] * q_cov.lsb, headroom=2.0):
             raise ValueError(
@@ -269,9 +273,11 @@ def dumps(tables: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m firmware_model.gen_tables", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m firmware_model.gen_tables",
+                                 description=(__doc__ or "").split("\n")[0])
     ap.add_argument("--vehicle", default="reference", help="shipped vehicle name or TOML file")
-    ap.add_argument("--out", type=Path, default=None, help="output file (default: firmware_model/tables_<name>.json)")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="output file (default: firmware_model/tables_<name>.json)")
     ap.add_argument("--check", action="store_true", help="exit 1 if the file on disk is stale")
     args = ap.parse_args(argv)
     vehicle = load_vehicle(args.vehicle)

@@ -188,7 +188,7 @@ class SatCounters:
         self.counts[slot] += 1
 
     def as_dict(self) -> dict[str, int]:
-        return dict(zip(self.names, self.counts))
+        return dict(zip(self.names, self.counts, strict=True))
 
     def total(self) -> int:
         return sum(self.counts)

@@ -60,7 +60,8 @@ def make_drive(vehicle: Vehicle, kind: str, duration_s: float = 20.0, seed: int 
     if kind in ("sweep", "faults"):
         speed = np.interp(t, [0, 0.4 * duration_s, 0.8 * duration_s, duration_s], [30, 180, 60, 60]) * KMH
         fw = 3000.0 * _smooth_step(t, 0.2 * duration_s, 0.2) - 5000.0 * _smooth_step(t, 0.5 * duration_s, 0.5)
-        mw = -2500.0 * _smooth_step(t, 0.3 * duration_s, 0.1) + 4000.0 * _smooth_step(t, 0.7 * duration_s, 1.0)
+        mw = -2500.0 * _smooth_step(t, 0.3 * duration_s, 0.1)
+        mw = mw + 4000.0 * _smooth_step(t, 0.7 * duration_s, 1.0)
         delta_sw = 2.0 * DEG * np.sin(2 * np.pi * 0.2 * t)
         if kind == "faults":
             speed = np.where((t > 0.85 * duration_s) & (t < 0.9 * duration_s), 20 * KMH, speed)

@@ -1,0 +1,135 @@
+"""Generated constants: staleness, reproducibility, the Riccati solver and the scheduled
+coefficients against the float model."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy.linalg import solve_discrete_are
+
+from firmware_model import gen_tables as gen
+from firmware_model.qformat import q32
+from firmware_model.riccati import solve_dare, steady_state_kf
+from firmware_model.tables import FixedTables, tables_for
+from lde.model import discrete_matrices
+from lde.params import load_vehicle
+from lde.units import KMH
+
+
+@pytest.fixture(scope="module")
+def vehicle():
+    return load_vehicle("reference")
+
+
+def test_shipped_tables_are_not_stale(vehicle):
+    """Fails when the vehicle file, the tuning, the model or the generator changed without
+    ``python -m firmware_model.gen_tables`` being run."""
+    path = gen.tables_path(vehicle.name)
+    fresh = gen.dumps(gen.generate(vehicle))
+    assert path.read_text() == fresh, "stale: run python -m firmware_model.gen_tables"
+
+
+def test_generation_is_reproducible_and_hash_tracks_inputs(vehicle):
+    a = gen.dumps(gen.generate(vehicle))
+    b = gen.dumps(gen.generate(vehicle))
+    assert a == b
+    h = gen.inputs_hash(vehicle)
+    assert json.loads(a)["inputs_sha256"] == h
+    assert gen.inputs_hash(vehicle.with_body(mass=vehicle.body.mass + 1.0)) != h
+
+
+def test_check_mode_detects_a_stale_file(vehicle, tmp_path):
+    out = tmp_path / "t.json"
+    assert gen.main(["--out", str(out)]) == 0
+    assert gen.main(["--out", str(out), "--check"]) == 0
+    out.write_text(out.read_text().replace('"dt_ns": 3900000', '"dt_ns": 3900001'))
+    assert gen.main(["--out", str(out), "--check"]) == 1
+
+
+@pytest.mark.parametrize("kmh", [30, 75, 130, 180])
+def test_sda_matches_scipy(vehicle, kmh):
+    d = discrete_matrices(vehicle, kmh * KMH)
+    ours = solve_dare(d.Phi.T, d.H.T, d.Qd, d.R)
+    ref = solve_discrete_are(d.Phi.T, d.H.T, d.Qd, d.R)
+    np.testing.assert_allclose(ours, ref, rtol=1e-8, atol=1e-12 * np.abs(ref).max())
+    ss = steady_state_kf(d.Phi, d.H, d.Qd, d.R)
+    # a fixed point of the filter Riccati recursion
+    P = ss.P_prior
+    S = d.H @ P @ d.H.T + d.R
+    Pn = d.Phi @ (P - P @ d.H.T @ np.linalg.solve(S, d.H @ P)) @ d.Phi.T + d.Qd
+    np.testing.assert_allclose(Pn, P, rtol=1e-8, atol=1e-12 * np.abs(P).max())
+
+
+@pytest.mark.parametrize("kmh", [30, 47.5, 100, 180, 250])
+def test_coefficient_polynomials_equal_the_float_model(vehicle, kmh):
+    """c0 + c1 w + c2 w^2 (normalised) reproduces lde.model's Phi, E, H, D at any speed."""
+    tb = tables_for(vehicle)
+    e, et = list(tb.sigma_exp), tb.sigma_t_exp
+    s = [math.ldexp(1.0, k) for k in e]
+    sT = math.ldexp(1.0, et)
+    N = vehicle.steering.ratio
+    v = kmh * KMH
+    d = discrete_matrices(vehicle, v)
+    polys = gen.coefficient_polys(vehicle, e, et, tb.dt_ns * 1e-9)
+    val = {k: c[0] + c[1] / v + c[2] / v**2 for k, c in polys.items()}
+    for name, (i, j) in {"phi00": (0, 0), "phi01": (0, 1), "phi02": (0, 2), "phi10": (1, 0),
+                         "phi11": (1, 1), "phi13": (1, 3)}.items():
+        assert val[name] == pytest.approx(d.Phi[i, j] * s[j] / s[i], rel=1e-12)
+    # the structural zeros and ones the step relies on
+    assert d.Phi[0, 3] == d.Phi[1, 2] == 0.0
+    np.testing.assert_array_equal(d.Phi[2:], np.eye(4)[2:])
+    np.testing.assert_array_equal(d.H[0], [0, 1, 0, 0])
+    assert d.H[1, 2] == d.H[1, 3] == d.D[0] == 0.0
+    assert val["e0"] == pytest.approx(d.E[0] / (N * s[0]), rel=1e-12)
+    assert val["e1"] == pytest.approx(d.E[1] / (N * s[1]), rel=1e-12)
+    assert val["h10"] == pytest.approx(d.H[1, 0] * s[0] / sT, rel=1e-12)
+    assert val["h11"] == pytest.approx(d.H[1, 1] * s[1] / sT, rel=1e-12)
+    assert val["d1"] == pytest.approx(d.D[1] / (N * sT), rel=1e-12)
+
+
+def test_integer_schedule_matches_the_polynomials(vehicle):
+    """The integer evaluation of every coefficient is within a few LSB of its real value."""
+    from firmware_model.step import FixedState, schedule
+
+    tb = tables_for(vehicle)
+    polys = gen.coefficient_polys(vehicle, list(tb.sigma_exp), tb.sigma_t_exp, tb.dt_ns * 1e-9)
+    st = FixedState.initial(tb)
+    fr = {"phi": tb.f_phi, "e": tb.f_e, "h": tb.f_h, "d": tb.f_d}
+    for kmh in np.linspace(30, 250, 23):
+        v_raw = round(kmh * KMH * 2**tb.f_speed)
+        v = v_raw / 2**tb.f_speed
+        c = schedule(tb, st, v_raw)
+        for k, name in enumerate(gen.COEF_NAMES):
+            p = polys[name]
+            real = p[0] + p[1] / v + p[2] / v**2
+            f = fr[gen.COEF_GROUP[name]]
+            assert abs(c[k] - real * 2**f) <= 4, (name, kmh)
+    assert sum(st.sat) == 0
+
+
+def test_formats_hold_their_ranges(vehicle):
+    tb = tables_for(vehicle)
+    q = q32(tb.f_cov)
+    # P0 with 2x headroom; the normalised noise entries within 5 % (the per-step process noise
+    # of beta and r is the smallest constant: docs/firmware.md gives its effect on the gains)
+    for p0 in tb.p0_n:
+        assert 2 * p0 <= q.raw_max
+    for r in (*tb.r_n, *tb.qd_n):
+        assert r >= 10
+    # the supported physical ranges fit the state formats (Fw, Mw +-6000, yaw rate +-2 rad/s)
+    assert 6000.0 <= q32(tb.f_state).real_max * 2.0 ** tb.sigma_exp[2]
+    assert 6000.0 <= q32(tb.f_state).real_max * 2.0 ** tb.sigma_exp[3]
+    assert 2.0 <= q32(tb.yaw_input_frac()).real_max
+    # w = 1/v at the minimum speed fits int32, and 1 << (f_speed + f_w) fits int64
+    assert round(2 ** (tb.f_speed + tb.f_w) / tb.v_min_raw) < 2**31
+    assert tb.f_speed + tb.f_w <= 62
+
+
+def test_tables_for_another_vehicle_are_generated_in_memory(vehicle):
+    other = vehicle.with_body(mass=1800.0)
+    tb = tables_for(other)
+    assert isinstance(tb, FixedTables)
+    assert tb.inputs_sha256 == gen.inputs_hash(other) != tables_for(vehicle).inputs_sha256
