@@ -110,3 +110,13 @@ def test_empty_and_mdps_less_input_give_an_empty_grid(lde):
     assert len(build_grid(d, lde)) == 0
     g = build_grid(d, lde, t_start_ns=T0)
     assert len(g) > 0 and not g.mdps_ok.any() and g.esc_ok.any()
+
+
+def test_merge_lookup_equals_searchsorted():
+    from lde.grid import latest_at_or_before
+
+    rng = np.random.default_rng(9)
+    ref = np.sort(rng.integers(0, 1000, 300))  # with duplicates
+    for query in (np.sort(rng.integers(-10, 1010, 500)), rng.integers(-10, 1010, 500), ref.copy()):
+        assert np.array_equal(latest_at_or_before(ref, query), np.searchsorted(ref, query, side="right") - 1)
+    assert np.array_equal(latest_at_or_before(ref[:0], np.arange(3)), np.full(3, -1))

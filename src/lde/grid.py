@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from .profiles import ESC_INPUTS, INPUT_NAMES, MDPS_INPUTS, Profile
@@ -69,6 +70,27 @@ class InputGrid:
         )
 
 
+@nb.njit(cache=True)
+def _latest_at_or_before_sorted(ref: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """``searchsorted(ref, query, side="right") - 1`` for sorted ``query``: one merge pass."""
+    out = np.empty(query.shape[0], dtype=np.int64)
+    j = 0
+    n = ref.shape[0]
+    for i in range(query.shape[0]):
+        q = query[i]
+        while j < n and ref[j] <= q:
+            j += 1
+        out[i] = j - 1
+    return out
+
+
+def latest_at_or_before(ref: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """Index of the last ``ref`` element ``<= query`` (-1 if none); ``ref`` sorted ascending."""
+    if query.shape[0] > 1 and bool(np.all(query[1:] >= query[:-1])):
+        return _latest_at_or_before_sorted(ref, query)
+    return np.searchsorted(ref, query, side="right") - 1
+
+
 def step_times(t_start_ns: int, t_end_ns: int, step_ns: int = STEP_NS) -> np.ndarray:
     """``t_start + k * step`` for all k with ``t <= t_end`` -> int64 (empty if ``t_end < t_start``)."""
     if t_end_ns < t_start_ns:
@@ -115,7 +137,7 @@ def build_grid(
         spec = profile.messages[mname]
         # latest accepted sample of this message at or before each step (shared by its inputs)
         t_acc = m.t_ns[m.accepted]
-        j = np.searchsorted(t_acc, t, side="right") - 1
+        j = latest_at_or_before(t_acc, t)
         have = j >= 0
         jj = np.maximum(j, 0)
         a = np.where(have, t - t_acc[jj], -1) if t_acc.shape[0] else np.full(n, -1, dtype=np.int64)
@@ -126,7 +148,7 @@ def build_grid(
             age[name] = a
             valid[name] = fresh
         # the message's trust after its latest frame at or before each step
-        jf = np.searchsorted(m.t_ns, t, side="right") - 1
+        jf = latest_at_or_before(m.t_ns, t)
         trusted_at[mname] = (
             (jf >= 0) & m.trusted[np.maximum(jf, 0)] if m.t_ns.shape[0] else np.zeros(n, np.bool_)
         )
