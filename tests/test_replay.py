@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from lde.cli import main
-from lde.logio import read_log
+from lde.logio import read_log, read_mcap
 from lde.params import load_vehicle
 from lde.profiles import load_profile
 from lde.replay import CSV_COLUMNS, replay, replay_log, write_csv, write_recording
@@ -103,7 +103,7 @@ def test_recording_replays_to_the_same_estimates(sample_replay, profile, vehicle
     np.testing.assert_array_equal(res.mw, res2.mw)
     np.testing.assert_array_equal(res.status, res2.status)
     # the recorded estimates are the replayed ones (to the printed precision)
-    est = rec_log.mcap.json["/lde/estimate"]
+    est = read_mcap(out, json_topics=["/lde/estimate"]).json["/lde/estimate"]
     np.testing.assert_array_equal(est["t_ns"], res.t_ns)
     np.testing.assert_allclose(est["Fw"], np.round(res.fw, 3), atol=1e-9)
 

@@ -321,22 +321,15 @@ def replay(
 
 
 def recorded_step_times(log: LogData) -> np.ndarray | None:
-    """Step times of an lde recording: ``/lde/estimate`` field ``t_ns`` (else its log times), when
-    the file has ``/can/tx`` and ``/lde/estimate``; None for any other log."""
+    """Step times of an lde recording: the log times of ``/lde/estimate`` (the recorders' contract:
+    log time = the step time t_k, exact in ns), when the file has ``/can/tx`` and a non-empty
+    ``/lde/estimate``; None for any other log."""
     m = log.mcap
     if m is None or ESTIMATE_TOPIC not in m.topics or "/can/tx" not in m.topics:
         return None
     if m.topics[ESTIMATE_TOPIC].count == 0:
         return None
-    cols = m.json.get(ESTIMATE_TOPIC)
-    if cols is not None and "t_ns" in cols and cols["t_ns"].dtype.kind == "i":
-        t = cols["t_ns"]
-    else:
-        t = m.times[ESTIMATE_TOPIC]
-    t = np.asarray(t, np.int64)
-    if np.any(np.diff(t) < 0):
-        raise LogFormatError(f"{log.path}: recorded step times on {ESTIMATE_TOPIC} are not in order")
-    return t
+    return np.asarray(m.times[ESTIMATE_TOPIC], np.int64)
 
 
 def replay_log(
@@ -352,15 +345,8 @@ def replay_log(
     An lde recording is replayed on its recorded step times unless ``use_recorded_steps`` is False.
     """
     t0 = time.perf_counter()
-    p = Path(path)
-    log = read_log(p)
-    steps = None
-    if use_recorded_steps and log.mcap is not None and ESTIMATE_TOPIC in log.mcap.topics:
-        from .logio import read_mcap
-
-        if "t_ns" not in log.mcap.json.get(ESTIMATE_TOPIC, {}):
-            log.mcap.json.update(read_mcap(p, json_topics=[ESTIMATE_TOPIC]).json)
-        steps = recorded_step_times(log)
+    log = read_log(Path(path))
+    steps = recorded_step_times(log) if use_recorded_steps else None
     t1 = time.perf_counter()
     res = replay(log.frames, profile, vehicle, backend, step_times_ns=steps)
     res.timings = {"read": t1 - t0, **res.timings}
