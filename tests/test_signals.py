@@ -277,3 +277,63 @@ def test_receiver_sample_before_any_frame_is_nan_and_not_ok(lde):
     s = Receiver(lde).sample(T0)
     assert all(math.isnan(s.value(n)) for n in INPUT_NAMES)
     assert not any(s.valid.values()) and not s.mdps_ok and not s.esc_ok
+
+
+def test_receiver_timed_out_reports_nonewdata_per_message(lde):
+    r = Receiver(lde)
+    fb = encode_frames(lde, "ESC_Motion", T0 + np.arange(4, dtype=np.int64) * 10_000_000, {})
+    for i in range(len(fb)):
+        r.feed(int(fb.t_ns[i]), int(fb.can_id[i]), fb.data[i].tobytes(), 8)
+    last = int(fb.t_ns[-1])
+    assert r.timed_out(last) == {"MDPS_Sensors": True, "ESC_Motion": False}
+    assert r.timed_out(last + 30_000_001)["ESC_Motion"]
+
+
+# ------------------------------------------------------------------ FrameBatch (the decoder's input)
+
+
+def test_frame_batch_messages_round_trip_and_microsecond_timestamps():
+    import can
+
+    from lde.frames import ns_to_seconds, seconds_to_ns
+
+    msgs = [
+        can.Message(
+            timestamp=1_700_000_000.123457, arbitration_id=0x2A0, is_extended_id=False, data=bytes(range(8))
+        ),
+        can.Message(
+            timestamp=1_700_000_000.000001, arbitration_id=0x18FF0001, is_extended_id=True, data=b"\x01\x02"
+        ),
+        can.Message(
+            timestamp=1_700_000_000.5, arbitration_id=0x1, is_extended_id=False, is_remote_frame=True, dlc=8
+        ),
+        can.Message(timestamp=1_700_000_000.6, is_error_frame=True),
+        can.Message(
+            timestamp=1_700_000_000.7, arbitration_id=0x3D1, is_extended_id=False, data=b"\x00", is_rx=False
+        ),
+    ]
+    fb = FrameBatch.from_messages(msgs)
+    assert len(fb) == 3  # remote and error frames carry no data: skipped
+    assert list(fb.t_ns) == [1_700_000_000_000_001_000, 1_700_000_000_123_457_000, 1_700_000_000_700_000_000]
+    assert list(fb.dlc) == [2, 8, 1] and list(fb.is_extended) == [True, False, False]
+    assert list(fb.is_rx) == [True, True, False]
+    assert fb.data[0].tobytes() == b"\x01\x02" + bytes(6)
+    back = fb.to_messages()
+    assert [m.timestamp for m in back] == [1_700_000_000.000001, 1_700_000_000.123457, 1_700_000_000.7]
+    assert back[1].data == bytes(range(8)) and back[0].data == b"\x01\x02" and not back[2].is_rx
+    for ts in (0.0, 2e-6, 1_700_000_000.999999, 1_234_567.000001):
+        assert ns_to_seconds(seconds_to_ns(ts)) == ts
+
+
+def test_frame_batch_sort_is_stable_and_select_concat():
+    t = np.array([5, 1, 5, 3, 1], np.int64)
+    fb = FrameBatch(t, np.arange(5), np.zeros(5, bool), np.full(5, 8), np.zeros((5, 8)), np.ones(5, bool))
+    s = fb.sort()
+    assert list(s.t_ns) == [1, 1, 3, 5, 5] and list(s.can_id) == [1, 4, 3, 0, 2]
+    assert s.sort() is s
+    both = FrameBatch.concat([s, s.select(s.can_id > 2)])
+    assert list(both.t_ns) == [1, 1, 1, 3, 3, 5, 5]
+    assert list(both.can_id) == [1, 4, 4, 3, 3, 0, 2]  # equal times keep their order
+    assert len(FrameBatch.concat([])) == 0 and len(fb[1:3]) == 2
+    with pytest.raises(ValueError):
+        fb.select(np.ones(3, bool))

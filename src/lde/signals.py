@@ -378,3 +378,11 @@ class Receiver:
     def trusted(self, message: str) -> bool:
         """Current trust of an input message."""
         return bool(self._by_name[message].state[_S_TRUSTED])
+
+    def timed_out(self, t_ns: int) -> dict[str, bool]:
+        """Per input message: no accepted frame within its timeout before ``t_ns`` (E2E NONEWDATA)."""
+        out = {}
+        for name, lm in self._by_name.items():
+            s = next((x for x in reversed(lm.samples) if x[0] <= int(t_ns)), None)
+            out[name] = s is None or int(t_ns) - s[0] > lm.dec.spec.timeout_ns
+        return out
