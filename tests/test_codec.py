@@ -5,6 +5,8 @@ from __future__ import annotations
 import cantools
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from lde.codec import (
     EncodeError,
@@ -212,3 +214,20 @@ def test_signal_codec_bit_layout_matches_cantools_intel_and_motorola():
     for name, c in codecs.items():
         assert np.array_equal(c.raw_batch(ww), raws[name])
         assert np.allclose(c.decode_batch(ww), raws[name] * c.scale + c.offset)
+
+
+@settings(derandomize=True, max_examples=200, deadline=None)
+@given(
+    torque=st.floats(-20.0, 20.0, allow_nan=False),
+    angle=st.floats(-500.0, 500.0, allow_nan=False),
+    rate=st.floats(-600.0, 600.0, allow_nan=False),
+)
+def test_property_round_trip_is_saturated_rounding(torque, angle, rate):
+    p = load_profile("lde")
+    c = MessageCodec(p, "MDPS_Sensors")
+    vals = {"ColumnTorque": torque, "SteeringAngle": angle, "SteeringRate": rate}
+    dec = c.decode(MessageEncoder(p, "MDPS_Sensors").encode(vals))
+    for k, v in vals.items():
+        s = c.signals[k]
+        expected = min(max(v, s.minimum), s.maximum)
+        assert abs(dec[k] - expected) <= s.scale / 2 + 1e-9, k
