@@ -201,9 +201,9 @@ def test_signal_codec_bit_layout_matches_cantools_intel_and_motorola():
     w_be = np.zeros(n, np.uint64)
     for name, c in codecs.items():
         if c.little_endian:
-            w_le |= c.place(raws[name])
+            w_le |= c.place_batch(raws[name])
         else:
-            w_be |= c.place(raws[name])
+            w_be |= c.place_batch(raws[name])
     w = w_le | w_be.byteswap()
     data = w.view(np.uint8).reshape(n, 8)
     for i in range(n):

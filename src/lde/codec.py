@@ -143,11 +143,13 @@ class SignalCodec:
             r = float(self.raw_max) if r > 0 else float(self.raw_min)
         return int(min(max(round(r), self.raw_min), self.raw_max))
 
-    def place(self, raw: np.ndarray | int) -> np.ndarray | int:
-        """Raw value(s) -> their bits in ``w_le`` (Intel) or ``w_be`` (Motorola)."""
-        if isinstance(raw, np.ndarray):
-            return (raw.astype(np.uint64) & np.uint64(self.mask)) << np.uint64(self.shift)
+    def place(self, raw: int) -> int:
+        """Raw value -> its bits in ``w_le`` (Intel) or ``w_be`` (Motorola)."""
         return (int(raw) & self.mask) << self.shift
+
+    def place_batch(self, raw: np.ndarray) -> np.ndarray:
+        """Vectorised :meth:`place` -> uint64 [n]."""
+        return (raw.astype(np.uint64) & np.uint64(self.mask)) << np.uint64(self.shift)
 
 
 class MessageCodec:
@@ -258,9 +260,9 @@ def encode_batch(
         col = columns.get(sname, 0.0)
         raw = s.to_raw_batch(np.broadcast_to(np.asarray(col, dtype=np.float64), (n,)))
         if s.little_endian:
-            w_le |= s.place(raw)
+            w_le |= s.place_batch(raw)
         else:
-            w_be |= s.place(raw)
+            w_be |= s.place_batch(raw)
     w_le |= w_be.byteswap()
     counters = (counter_start + np.arange(n, dtype=np.int64)) % sch.modulus
     for start, length in sch.counter_fields:

@@ -320,6 +320,8 @@ def load_profile(
         db = cantools.database.load_file(str(path), database_format="dbc", strict=True)
     except Exception as e:  # cantools raises several parser error types
         raise ConfigError(f"cannot read DBC {path}: {e}") from e
+    if not isinstance(db, cantools.database.can.Database):
+        raise ConfigError(f"{path} is not a CAN database")
     names = {m.name for m in db.messages}
     if key in _DEFS:
         pdef = _DEFS[key]
