@@ -83,13 +83,13 @@ N_DRIVE = 8
 # ------------------------------------------------------------------ outputs (one row per sub-step)
 (O_VX, O_VY, O_R, O_BETA, O_X, O_Y, O_PSI, O_AY, O_AYKIN, O_DSW, O_WSW, O_DF, O_TCOL, O_TAST,
  O_TOV, O_TALIGN, O_TDRV, O_FW, O_MW, O_MWREF, O_FYW, O_MZW, O_FBANK, O_WIND, O_BCW, O_VR, O_BANK,
- O_PHI, O_FZ1, O_FZ2, O_FZ3, O_FZ4, O_AF, O_AR, O_FYF, O_FYR, O_TBOOST) = range(37)
-N_OUT = 37
+ O_PHI, O_FZ1, O_FZ2, O_FZ3, O_FZ4, O_AF, O_AR, O_FYF, O_FYR, O_TBOOST, O_MZT) = range(38)
+N_OUT = 38
 OUTPUT_NAMES = (
     "vx", "vy", "r", "beta", "X", "y", "psi", "ay_meas", "ay", "delta_sw", "omega_sw", "delta_f",
     "T_column", "T_assist", "T_overlay", "T_align", "T_driver", "Fw", "Mw", "Mw_ref", "Fy_wind",
     "Mz_wind", "F_bank", "wind_speed", "beta_cw", "v_rel", "bank", "roll", "Fz_fl", "Fz_fr", "Fz_rl",
-    "Fz_rr", "alpha_f", "alpha_r", "Fy_front", "Fy_rear", "T_boost",
+    "Fz_rr", "alpha_f", "alpha_r", "Fy_front", "Fy_rear", "T_boost", "Mz_tires",
 )
 
 
@@ -249,6 +249,7 @@ def derivatives(x: np.ndarray, p: np.ndarray, tc: np.ndarray, ap: np.ndarray, dp
         out[O_FYF] = fyb1 + fyb2
         out[O_FYR] = fy3 + fy4
         out[O_TBOOST] = t_boost
+        out[O_MZT] = mz_t
 
 
 @numba.njit(cache=True)

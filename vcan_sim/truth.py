@@ -56,6 +56,7 @@ TRUTH_COLUMNS: dict[str, tuple[int | None, str]] = {
     "alpha_r": (P.O_AR, "rad, mean rear slip angle"),
     "Fy_front": (P.O_FYF, "N, front tires' lateral force, body y"),
     "Fy_rear": (P.O_FYR, "N, rear tires' lateral force"),
+    "Mz_tires": (P.O_MZT, "Nm, yaw moment of all tire forces and aligning moments about the CG"),
     "Fz_fl": (P.O_FZ1, "N, wheel load front left"),
     "Fz_fr": (P.O_FZ2, "N, wheel load front right"),
     "Fz_rl": (P.O_FZ3, "N, wheel load rear left"),

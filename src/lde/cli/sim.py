@@ -1,0 +1,124 @@
+"""``lde sim``: the vehicle simulator (vcan_sim) as its own process.
+
+Three ways to run (SPEC section 4)::
+
+    lde sim --list                                              the scenarios, one line each
+    lde sim --scenario NAME --log OUT.log --truth OUT.csv [--mcap OUT.mcap]
+                                                                as fast as possible, to files
+    lde sim --interface I --channel C --scenario NAME [--fast]  on a live bus (real time by default),
+                                                                closed loop on LDE_Overlay
+
+Files: ``--log`` a candump ``-L`` text log, ``--truth`` the ground-truth CSV (``t`` in the log's own
+time base, ``Fw``, ``Mw``, ``Mw_ref``, ... see docs/simulator.md), ``--mcap`` an MCAP recording with
+the frames on ``/can/rx`` and the truth as JSON on ``/truth``. On a live bus the same files may be
+written too (the frames that were sent). The bus opens the python-can way: the options given, else
+python-can's environment variables or config file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+
+from ..errors import ConfigError
+from .run import add_bus_arguments, bus_kwargs
+
+log = logging.getLogger("lde.sim")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "sim",
+        help="vehicle simulator: CAN traffic of a nonlinear car under crosswind/bank (files or a live bus)",
+        description=__doc__.split("\n\n")[0],
+    )
+    p.add_argument("--list", action="store_true", help="list the scenarios and exit")
+    p.add_argument("--scenario", "-s", metavar="NAME", help="scenario name (see --list)")
+    p.add_argument("--profile", default="lde", help="CAN profile: lde (default), hyundai, or a .dbc path")
+    p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random part (default 0)")
+    p.add_argument("--duration", type=float, metavar="SEC", help="length [s] (default: the scenario's)")
+    p.add_argument("--speed", type=float, metavar="KMH", help="run at this constant speed [km/h] instead")
+    p.add_argument("--t0", type=float, metavar="SEC",
+                   help="start of the simulated clock, epoch seconds (default 1700000000 + seed)")
+    p.add_argument("--log", metavar="OUT.log", help="write a candump -L log of the frames")
+    p.add_argument("--log-channel", default="vcan0", help="channel name written in the candump log")
+    p.add_argument("--truth", metavar="OUT.csv", help="write the ground truth CSV")
+    p.add_argument("--mcap", metavar="OUT.mcap", help="write an MCAP recording (frames + /truth channel)")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--realtime", dest="realtime", action="store_true", default=None,
+                      help="live bus: send each frame at its time (default on a live bus)")
+    mode.add_argument("--fast", dest="realtime", action="store_false",
+                      help="live bus: as fast as possible with simulated timestamps")
+    p.add_argument("--open-loop", action="store_true", help="live bus: ignore LDE_Overlay frames")
+    add_bus_arguments(p)
+    p.set_defaults(func=run)
+
+
+def _print_list() -> int:
+    from vcan_sim.scenarios import SCENARIOS
+
+    width = max(len(n) for n in SCENARIOS)
+    for name, sc in SCENARIOS.items():
+        print(f"{name:<{width}}  {sc.description} [{sc.duration:.0f} s]")
+    return 0
+
+
+def _live_requested(args: argparse.Namespace) -> bool:
+    if args.interface or args.channel or args.bus_kwarg:
+        return True
+    if args.log or args.truth or args.mcap:
+        return False
+    import can
+
+    cfg = can.util.load_config()
+    return bool(cfg.get("interface"))
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.list:
+        return _print_list()
+    if not args.scenario:
+        raise ConfigError("--scenario NAME is required (lde sim --list names them)")
+    from vcan_sim.output import write_outputs
+    from vcan_sim.run import Simulation
+
+    t0_ns = None if args.t0 is None else int(round(args.t0 * 1e6)) * 1000
+    sim = Simulation(args.scenario, vehicle=args.vehicle, profile=args.profile, seed=args.seed,
+                     duration=args.duration, t0_ns=t0_ns, speed_kmh=args.speed)
+    live = _live_requested(args)
+    if not live and not (args.log or args.truth or args.mcap):
+        raise ConfigError("nothing to do: give --log/--truth/--mcap, or a bus (--interface/--channel)")
+    wall = time.monotonic()
+    if live:
+        from lde.service import open_bus
+        from vcan_sim.closed_loop import OverlayReceiver
+        from vcan_sim.emitter import pump
+
+        realtime = True if args.realtime is None else args.realtime
+        receiver = None if args.open_loop else OverlayReceiver(sim.profile)
+        bus = open_bus(**bus_kwargs(args))
+        try:
+            st = pump(sim, bus, realtime=realtime, closed_loop=not args.open_loop, receiver=receiver)
+        except KeyboardInterrupt:
+            st = None
+        finally:
+            bus.shutdown()
+        if st is not None:
+            used = receiver.stats.used if receiver else 0
+            print(f"lde sim: {args.scenario}: sent {st.sent} frames over {st.sim_s:.2f} s simulated in "
+                  f"{st.wall_s:.2f} s wall ({'real time' if realtime else 'fast'}); overlay frames used "
+                  f"{used}, send errors {st.send_errors}, max lateness {st.max_late_s * 1e3:.2f} ms",
+                  file=sys.stderr)
+    else:
+        sim.run()
+    res = sim.result()
+    written = write_outputs(res, log=args.log, truth=args.truth, mcap=args.mcap, channel=args.log_channel)
+    if not live:
+        dest = f" -> {', '.join(map(str, written))}" if written else ""
+        print(f"lde sim: {args.scenario} (seed {args.seed}, profile {res.profile}): {len(res.frames)} frames, "
+              f"{len(res.truth_t_ns)} truth rows, {sim.duration:.2f} s simulated in "
+              f"{time.monotonic() - wall:.2f} s{dest}", file=sys.stderr)
+    return 0
