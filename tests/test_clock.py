@@ -157,7 +157,9 @@ def test_enable_realtime_in_a_child_process_reports_what_it_got():
     """Runs in a child (never make the test runner itself SCHED_FIFO)."""
     import json
 
-    out = subprocess.run([sys.executable, "-c", _CHILD], capture_output=True, text=True, timeout=120, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", _CHILD], capture_output=True, text=True, timeout=120, check=True
+    )
     r = json.loads(out.stdout.strip().splitlines()[-1])
     # what it says is what the kernel has
     assert r["fifo"] == (r["policy"] == r["fifo_const"])

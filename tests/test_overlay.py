@@ -87,7 +87,8 @@ def _closed_loop_matrices(v, vx: float):
     Returns (A, b_fw, b_mw, b_tov) of x_dot = A x + b_fw Fw + b_mw Mw + b_tov T_overlay.
     """
     b, t = v.body, v.tires
-    m, iz, lf, lr, cf, cr, k, n = b.mass, b.yaw_inertia, b.lf, b.lr, t.cf, t.cr, t.align_rate, v.steering.ratio
+    m, iz, lf, lr = b.mass, b.yaw_inertia, b.lf, b.lr
+    cf, cr, k, n = t.cf, t.cr, t.align_rate, v.steering.ratio
     j, c = 0.05, 0.5  # kg m^2, Nm s/rad: steering wheel inertia and damping
     # alpha_f = d_sw/N - beta - lf r/vx ; alpha_r = -beta + lr r/vx
     af = np.array([-1.0, -lf / vx, 1.0 / n, 0.0])
@@ -227,7 +228,10 @@ class OverlaySafetyMixin:
         v = self.vehicle
         o = v.overlay
         g = -feedforward_torque(v, 1.0, 0.0)
-        for demand, expect in [(o.max_torque * 0.999, o.max_torque * 0.999), (o.max_torque * 1.5, o.max_torque)]:
+        for demand, expect in [
+            (o.max_torque * 0.999, o.max_torque * 0.999),
+            (o.max_torque * 1.5, o.max_torque),
+        ]:
             for sign in (1.0, -1.0):
                 lim = OverlayLimiter(v)
                 out = _run(lim, Inputs(fw=-sign * demand / g), 2000, 0)
@@ -455,7 +459,9 @@ def test_batch_equals_live_lockstep():
     sl = np.empty_like(sb)
     al = np.empty_like(ab)
     for k in range(len(t)):
-        out = lim.step_values(int(t[k]), fw[k], mw[k], int(status[k]), speed[k], steer[k], col[k], bool(enable[k]))
+        out = lim.step_values(
+            int(t[k]), fw[k], mw[k], int(status[k]), speed[k], steer[k], col[k], bool(enable[k])
+        )
         tl[k], sl[k], al[k] = out.torque, int(out.state), out.active
     np.testing.assert_array_equal(tb, tl)  # bit for bit
     np.testing.assert_array_equal(sb, sl)
@@ -497,7 +503,7 @@ step_st = st.tuples(
 @given(steps=st.lists(step_st, min_size=2, max_size=400))
 def test_property_limits_hold_for_arbitrary_steps(steps):
     v = load_vehicle("reference")
-    cols = list(zip(*steps))
+    cols = list(zip(*steps, strict=True))
     t = T0 + np.cumsum(np.array(cols[0], dtype=np.int64))
     tq, _, _ = run_batch_overlay(t, *cols[1:7], v, enable=cols[7])
     _check_limits(v, t, tq)
@@ -516,17 +522,21 @@ def test_property_every_fault_class_ramps_out_in_time(fault, fw, on_steps):
     bad = _vehicle_fault_classes(v)[fault](good)
     n_max = math.ceil(o.max_torque / o.max_rate * 1e9 / STEP_NS) + 1
     rows = [good.args()] * on_steps + [bad.args()] * (n_max + 5)
-    cols = list(zip(*rows))
+    cols = list(zip(*rows, strict=True))
     t = T0 + np.arange(len(rows), dtype=np.int64) * STEP_NS
     tq, active, _ = run_batch_overlay(t, *cols[:6], v, enable=cols[6])
     after = tq[on_steps:]
-    assert np.all(np.abs(np.diff(np.concatenate([[tq[on_steps - 1] if on_steps else 0.0], after])))
-                  <= o.max_rate * STEP_NS * 1e-9 + TOL)
-    assert after[n_max - 1] == 0.0 and np.all(after[n_max - 1:] == 0.0)
+    assert np.all(
+        np.abs(np.diff(np.concatenate([[tq[on_steps - 1] if on_steps else 0.0], after])))
+        <= o.max_rate * STEP_NS * 1e-9 + TOL
+    )
+    assert after[n_max - 1] == 0.0 and np.all(after[n_max - 1 :] == 0.0)
     assert not np.any(active[on_steps:])
 
 
 def test_batch_rejects_ragged_columns():
     v = load_vehicle("reference")
     with pytest.raises(ConfigError, match="Fw"):
-        run_batch_overlay(np.arange(3), np.zeros(2), np.zeros(3), np.ones(3), np.ones(3), np.zeros(3), np.zeros(3), v)
+        run_batch_overlay(
+            np.arange(3), np.zeros(2), np.zeros(3), np.ones(3), np.ones(3), np.zeros(3), np.zeros(3), v
+        )

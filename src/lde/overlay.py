@@ -245,21 +245,11 @@ def overlay_kernel(p, si, sf, t_ns, fw, mw, status, speed, steer, col_tq, enable
     sf[LF_DEMAND] = demand
 
     # classify this step's conditions
-    finite = (
-        math.isfinite(demand)
-        and math.isfinite(speed)
-        and math.isfinite(steer)
-        and math.isfinite(col_tq)
-    )
+    finite = math.isfinite(demand) and math.isfinite(speed) and math.isfinite(steer) and math.isfinite(col_tq)
     input_fault = (not finite) or (status & FAULT_BITS) != 0
     not_ready = (status & _VALID_BIT) == 0 or (status & NOT_READY_BITS) != 0
     override = finite and abs(col_tq) > p[LP_OVERRIDE]
-    in_window = (
-        finite
-        and speed >= p[LP_MIN_V]
-        and speed <= p[LP_MAX_V]
-        and abs(steer) <= p[LP_MAX_STEER]
-    )
+    in_window = finite and speed >= p[LP_MIN_V] and speed <= p[LP_MAX_V] and abs(steer) <= p[LP_MAX_STEER]
     if override:
         si[LS_OVERRIDE_UNTIL] = t_ns + np.int64(p[LP_HOLD_OFF_NS])
     ok = enable and (not input_fault) and (not not_ready) and in_window and (not override)
@@ -291,11 +281,7 @@ def overlay_kernel(p, si, sf, t_ns, fw, mw, status, speed, steer, col_tq, enable
     else:
         engaged = state == 1 or state == 2
         go = ok and (
-            engaged
-            or (
-                t_ns >= si[LS_OVERRIDE_UNTIL]
-                and t_ns - si[LS_OK_SINCE] >= np.int64(p[LP_REARM_NS])
-            )
+            engaged or (t_ns >= si[LS_OVERRIDE_UNTIL] and t_ns - si[LS_OK_SINCE] >= np.int64(p[LP_REARM_NS]))
         )
 
     # target: the clipped law while engaged, else zero;  |T| <= max_torque
@@ -325,7 +311,9 @@ def overlay_kernel(p, si, sf, t_ns, fw, mw, status, speed, steer, col_tq, enable
 
 
 @njit(cache=True)
-def _batch_kernel(p, si, sf, t_ns, fw, mw, status, speed, steer, col_tq, enable, out_t, out_state):  # pragma: no cover
+def _batch_kernel(
+    p, si, sf, t_ns, fw, mw, status, speed, steer, col_tq, enable, out_t, out_state
+):  # pragma: no cover
     for k in range(t_ns.shape[0]):
         out_t[k] = overlay_kernel(
             p, si, sf, t_ns[k], fw[k], mw[k], status[k], speed[k], steer[k], col_tq[k], enable[k]
