@@ -151,6 +151,12 @@ def test_mcap_fast_path_equals_library_reader(tmp_path: Path, compression: str):
     for k in ("t_ns", "Fw", "Mw"):
         np.testing.assert_array_equal(fast.json["/lde/estimate"][k], lib.json["/lde/estimate"][k])
     np.testing.assert_array_equal(fast.times["/lde/estimate"], fast.json["/lde/estimate"]["t_ns"])
+    # without JSON asked for, the JSON chunks are skipped: times and counts from the message indexes
+    lean = read_mcap(path)
+    assert lean.chunks_skipped > 0 and lean.chunks_read < fast.chunks_read
+    assert lean.topics == fast.topics
+    np.testing.assert_array_equal(lean.times["/lde/estimate"], fast.times["/lde/estimate"])
+    assert_frames_equal(lean.frames, frames)
     assert np.isnan(fast.json["/lde/estimate"]["Mw"][1])  # the single write_json record, sorted in at t[3]+1
 
 

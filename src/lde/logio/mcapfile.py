@@ -21,7 +21,9 @@ Layout (documented for users in ``docs/mcap.md``):
 
 Writing: :class:`McapWriter` buffers messages, sorts them by ``log_time`` and writes zstd-compressed
 chunks (records built by a numba kernel), message indexes, chunk indexes, statistics and the summary,
-readable by the ``mcap`` library and by Foxglove.
+readable by the ``mcap`` library and by Foxglove. The CAN channels and each JSON channel go to
+separate chunks (time ranges of chunks of different channels overlap, which MCAP allows), so that
+reading the CAN frames decompresses no JSON.
 
 Reading: :func:`read_mcap` reads the summary with the ``mcap`` library, then every chunk record
 directly: it decompresses the chunk (zstd / lz4 / none) and a numba kernel walks the records, filling
@@ -457,7 +459,19 @@ class McapWriter:
         base = np.cumsum([0] + [p.size for p in pays[:-1]])
         off = np.concatenate([b.off + base[i] for i, b in enumerate(blocks)])
         pay = np.concatenate(pays) if len(pays) > 1 else pays[0]
-        order = np.argsort(t, kind="stable")
+        # one chunk stream ("lane") for the CAN channels and one per JSON channel: a reader that
+        # wants the CAN frames decompresses no JSON, and the JSON log times are in the message indexes
+        lane = np.where((chan == self.rx_channel) | (chan == self.tx_channel), 0, chan)
+        for lane_id in np.unique(lane).tolist():
+            idx = np.flatnonzero(lane == lane_id)
+            order = idx[np.argsort(t[idx], kind="stable")]
+            self._write_lane(order, chan, seq, t, pay, off, length)
+        t_lo, t_hi = int(t.min()), int(t.max())
+        self._t_min = t_lo if self._t_min is None else min(self._t_min, t_lo)
+        self._t_max = max(self._t_max, t_hi)
+
+    def _write_lane(self, order, chan, seq, t, pay, off, length) -> None:
+        """Message records of ``order`` (time-sorted) as chunks of about ``chunk_size`` bytes."""
         rec_len = _MSG_OVERHEAD + length[order]
         rec_end = np.cumsum(rec_len)
         rec_off = rec_end - rec_len
@@ -472,9 +486,6 @@ class McapWriter:
         for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
             if b > a:
                 self._write_chunk(out, rec_off, rec_end, order, chan, t, a, b)
-        t_lo, t_hi = int(t.min()), int(t.max())
-        self._t_min = t_lo if self._t_min is None else min(self._t_min, t_lo)
-        self._t_max = max(self._t_max, t_hi)
 
     def close(self) -> None:
         """Flush, then write the data end, the summary (schemas, channels, statistics, chunk
@@ -676,6 +687,7 @@ class McapData:
             ``"log_time"`` and, unless a field has that name, ``"t_ns"`` (both the log times).
         bad_can_messages: CAN-channel messages of the wrong size or encoding (skipped).
         fast_path: True if the chunk-level numba reader was used (else the ``mcap`` library's).
+        chunks_read, chunks_skipped: chunks decompressed / known from their message indexes only.
     """
 
     frames: FrameBatch
@@ -684,6 +696,8 @@ class McapData:
     json: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     bad_can_messages: int = 0
     fast_path: bool = True
+    chunks_read: int = 0
+    chunks_skipped: int = 0
 
 
 def _decompress(compression: str, data: bytes, size: int) -> bytes:
@@ -736,7 +750,7 @@ def read_mcap(
         summary = None
     try:
         if summary is not None and summary.chunk_indexes:
-            data = _read_fast(raw, summary, validate_crcs)
+            data = _read_fast(raw, summary, validate_crcs, json_topics)
         else:
             data = _read_library(raw)
     except LogFormatError as exc:
@@ -752,7 +766,37 @@ def read_mcap(
     return data
 
 
-def _read_fast(raw: bytes, summary, validate_crcs: bool) -> McapData:
+def _wanted_json_ids(
+    summary_channels: Mapping[int, Any], json_topics: Iterable[str] | str | None
+) -> set[int]:
+    if json_topics is None:
+        return set()
+    if json_topics == "all":
+        return {cid for cid, ch in summary_channels.items() if ch.message_encoding == "json"}
+    wanted = {json_topics} if isinstance(json_topics, str) else set(json_topics)
+    return {cid for cid, ch in summary_channels.items() if ch.topic in wanted}
+
+
+def _index_times(raw: bytes, ci) -> tuple[list[np.ndarray], list[np.ndarray]] | None:
+    """(channels, log times) of a chunk from its message index records; None if it has none."""
+    if not ci.message_index_offsets:
+        return None
+    chans, times = [], []
+    for ch, o in ci.message_index_offsets.items():
+        if o + 15 > len(raw) or raw[o] != OP_MESSAGE_INDEX:
+            return None
+        (n_bytes,) = struct.unpack_from("<I", raw, o + 11)
+        if o + 15 + n_bytes > len(raw) or n_bytes % 16:
+            return None
+        pairs = np.frombuffer(raw, "<u8", count=n_bytes // 8, offset=o + 15).reshape(-1, 2)
+        times.append(pairs[:, 0].astype(np.int64))
+        chans.append(np.full(pairs.shape[0], ch, np.uint16))
+    return chans, times
+
+
+def _read_fast(
+    raw: bytes, summary, validate_crcs: bool, json_topics: Iterable[str] | str | None = None
+) -> McapData:
     kind = np.zeros(65536, np.int8)
     topics: dict[str, TopicInfo] = {}
     for cid, ch in summary.channels.items():
@@ -786,6 +830,22 @@ def _read_fast(raw: bytes, summary, validate_crcs: bool) -> McapData:
         return out
 
     chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    # chunks holding only channels nobody asked for (JSON lanes) are not decompressed: their log
+    # times and counts come from their message index records
+    needed = {int(c) for c in np.flatnonzero(kind == 1)} | _wanted_json_ids(summary.channels, json_topics)
+    skip_chans: list[np.ndarray] = []
+    skip_times: list[np.ndarray] = []
+    keep = []
+    for ci in chunks:
+        chans = set(ci.message_index_offsets)
+        idx = None if (not chans or chans & needed) else _index_times(raw, ci)
+        if idx is None:
+            keep.append(ci)
+        else:
+            skip_chans += idx[0]
+            skip_times += idx[1]
+    n_skipped = len(chunks) - len(keep)
+    chunks = keep
     if len(chunks) > 4:
         with ThreadPoolExecutor(max_workers=2) as pool:
             parts = list(pool.map(load, chunks))
@@ -811,8 +871,23 @@ def _read_fast(raw: bytes, summary, validate_crcs: bool) -> McapData:
         t_ns=t[:k], can_id=cid[:k], is_extended=ext[:k], dlc=dlc[:k], data=data[:k], is_rx=rx[:k]
     )
     frames = frames.sort()
-    out = McapData(frames=frames, topics=topics, bad_can_messages=int(bad), fast_path=True)
-    out._other = (buf, o_chan[:m], o_t[:m], o_off[:m], o_len[:m])  # type: ignore[attr-defined]
+    out = McapData(
+        frames=frames,
+        topics=topics,
+        bad_can_messages=int(bad),
+        fast_path=True,
+        chunks_read=len(chunks),
+        chunks_skipped=n_skipped,
+    )
+    o_chan, o_t, o_off, o_len = o_chan[:m], o_t[:m], o_off[:m], o_len[:m]
+    if skip_chans:
+        sc = np.concatenate(skip_chans)
+        counts += np.bincount(sc, minlength=65536)
+        o_chan = np.concatenate([o_chan, sc])
+        o_t = np.concatenate([o_t, *skip_times])
+        o_off = np.concatenate([o_off, np.full(sc.size, -1, np.int64)])  # payload not read
+        o_len = np.concatenate([o_len, np.zeros(sc.size, np.int64)])
+    out._other = (buf, o_chan, o_t, o_off, o_len)  # type: ignore[attr-defined]
     _finish_topics(out, kind, counts)
     return out
 
