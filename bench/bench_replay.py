@@ -185,7 +185,8 @@ def bench_file(label: str, path: Path, profile, vehicle, backend: str, repeat: i
     times, res = timed(total, repeat)
     rows.append(fmt("total", times))
     print(
-        f"  -> {len(res)} steps, {res.duration_s:.0f} s of traffic, CSV {csv_path.stat().st_size / 1e6:.0f} MB"
+        f"  -> {len(res)} steps, {res.duration_s:.0f} s of traffic, "
+        f"CSV {csv_path.stat().st_size / 1e6:.0f} MB"
     )
     return {"label": label, "file_bytes": size, "frames": len(log.frames), "steps": len(res), "stages": rows}
 
