@@ -337,3 +337,21 @@ def test_frame_batch_sort_is_stable_and_select_concat():
     assert len(FrameBatch.concat([])) == 0 and len(fb[1:3]) == 2
     with pytest.raises(ValueError):
         fb.select(np.ones(3, bool))
+
+
+def test_hyundai_whl_spd_checksum_verified_mdps12_checksum_not(hyundai):
+    t = T0 + np.arange(20, dtype=np.int64) * 20_000_000
+    whl = encode_frames(
+        hyundai, "WHL_SPD11", t, si_to_dbc(hyundai, "WHL_SPD11", {"speed": np.full(20, 25.0)})
+    )
+    whl.data[10, 0] ^= 0x04  # a wheel-speed bit: the checksum no longer matches
+    mdps = encode_frames(hyundai, "MDPS12", t, {"CR_Mdps_StrTq": 1.0})
+    mdps.data[10, 3] ^= 0xFF  # CF_Mdps_Chksum2 (24|8): algorithm unknown, not verified
+    mdps.data[12, 2] = (int(mdps.data[12, 2]) + 5) % 256  # CF_Mdps_MsgCount2 jumps: the counter is checked
+    d = decode_batch(hyundai, FrameBatch.concat([whl, mdps]))
+    assert d.messages["WHL_SPD11"].stats.wrong_crc == 1
+    assert d.messages["WHL_SPD11"].status[10] == E2EStatus.WRONGCRC
+    assert d.messages["MDPS12"].stats.wrong_crc == 0
+    assert d.messages["MDPS12"].status[10] == E2EStatus.OK
+    assert d.messages["MDPS12"].status[12] == E2EStatus.WRONGSEQUENCE
+    assert d.inputs["speed"].value == pytest.approx(25.0, abs=0.03125 / 3.6)
