@@ -117,9 +117,8 @@ def main() -> int:
     inputs = make_inputs(n, args.seed)
     batch = bench_batch(vehicle, inputs, args.repeat)
     live = bench_live(vehicle, inputs, min(args.calls, n), args.repeat)
-    print(
-        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cpus, python {platform.python_version()}"
-    )
+    cpu = platform.processor() or platform.machine()
+    print(f"machine: {cpu}, {os.cpu_count()} cpus, python {platform.python_version()}")
     print(
         f"run_batch: {batch['steps']} steps ({args.hours:g} h) median {batch['median_s'] * 1e3:.1f} ms "
         f"(min {batch['min_s'] * 1e3:.1f}, max {batch['max_s'] * 1e3:.1f}; {args.repeat} repeats), "
