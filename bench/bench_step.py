@@ -10,6 +10,7 @@ cache load). Then ``--calls`` single :meth:`lde.step.Estimator.step` calls, each
 
     python bench/bench_step.py                      # 1 hour, 7 repeats, 20000 live calls
     python bench/bench_step.py --hours 0.1 --repeat 3 --json out.json
+    python bench/bench_step.py --tuning             # the docs/tuning.md table (no timing)
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import time
 
 import numpy as np
 
+from lde import kalman, model
 from lde.params import load_vehicle
 from lde.step import Estimator, EstimatorInputs, run_batch
 from lde.units import DEG, KMH, STEP_NS, STEP_S
@@ -102,6 +104,63 @@ def bench_live(vehicle, inputs, calls: int, repeat: int) -> dict:
     }
 
 
+def settling_time(vehicle, vx: float, fw: float, mw: float, level: float) -> float:
+    """Time [s] after a step of (fw, mw) until the estimate stays within (1 - level) of it.
+
+    Noise-free straight driving (delta_f = 0) from the Euler model, the estimator converged on
+    zero disturbance for 3 s first; the measured T_align goes in as column torque.
+    """
+    d = model.discrete_matrices(vehicle, vx)
+    n0 = n1 = round(3.0 / STEP_S)
+    n = n0 + n1
+    x = np.zeros(4)
+    z = np.empty((n, 2))
+    for k in range(n):
+        if k == n0:
+            x[2], x[3] = fw, mw
+        z[k] = d.H @ x
+        x = d.Phi @ x
+    ones = np.ones(n, dtype=bool)
+    res = run_batch(
+        np.arange(n, dtype=np.int64) * STEP_NS,
+        np.full(n, vx),
+        np.zeros(n),
+        z[:, 0],
+        z[:, 1] / vehicle.steering.ratio,
+        np.zeros(n),
+        ones,
+        ones,
+        vehicle,
+    )
+    est, truth = (res.fw, fw) if fw else (res.mw, mw)
+    late = np.flatnonzero(np.abs(est[n0:] - truth) > (1.0 - level) * abs(truth))
+    return float((late[-1] + 1) * STEP_S) if late.size else 0.0
+
+
+def tuning_table(vehicle, speeds_kmh=(60.0, 100.0, 160.0)) -> str:
+    """Markdown table: steady-state Kalman gain, closed-loop time constants (eigenvalues of
+    (I - Kg H) Phi), a-posteriori std and measured step settling times per speed."""
+    lines = [
+        "| speed [km/h] | tau [s], slowest first | Kg Fw row [N/(rad/s), N/Nm] | Kg Mw row [Nm/(rad/s), -] "
+        "| std Fw [N] | std Mw [Nm] | 1000 N step 95 % / 98 % [s] | 500 Nm step 95 % [s] |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for kmh in speeds_kmh:
+        vx = kmh * KMH
+        d = model.discrete_matrices(vehicle, vx)
+        kg, p_post = kalman.steady_state_gain(d.Phi, d.H, d.Qd, d.R)
+        tau = kalman.closed_loop_time_constants(d.Phi, d.H, kg, STEP_S)
+        f95 = settling_time(vehicle, vx, 1000.0, 0.0, 0.95)
+        f98 = settling_time(vehicle, vx, 1000.0, 0.0, 0.98)
+        m95 = settling_time(vehicle, vx, 0.0, 500.0, 0.95)
+        lines.append(
+            f"| {kmh:g} | {', '.join(f'{t:.3f}' for t in tau)} | {kg[2, 0]:.3g}, {kg[2, 1]:.3g} "
+            f"| {kg[3, 0]:.3g}, {kg[3, 1]:.3g} | {np.sqrt(p_post[2, 2]):.0f} | {np.sqrt(p_post[3, 3]):.0f} "
+            f"| {f95:.2f} / {f98:.2f} | {m95:.2f} |"
+        )
+    return "\n".join(lines)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hours", type=float, default=1.0, help="hours of 3.9 ms steps (default 1)")
@@ -110,9 +169,13 @@ def main() -> int:
     ap.add_argument("--vehicle", default="reference")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", help="also write the results to this JSON file")
+    ap.add_argument("--tuning", action="store_true", help="print the docs/tuning.md table and stop")
     args = ap.parse_args()
 
     vehicle = load_vehicle(args.vehicle)
+    if args.tuning:
+        print(tuning_table(vehicle))
+        return 0
     n = round(args.hours * 3600.0 / STEP_S)
     inputs = make_inputs(n, args.seed)
     batch = bench_batch(vehicle, inputs, args.repeat)

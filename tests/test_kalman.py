@@ -137,3 +137,15 @@ def test_reset_is_explicit(veh):
     np.testing.assert_array_equal(f.x, np.ones(4))
     with pytest.raises(ValueError):
         kalman.KalmanFilter(np.zeros(4), np.eye(3))
+
+
+def test_steady_state_gain_matches_scipy_dare(veh):
+    from scipy.linalg import solve_discrete_are
+
+    d = model.discrete_matrices(veh, 100 * KMH)
+    Kg, P_post = kalman.steady_state_gain(d.Phi, d.H, d.Qd, d.R)
+    P_prior = solve_discrete_are(d.Phi.T, d.H.T, d.Qd, d.R)
+    K_ref = P_prior @ d.H.T @ np.linalg.inv(d.H @ P_prior @ d.H.T + d.R)
+    np.testing.assert_allclose(Kg, K_ref, rtol=1e-6, atol=1e-9 * np.max(np.abs(K_ref)))
+    tau = kalman.closed_loop_time_constants(d.Phi, d.H, Kg, 0.0039)
+    assert np.all(tau > 0) and tau[0] >= tau[-1]
