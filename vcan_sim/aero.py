@@ -13,9 +13,10 @@ frame, m/s), the airflow over the car is ``a = w - v`` (a_x is about -vx). Then:
 
 Coefficient curves (A = frontal area is the reference area; documented in docs/simulator.md)::
 
-    Cy(b) = cy1 sin b cos b + cy2 sin b |sin b|    slope cy1 per rad at small b, cy2 at 90 deg
+    Cy(b) = cy1 sin b |cos b| + cy2 sin b |sin b|  slope cy1 per rad at small b, cy2 at 90 deg
     Cn(b) = cn1 sin b cos b                        peak at 45 deg, 0 at 90 deg (the flat plate's
-                                                   centre of pressure moves to mid-length)
+                                                   centre of pressure moves to mid-length), reversed
+                                                   for air from behind (b beyond 90 deg)
     Cx(b) = cx cos b |cos b|
 
 These are the shapes a flat plate shows (normal force ~ sin b, centre of pressure travelling
@@ -44,7 +45,7 @@ def pack_aero(a: AeroParams) -> np.ndarray:
 def coeff_y(beta: float, ap: np.ndarray) -> float:
     """Cy(beta_cw) [-]."""
     s = math.sin(beta)
-    return ap[A_CY1] * s * math.cos(beta) + ap[A_CY2] * s * abs(s)
+    return ap[A_CY1] * s * abs(math.cos(beta)) + ap[A_CY2] * s * abs(s)
 
 
 @numba.njit(cache=True)

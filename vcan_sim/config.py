@@ -155,7 +155,7 @@ class AeroParams:
     Coefficients (A = frontal area as reference area, l = wheelbase as reference length,
     moment about the mid-wheelbase point, left positive)::
 
-        Cy(b) = cy1 sin b cos b + cy2 sin b |sin b|     (slope cy1 at b = 0, cy2 at b = 90 deg)
+        Cy(b) = cy1 sin b |cos b| + cy2 sin b |sin b|   (slope cy1 at b = 0, cy2 at b = 90 deg)
         Cn(b) = cn1 sin b cos b                         (zero at 90 deg: the flow is symmetric)
         Cx(b) = cx cos b |cos b|                        (drag, along -x)
 
