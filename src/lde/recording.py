@@ -223,6 +223,8 @@ class Recorder:
         metadata: strings stored in the ``lde`` metadata record (profile, vehicle, backend...).
         flush_interval_s: the writer thread writes and flushes a chunk this often [s].
         chunk_size: MCAP chunk size bound [bytes, uncompressed] (small: a crash loses little).
+        extra_topics: more JSON channels, topic -> {field: JSON-schema property}, written with
+            :meth:`json_columns` (the demo's ``/sim/truth``).
     """
 
     def __init__(
@@ -231,6 +233,7 @@ class Recorder:
         metadata: dict[str, str] | None = None,
         flush_interval_s: float = 0.25,
         chunk_size: int = 64 * 1024,
+        extra_topics: dict[str, dict[str, dict[str, str]]] | None = None,
     ) -> None:
         self.path = Path(path)
         meta = {k: str(v) for k, v in (metadata or {}).items()}
@@ -239,6 +242,7 @@ class Recorder:
         self._ch_est = w.add_json_channel(ESTIMATE_TOPIC, ESTIMATE_PROPS, title="lde.Estimate")
         self._ch_in = w.add_json_channel(INPUTS_TOPIC, INPUTS_PROPS, title="lde.Inputs")
         self._ch_diag = w.add_json_channel(DIAG_TOPIC, DIAG_PROPS, title="lde.Diag")
+        self._ch_extra = {t: w.add_json_channel(t, props) for t, props in (extra_topics or {}).items()}
         _sync(w)
         self._q: deque[tuple[Any, ...]] = deque()
         self._flush_interval = float(flush_interval_s)
@@ -260,6 +264,12 @@ class Recorder:
     def step(self, res: Any, inputs: Any, e2e_rejects: int = 0, skipped: int = 0) -> None:
         """One step's result (:class:`lde.service.StepResult`), its sampled inputs and counters."""
         self._q.append((2, res, inputs, e2e_rejects, skipped))
+
+    def json_columns(self, topic: str, t_ns: np.ndarray, columns: dict[str, np.ndarray]) -> None:
+        """Many JSON messages at once on an ``extra_topics`` channel (one per element of ``t_ns``)."""
+        if topic not in self._ch_extra:
+            raise ValueError(f"topic {topic!r} was not declared in extra_topics")
+        self._q.append((3, topic, np.asarray(t_ns, np.int64), dict(columns)))
 
     # ------------------------------------------------------------------ writer thread
     def _loop(self) -> None:
@@ -287,6 +297,9 @@ class Recorder:
                         data,
                         kind == 0,
                     )
+                elif kind == 3:
+                    _, topic, t_arr, cols = item
+                    w.write_json_columns(self._ch_extra[topic], t_arr, cols)
                 else:
                     _, res, inputs, rejects, skipped = item
                     t = res.t_ns

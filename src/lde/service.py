@@ -102,8 +102,12 @@ def make_estimator(vehicle: Any, backend: str = "fixed") -> Any:
         try:
             from firmware_model import FixedEstimator  # type: ignore[attr-defined]
         except ImportError:
-            log.warning("backend 'fixed': firmware_model.FixedEstimator not available, using 'float'")
-        else:
+            try:
+                from firmware_model.fast import FixedEstimator
+            except ImportError:
+                log.warning("backend 'fixed': firmware_model.FixedEstimator not available, using 'float'")
+                FixedEstimator = None  # noqa: N806
+        if FixedEstimator is not None:
             return FixedEstimator(vehicle)
     from .step import Estimator
 
@@ -177,7 +181,7 @@ class Service:
 
         self.receiver = Receiver(self.profile)
         self.estimator = make_estimator(self.vehicle, backend)
-        self.limiter = OverlayLimiter(self.vehicle.overlay)
+        self.limiter = OverlayLimiter(self.vehicle)
         self._enc_estimate = MessageEncoder(self.profile, "LDE_Estimate")
         self._enc_overlay = MessageEncoder(self.profile, "LDE_Overlay")
         self._enc_diag = MessageEncoder(self.profile, "LDE_Diag")
