@@ -272,9 +272,6 @@ def step_kernel(tv, coef, x, P, aux, sat, ws, t_ns, v, steer, yaw, tcol, tas, in
     """The twin of :func:`firmware_model.step.step_raw`; fills ``out`` (O_* slots), returns status.
     ``ws`` is an int64 scratch (4, 16)."""
     aux[A_STEPS] += 1
-    sat_before = np.int64(0)
-    for k in range(sat.shape[0]):
-        sat_before += sat[k]
     status = 0
     if in_flags & (IN_SPEED_NAN | IN_SPEED_SAT):
         sat[S_IN_SPEED] += 1
@@ -284,6 +281,9 @@ def step_kernel(tv, coef, x, P, aux, sat, ws, t_ns, v, steer, yaw, tcol, tas, in
         sat[S_IN_YAW] += 1
     if in_flags & IN_TORQUE_BAD:
         sat[S_IN_TORQUE] += 1
+    sat_before = np.int64(0)
+    for k in range(sat.shape[0]):
+        sat_before += sat[k]
     esc_valid = esc_ok and (in_flags & IN_YAW_BAD) == 0
     mdps_valid = mdps_ok and (in_flags & (IN_STEER_BAD | IN_TORQUE_BAD)) == 0
     if not esc_valid:

@@ -30,8 +30,10 @@ in normalised units (``X_i = x_i / sigma_i`` and ``Pn_ij = P_ij / (sigma_i sigma
        X  = Phi_n X + e delta
        Pn = Phi_n Pn Phi_n^T + Qdn
 
-Status bits are those of :class:`lde.step.Status`; a saturation anywhere in a step also sets
-DEGRADED (and so clears VALID).
+Status bits are those of :class:`lde.step.Status`, set as the float step sets them; in addition a
+saturation inside the step (speed above the model maximum, any arithmetic saturation) sets
+DEGRADED (and so clears VALID). Input faults are counted per input and reported by their group's
+fault bit, as in the float step.
 """
 
 from __future__ import annotations
@@ -283,8 +285,10 @@ def step_raw(tb: FixedTables, st: FixedState, t_ns: int, v: int, steer: int, yaw
     """One integer step. Inputs are raw (:func:`quantise_inputs`); returns
     (status, X_beta, X_r, X_Fw, X_Mw, T_align_hat) with the estimates normalised Q15.16."""
     st.steps += 1
-    sat_before = sum(st.sat)
     status = 0
+    # input faults are counted here and reported by their group's fault bit (ESC_FAULT,
+    # MDPS_FAULT, LOW_SPEED), exactly like the float step; DEGRADED below is for saturations
+    # inside the step (speed clamp, arithmetic)
     if in_flags & (IN_SPEED_NAN | IN_SPEED_SAT):
         st.sat[S_IN_SPEED] += 1
     if in_flags & IN_STEER_BAD:
@@ -293,6 +297,7 @@ def step_raw(tb: FixedTables, st: FixedState, t_ns: int, v: int, steer: int, yaw
         st.sat[S_IN_YAW] += 1
     if in_flags & IN_TORQUE_BAD:
         st.sat[S_IN_TORQUE] += 1
+    sat_before = sum(st.sat)
     esc_valid = esc_ok and not (in_flags & IN_YAW_BAD)
     mdps_valid = mdps_ok and not (in_flags & (IN_STEER_BAD | IN_TORQUE_BAD))
     if not esc_valid:

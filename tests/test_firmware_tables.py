@@ -120,9 +120,9 @@ def test_formats_hold_their_ranges(vehicle):
     for r in (*tb.r_n, *tb.qd_n):
         assert r >= 10
     # the supported physical ranges fit the state formats (Fw, Mw +-6000, yaw rate +-2 rad/s)
-    assert 6000.0 <= q32(tb.f_state).real_max * 2.0 ** tb.sigma_exp[2]
-    assert 6000.0 <= q32(tb.f_state).real_max * 2.0 ** tb.sigma_exp[3]
-    assert 2.0 <= q32(tb.yaw_input_frac()).real_max
+    assert q32(tb.f_state).real_max * 2.0 ** tb.sigma_exp[2] >= 6000.0
+    assert q32(tb.f_state).real_max * 2.0 ** tb.sigma_exp[3] >= 6000.0
+    assert q32(tb.yaw_input_frac()).real_max >= 2.0
     # w = 1/v at the minimum speed fits int32, and 1 << (f_speed + f_w) fits int64
     assert round(2 ** (tb.f_speed + tb.f_w) / tb.v_min_raw) < 2**31
     assert tb.f_speed + tb.f_w <= 62
