@@ -10,16 +10,20 @@ neglects enters its measurements directly:
   a lateral force error of ~5 / trail ~ 100 N: a light-load scenario's whole signal.
 - A steering-angle offset ``d_sw`` or a yaw-rate bias ``b_r`` produces a steady aligning-torque and
   yaw-rate residual that the filter can only explain as a disturbance.
+- The steering-angle sensor sits above the torsion bar, which twists by ``c_tb T_column`` (about
+  1.5 deg of steering wheel at a 3 Nm hold with a 2 Nm/deg bar): the road wheels are not at
+  ``delta_sw / N``. A linear model absorbs that into a lower effective Cf and K, which is right only
+  while the column torque stays proportional to the aligning torque (the boost curve is not).
 
 Compensations here are preprocessing of the grid inputs before the product step, so the step
 itself is unchanged (the exact integration wanted in :mod:`lde.step` is in ``docs/study.md``):
 
     T_column'        = T_column - T_fric tanh(delta_sw_dot / w)                   (friction)
-    delta_sw'        = delta_sw - d_sw                                            (angle offset)
+    delta_sw'        = delta_sw - c_tb T_column - d_sw                            (torsion twist, offset)
     r'               = r - b_r                                                    (yaw-rate bias)
     T_column'       -= T_0 / N                                                    (torque offset)
 
-with ``T_fric``, ``d_sw``, ``T_0`` from :func:`lde.calibrate.calibrate` on a drive without
+with ``T_fric``, ``c_tb``, ``d_sw``, ``T_0`` from :func:`lde.calibrate.calibrate` on a drive without
 disturbance (or given as options). All SI; ISO 8855 signs; ``T_align`` with the paper's sign.
 """
 
@@ -34,7 +38,7 @@ from .errors import ConfigError
 from .frames import FrameBatch
 from .grid import InputGrid, build_grid
 from .params import Vehicle
-from .profiles import load_profile
+from .profiles import Profile, load_profile
 from .signals import decode_batch
 from .step import BatchResult, run_batch
 
@@ -49,6 +53,7 @@ class Compensation:
         steer_offset: steering-wheel angle offset [rad] (measured minus true).
         yaw_bias: yaw-rate bias [rad/s] (measured minus true).
         align_offset: offset of N (T_column + T_assist) [Nm] at the steering axis.
+        torsion_compliance: c_tb, steering-wheel angle per column torque [rad/Nm] (0: rigid).
     """
 
     friction: float = 0.0
@@ -56,11 +61,12 @@ class Compensation:
     steer_offset: float = 0.0
     yaw_bias: float = 0.0
     align_offset: float = 0.0
+    torsion_compliance: float = 0.0
 
     @classmethod
     def from_options(cls, options: dict[str, object]) -> Compensation:
         """From study options ``friction_Nm``, ``friction_width_deg_s``, ``steer_offset_deg``,
-        ``yaw_bias_deg_s``, ``align_offset_Nm`` (unknown keys are errors)."""
+        ``yaw_bias_deg_s``, ``align_offset_Nm``, ``torsion_deg_per_Nm`` (unknown keys are errors)."""
         from .units import DEG
 
         keymap = {
@@ -69,6 +75,7 @@ class Compensation:
             "steer_offset_deg": ("steer_offset", DEG),
             "yaw_bias_deg_s": ("yaw_bias", DEG),
             "align_offset_Nm": ("align_offset", 1.0),
+            "torsion_deg_per_Nm": ("torsion_compliance", DEG),
         }
         kw = {}
         for k, v in options.items():
@@ -82,10 +89,11 @@ class Compensation:
         return all(getattr(self, f.name) == 0.0 for f in fields(self) if f.name != "friction_width")
 
 
-def grid_from_frames(frames: FrameBatch, profile: str = "lde") -> InputGrid:
-    """CAN frames -> estimator inputs on the 3.9 ms grid (the replay pipeline's first stages)."""
-    prof = load_profile(profile)
-    return build_grid(decode_batch(prof, frames), prof)
+def grid_from_frames(frames: FrameBatch, profile: Profile | str = "lde") -> InputGrid:
+    """CAN frames -> estimator inputs on the 3.9 ms grid (the replay pipeline's first stages;
+    only received frames, ``is_rx``, are inputs)."""
+    prof = profile if isinstance(profile, Profile) else load_profile(profile)
+    return build_grid(decode_batch(prof, frames.select(frames.is_rx)), prof)
 
 
 def drive_from_grid(grid: InputGrid) -> DriveData:
@@ -115,7 +123,7 @@ def compensate(grid: InputGrid, vehicle: Vehicle, comp: Compensation) -> InputGr
     return replace(
         grid,
         column_torque=col,
-        steering_angle=grid.steering_angle - comp.steer_offset,
+        steering_angle=grid.steering_angle - comp.torsion_compliance * grid.column_torque - comp.steer_offset,
         yaw_rate=grid.yaw_rate - comp.yaw_bias,
     )
 

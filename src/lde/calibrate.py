@@ -13,13 +13,20 @@ give the per-tire axle forces from measurements and body parameters only:
 
     2 F_f = (lr m a_y + Iz r_dot) / L          2 F_r = (lf m a_y - Iz r_dot) / L          (a)
 
-Eq. (9): ``alpha_f - alpha_r = delta_f - L r / vx`` (beta cancels). With ``F = C alpha`` and a
-road-wheel angle offset ``d0`` (measured delta_f = true delta_f + d0):
+Eq. (9): ``alpha_f - alpha_r = delta_f - L r / vx`` (beta cancels). The steering-angle sensor sits
+above the torsion bar (the column torque sensor), which twists by ``T_column c_tb`` (``c_tb`` the
+torsion compliance [rad/Nm]): the road wheels are at ``(delta_sw - c_tb T_column) / N``, 1-2 deg of
+steering wheel less at a 3 Nm hold. With ``F = C alpha`` and a road-wheel angle offset ``d0``
+(measured delta_f = true delta_f + d0):
 
-    delta_f,meas - L r / vx = F_f (1/Cf) - F_r (1/Cr) + d0                                 (b)
+    delta_sw/N - L r / vx = F_f (1/Cf) - F_r (1/Cr) + (T_column/N) c_tb + d0               (b)
 
-linear in the compliances (1/Cf, 1/Cr) and d0. Transients (r_dot != 0) separate Cf from Cr; a
+linear in the compliances (1/Cf, 1/Cr, c_tb) and d0. Transients (r_dot != 0) separate Cf from Cr; a
 steady-state-only drive gives only the understeer gradient (the fit reports its conditioning).
+``c_tb`` is separable from 1/Cf only through the non-linear boost curve (the column torque is not
+proportional to the aligning torque); where it is not (condition number above :data:`TORSION_MAX_COND`),
+the column is taken as rigid (``c_tb = 0``; ``Calibration.torsion_identified`` False) and the twist
+ends up in an effective, lower Cf.
 Eq. (12) with alpha_f = F_f / Cf, plus the column friction the paper neglects (eq. 11):
 
     N (T_column + T_assist) = (K/Cf) 2 F_f + N T_fric S(tanh(delta_sw_dot / w)) + T_0       (c)
@@ -54,6 +61,8 @@ MAX_LAT_ACCEL = 4.0
 FRICTION_RATE_WIDTH = 2.0 * DEG
 #: a (b) regression worse conditioned than this cannot separate Cf from Cr
 MAX_COND = 1.0e4
+#: ... and with the torsion compliance as a fourth unknown, this (else the column is taken as rigid)
+TORSION_MAX_COND = 100.0
 #: fewer usable samples than this is an error
 MIN_SAMPLES = 500
 
@@ -94,6 +103,8 @@ class Calibration:
         friction: Coulomb friction of the steering referred to the column [Nm].
         steer_offset: steering-wheel angle offset [rad] (measured minus true).
         align_offset: offset of N (T_column + T_assist) [Nm] at the steering axis.
+        torsion_compliance: c_tb, steering-wheel angle per column torque [rad/Nm] (0: rigid).
+        torsion_identified: False when c_tb was not separable and the column was taken as rigid.
         n: samples used; rms_slip: residual of (b) [rad]; rms_align: residual of (c) [Nm].
         cond: condition number of the (b) regression (large: Cf and Cr not separable).
     """
@@ -105,20 +116,33 @@ class Calibration:
     friction: float
     steer_offset: float
     align_offset: float
+    torsion_compliance: float
+    torsion_identified: bool
     n: int
     rms_slip: float
     rms_align: float
     cond: float
+
+    def _torsion(self) -> str:
+        return _torsion_text(self.torsion_compliance, self.torsion_identified)
 
     def summary(self) -> str:
         return (
             f"Cf = {self.cf:.0f} N/rad, Cr = {self.cr:.0f} N/rad, K = {self.align_rate:.0f} Nm/rad "
             f"(trail {1000 * self.trail:.1f} mm), steering friction {self.friction:.3f} Nm at the column, "
             f"steering-angle offset {self.steer_offset / DEG:.2f} deg, "
-            f"T_align offset {self.align_offset:.2f} Nm; "
+            f"T_align offset {self.align_offset:.2f} Nm, "
+            f"torsion bar {self._torsion()}; "
             f"{self.n} samples, residuals {self.rms_slip / DEG:.3f} deg and {self.rms_align:.2f} Nm, "
             f"cond {self.cond:.0f}"
         )
+
+
+def _torsion_text(c: float, identified: bool) -> str:
+    if not identified:
+        return "not identified (rigid column assumed)"
+    k = "inf" if c <= 0.0 else f"{DEG / c:.2f}"
+    return f"compliance {c / DEG:.3f} deg/Nm ({k} Nm/deg)"
 
 
 def gaussian_smooth(x: np.ndarray, sigma_samples: float) -> np.ndarray:
@@ -136,8 +160,11 @@ def gaussian_smooth(x: np.ndarray, sigma_samples: float) -> np.ndarray:
     return np.convolve(padded, k, mode="valid")
 
 
-def calibrate(drive: DriveData, base: Vehicle, *, smooth_s: float = SMOOTH_S) -> Calibration:
-    """Least-squares identification of Cf, Cr, K, friction and offsets (module docstring (a)-(c))."""
+def calibrate(
+    drive: DriveData, base: Vehicle, *, smooth_s: float = SMOOTH_S, identify_torsion: bool = True
+) -> Calibration:
+    """Least-squares identification of Cf, Cr, K, torsion compliance, friction and offsets
+    (module docstring (a)-(c))."""
     t = np.asarray(drive.t, dtype=np.float64)
     n_all = t.size
     if n_all < MIN_SAMPLES:
@@ -161,7 +188,8 @@ def calibrate(drive: DriveData, base: Vehicle, *, smooth_s: float = SMOOTH_S) ->
     delta_f = sm(drive.steering_angle) / N
     # the friction regressor is smoothed like the torque it explains (a smoothed sign step)
     fric_sign = sm(np.tanh(np.asarray(drive.steering_rate, dtype=np.float64) / FRICTION_RATE_WIDTH))
-    t_align = N * (sm(drive.column_torque) + sm(drive.assist_torque))
+    t_col = sm(drive.column_torque)
+    t_align = N * (t_col + sm(drive.assist_torque))
     r_dot = np.gradient(r, t)
 
     ok = np.asarray(drive.valid, dtype=bool).copy()
@@ -183,16 +211,16 @@ def calibrate(drive: DriveData, base: Vehicle, *, smooth_s: float = SMOOTH_S) ->
     # (a) per-tire axle forces from the measurements
     ff = (lr * m * ay + iz * r_dot) / (2.0 * L)
     fr = (lf * m * ay - iz * r_dot) / (2.0 * L)
-    # (b) delta_f - L r / vx = Ff/Cf - Fr/Cr + d0
-    X1 = np.column_stack([ff[use], -fr[use], np.ones(n)])
+    # (b) delta_sw/N - L r / vx = Ff/Cf - Fr/Cr + (Tcol/N) c_tb + d0
     y1 = delta_f[use] - L * r[use] / vx[use]
-    col = np.linalg.norm(X1, axis=0)
-    if np.any(col == 0.0):
-        raise CalibrationError("no lateral excitation in the drive (no steering)")
-    c1, *_ = np.linalg.lstsq(X1 / col, y1, rcond=None)
-    c1 = c1 / col
-    cond = float(np.linalg.cond(X1 / col))
-    comp_f, comp_r, d0 = (float(v) for v in c1)
+    base_cols = [ff[use], -fr[use], np.ones(n)]
+    c1, cond, X1 = _lstsq(np.column_stack(base_cols + [t_col[use] / N]), y1)
+    torsion_ok = identify_torsion and cond <= TORSION_MAX_COND
+    if not torsion_ok:
+        c1, cond, X1 = _lstsq(np.column_stack(base_cols), y1)
+        c1 = np.append(c1, 0.0)
+        X1 = np.column_stack([X1, np.zeros(n)])
+    comp_f, comp_r, d0, c_tb = (float(v) for v in c1)
     if cond > MAX_COND:
         raise CalibrationError(
             f"the drive cannot separate Cf from Cr (condition number {cond:.3g}): it needs transient "
@@ -221,6 +249,8 @@ def calibrate(drive: DriveData, base: Vehicle, *, smooth_s: float = SMOOTH_S) ->
         friction=fric,
         steer_offset=d0 * N,
         align_offset=t0,
+        torsion_compliance=c_tb,
+        torsion_identified=torsion_ok,
         n=n,
         rms_slip=float(np.sqrt(np.mean(res1**2))),
         rms_align=float(np.sqrt(np.mean(res2**2))),
@@ -261,6 +291,15 @@ def vehicle_toml(cal: Calibration, base: Vehicle, name: str = "calibrated", log:
         "",
     ]
     return "\n".join(lines)
+
+
+def _lstsq(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """Least squares with unit-norm columns: (coefficients, condition number, X)."""
+    col = np.linalg.norm(X, axis=0)
+    if np.any(col == 0.0):
+        raise CalibrationError("no lateral excitation in the drive (no steering)")
+    c, *_ = np.linalg.lstsq(X / col, y, rcond=None)
+    return c / col, float(np.linalg.cond(X / col)), X
 
 
 def _toml_str(s: str) -> str:

@@ -32,13 +32,24 @@ import numpy as np
 
 from . import metrics
 from .errors import ConfigError, LdeError
+from .units import DEG
 
 #: Table 1 candidate sets (shipped vehicle files; est2 with the erratum-6 lr)
 CANDIDATES = ("est1", "est2", "est3", "est4", "est5")
 #: the paper's two lateral-load scenarios (section 5 / Figs. 13-14)
-PAPER_SCENARIOS = ("heavy", "light")
+PAPER_SCENARIOS = ("heavy_load", "light_load")
 #: the accuracy set of ``lde evaluate`` (simulator scenario names)
-EVALUATE_SCENARIOS = ("heavy", "light", "bank", "lane_change")
+EVALUATE_SCENARIOS = (
+    "heavy_load",
+    "light_load",
+    "payload_full",
+    "payload_trunk",
+    "payload_four",
+    "payload_left",
+    "bank_transition",
+    "steady_wind",
+    "lane_change",
+)
 #: trace decimation: keep every n-th estimator step in returned traces (3.9 ms * 8 = 31 ms)
 TRACE_DECIMATION = 8
 
@@ -53,7 +64,7 @@ class RunSpec:
         scenario: a :mod:`vcan_sim` scenario name (``lde sim --list``).
         est_vehicle: the estimator's vehicle file (shipped name or path).
         sim_vehicle: the simulated vehicle (shipped name or path).
-        payload: the simulator's payload case name ("none" = unloaded).
+        payload: the simulator's payload case name ("none" = unloaded; "": the scenario's own).
         seed: the simulator's random seed.
         duration: simulated time [s] (None: the scenario's own length).
         estimator: "replay" (the product pipeline, :func:`lde.replay.replay`) or "adaptive"
@@ -70,7 +81,7 @@ class RunSpec:
     scenario: str
     est_vehicle: str = "reference"
     sim_vehicle: str = "reference"
-    payload: str = "none"
+    payload: str = ""
     seed: int = 0
     duration: float | None = None
     estimator: str = "replay"
@@ -84,7 +95,7 @@ class RunSpec:
     @property
     def label(self) -> str:
         """A short human-readable id of the run."""
-        parts = [self.scenario, self.payload, self.est_vehicle, f"s{self.seed}"]
+        parts = [self.scenario, self.payload or "-", self.est_vehicle, f"s{self.seed}"]
         parts += [f"{k}={v}" for k, v in self.sim_options + self.est_options]
         return "/".join(parts)
 
@@ -125,16 +136,118 @@ class RunResult:
 Engine = Callable[[RunSpec], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, metrics.Truth]]
 
 
+#: simulator options of a RunSpec: name -> (SimParams section, field, factor to SI)
+SIM_OPTIONS: dict[str, tuple[str, str, float]] = {
+    "friction_Nm": ("steering", "rack_coulomb", 1.0),
+    "steer_offset_deg": ("sensors", "steering_angle_bias", DEG),
+    "yaw_bias_deg_s": ("sensors", "yaw_rate_bias", DEG),
+    "column_torque_bias_Nm": ("sensors", "column_torque_bias", 1.0),
+    "lat_accel_bias": ("sensors", "lat_accel_bias", 1.0),
+}
+#: estimator options of the "adaptive" estimator besides the Compensation keys (lde.adaptive):
+#: calibrate = a scenario name: identify tires, friction and offsets on that (undisturbed)
+#: scenario with the same simulated vehicle, payload and options (seed + 1000), then estimate with
+#: them; calibrate_tires = 0 to apply only the friction/offset compensation of that calibration.
+CALIBRATION_SEED_OFFSET = 1000
+
+
+def _sim_params(vehicle: Any, options: dict[str, OptionValue]) -> Any:
+    from dataclasses import replace
+
+    from vcan_sim.config import sim_params_from_vehicle
+
+    sp = sim_params_from_vehicle(vehicle)
+    for key, value in options.items():
+        if key == "speed_kmh":
+            continue
+        if key not in SIM_OPTIONS:
+            raise ConfigError(
+                f"unknown simulator option {key!r} (known: speed_kmh, {', '.join(SIM_OPTIONS)})"
+            )
+        section, attr, factor = SIM_OPTIONS[key]
+        sub = replace(getattr(sp, section), **{attr: float(value) * factor})
+        sp = replace(sp, **{section: sub})
+    return sp
+
+
+def _simulate(spec: RunSpec, scenario: str, seed: int) -> Any:
+    try:
+        from vcan_sim.run import scenario_with, simulate
+    except ImportError as exc:
+        raise LdeError("the simulator package vcan_sim is not importable") from exc
+    from .params import load_vehicle
+
+    opts = dict(spec.sim_options)
+    vehicle = load_vehicle(spec.sim_vehicle)
+    sc = scenario_with(scenario, payload=spec.payload) if spec.payload else scenario
+    speed = opts.get("speed_kmh")
+    return simulate(
+        sc,
+        vehicle,
+        profile=spec.profile,
+        seed=seed,
+        duration=spec.duration if scenario == spec.scenario else None,
+        sim_params=_sim_params(vehicle, opts),
+        speed_kmh=None if speed is None else float(speed),
+    )
+
+
 def simulate_and_estimate(
     spec: RunSpec,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, metrics.Truth]:
     """The product engine: :mod:`vcan_sim` -> CAN frames -> estimator. Returns t [s], Fw_hat [N],
-    Mw_hat [Nm], valid mask, truth."""
-    try:
-        import vcan_sim  # noqa: F401
-    except ImportError as exc:
-        raise LdeError("the simulator package vcan_sim is not importable") from exc
-    raise LdeError("vcan_sim engine not wired yet")
+    Mw_hat [Nm], VALID mask, truth (Fw, Mw about the actual CG, Mw_ref about the unloaded CG)."""
+    from .params import load_vehicle
+    from .profiles import load_profile
+    from .step import Status
+
+    sim = _simulate(spec, spec.scenario, spec.seed)
+    vehicle = load_vehicle(spec.est_vehicle)
+    profile = load_profile(spec.profile)
+    if spec.estimator == "replay":
+        from .replay import replay
+
+        if spec.est_options:
+            raise ConfigError("estimator options need --estimator adaptive")
+        out = replay(sim.frames, profile, vehicle, spec.backend)
+        t_ns, fw, mw, status = out.t_ns, out.fw, out.mw, out.status
+    elif spec.estimator == "adaptive":
+        from . import adaptive
+
+        opts = dict(spec.est_options)
+        cal_scenario = opts.pop("calibrate", None)
+        cal_tires = bool(opts.pop("calibrate_tires", 1))
+        comp = adaptive.Compensation.from_options(opts)
+        if cal_scenario:
+            from .calibrate import calibrate
+
+            cal_sim = _simulate(spec, str(cal_scenario), spec.seed + CALIBRATION_SEED_OFFSET)
+            cal = calibrate(
+                adaptive.drive_from_grid(adaptive.grid_from_frames(cal_sim.frames, profile)), vehicle
+            )
+            comp = adaptive.Compensation(
+                friction=cal.friction,
+                steer_offset=cal.steer_offset,
+                align_offset=cal.align_offset,
+                torsion_compliance=cal.torsion_compliance,
+            )
+            if cal_tires:
+                vehicle = _with_tires(vehicle, cal.cf, cal.cr, cal.align_rate)
+        grid = adaptive.grid_from_frames(sim.frames, profile)
+        est = adaptive.estimate(grid, vehicle, comp)
+        t_ns, fw, mw, status = est.t_ns, est.fw, est.mw, est.status
+    else:
+        raise ConfigError(f"unknown estimator {spec.estimator!r} (replay or adaptive)")
+    valid = (np.asarray(status) & int(Status.VALID)) != 0
+    tr = sim.truth
+    truth = metrics.Truth(t=np.asarray(tr["t"]), fw=tr["Fw"], mw=tr["Mw"], mw_ref=tr["Mw_ref"])
+    return np.asarray(t_ns, dtype=np.float64) * 1e-9, fw, mw, valid, truth
+
+
+def _with_tires(vehicle: Any, cf: float, cr: float, k: float) -> Any:
+    from dataclasses import replace
+
+    return replace(vehicle, tires=replace(vehicle.tires, cf=cf, cr=cr, align_rate=k))
 
 
 def run_one(spec: RunSpec, engine: Engine | None = None) -> RunResult:
@@ -311,7 +424,7 @@ def all_payloads() -> tuple[str, ...]:
 
 def evaluation_specs(
     scenarios: Sequence[str] = EVALUATE_SCENARIOS,
-    payloads: Sequence[str] = ("none",),
+    payloads: Sequence[str] = ("",),
     est_vehicle: str = "reference",
     sim_vehicle: str = "reference",
     seed: int = 0,
@@ -573,5 +686,7 @@ def table(results: Sequence[RunResult]) -> str:
     for r in results:
         row = r.as_row()
         row["label"] = r.spec.label
+        err = str(row.get("error", ""))
+        row["error"] = err if len(err) <= 100 else err[:97] + "..."
         rows.append(row)
     return metrics.format_table(rows, TABLE_COLUMNS)

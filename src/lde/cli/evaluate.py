@@ -30,7 +30,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="scenario (repeatable; default: the accuracy set, see lde.study.EVALUATE_SCENARIOS)",
     )
     p.add_argument(
-        "--payload", action="append", metavar="NAME", help="payload case (repeatable; default: none)"
+        "--payload",
+        action="append",
+        metavar="NAME",
+        help="payload case (repeatable; default: the scenario's own)",
     )
     p.add_argument("--all-payloads", action="store_true", help="every payload case of the simulator")
     p.add_argument(
@@ -46,7 +49,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    payloads = study.all_payloads() if args.all_payloads else tuple(args.payload or ("none",))
+    payloads = study.all_payloads() if args.all_payloads else tuple(args.payload or ("",))
     specs = study.evaluation_specs(
         scenarios=tuple(args.scenario or study.EVALUATE_SCENARIOS),
         payloads=payloads,
@@ -64,6 +67,6 @@ def run(args: argparse.Namespace) -> int:
     print(study.table(results))
     if args.csv:
         study.write_csv(results, args.csv)
-    if args.plot:
+    if args.plot and any(r.trace is not None for r in results):
         study.plot_traces(results, args.plot)
     return 0 if all(r.ok for r in results) else 1
