@@ -15,15 +15,26 @@ Layouts (int64 arrays):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numba import njit
 
+from lde.model import params_vector
 from lde.params import Vehicle
-from lde.step import BatchResult, EstimatorInputs, EstimatorOutput, Status, StepInputError
+from lde.step import (
+    BatchResult,
+    Estimator,
+    EstimatorInputs,
+    EstimatorOutput,
+    EstimatorState,
+    Status,
+    StepInputError,
+)
+from lde.step import run_batch as float_run_batch
 from lde.units import STEP_S
 
+from .shadow import ShadowChecker, ShadowReport, shadow_check
 from .step import (
     IN_SPEED_NAN,
     IN_SPEED_SAT,
@@ -418,12 +429,25 @@ def batch_kernel(tv, coef, x, P, aux, sat, t_ns, speed, steering_angle, yaw_rate
 
 @dataclass
 class FastState:
-    """The integer state as int64 arrays (``x`` (4,), ``P`` (16,), ``aux`` (N_AUX,), ``sat`` (N_SAT,))."""
+    """The integer state as int64 arrays (``x`` (4,), ``P`` (16,), ``aux`` (N_AUX,), ``sat`` (N_SAT,)),
+    plus the float shadow filter's state and the shadow-check counters (batch runs with shadow).
+
+    Attributes:
+        shadow_state: the float filter's :class:`lde.step.EstimatorState` (created on first use).
+        shadow_count: steps whose deviation exceeded the bound, over all batches since creation.
+        shadow_max_dfw, shadow_max_dmw: largest |dFw| [N] and |dMw| [Nm] seen.
+        last_report: the :class:`firmware_model.shadow.ShadowReport` of the last batch.
+    """
 
     x: np.ndarray
     P: np.ndarray
     aux: np.ndarray
     sat: np.ndarray
+    shadow_state: EstimatorState | None = None
+    shadow_count: int = 0
+    shadow_max_dfw: float = 0.0
+    shadow_max_dmw: float = 0.0
+    last_report: ShadowReport | None = None
 
     @classmethod
     def initial(cls, tv: np.ndarray) -> FastState:
@@ -489,25 +513,47 @@ def run_batch(
     *,
     state: FastState | None = None,
     dt: float = STEP_S,
+    shadow: bool = True,
 ) -> BatchResult:
     """The fixed-point backend with the signature and result type of :func:`lde.step.run_batch`.
 
     Inputs in SI on the step grid (see :func:`lde.step.run_batch`); they are quantised at the
     boundary, stepped in integers and the raw estimates converted back to SI. ``state`` continues
     from (and advances) a :class:`FastState`; its ``sat`` counts saturations per variable.
+
+    ``shadow`` (default): the float filter (:func:`lde.step.run_batch`, its state kept in
+    ``state.shadow_state``) runs beside it; steps where |dFw| > 5 N or |dMw| > 2 Nm get
+    ``Status.SHADOW_DEVIATION`` and are counted in ``state.shadow_count``.
     """
     tb = tables_for(vehicle, _dt_ns(dt))
     st = FastState.initial(tables_vector(tb)) if state is None else state
     t, outs, status = run_batch_raw(tb, st, t_ns, speed, steering_angle, yaw_rate, column_torque,
                                     assist_torque, mdps_ok, esc_ok)
     beta, r, fw, mw, ta = _to_si(tb, outs)
-    return BatchResult(t_ns=t.copy(), fw=fw, mw=mw, t_align=ta, beta=beta, yaw_rate=r, status=status)
+    res = BatchResult(t_ns=t.copy(), fw=fw, mw=mw, t_align=ta, beta=beta, yaw_rate=r, status=status)
+    if shadow:
+        if st.shadow_state is None:
+            st.shadow_state = EstimatorState.initial(params_vector(vehicle, dt))
+        flt = float_run_batch(t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok,
+                              esc_ok, vehicle, state=st.shadow_state, dt=dt)
+        rep = shadow_check(res, flt)
+        st.shadow_count += rep.count
+        st.shadow_max_dfw = max(st.shadow_max_dfw, rep.max_dfw)
+        st.shadow_max_dmw = max(st.shadow_max_dmw, rep.max_dmw)
+        st.last_report = rep
+        res.status = rep.status
+    return res
 
 
 class FixedEstimator:
-    """The fixed-point estimator for the live loop, interface of :class:`lde.step.Estimator`."""
+    """The fixed-point estimator for the live loop, interface of :class:`lde.step.Estimator`.
 
-    def __init__(self, vehicle: Vehicle, dt: float = STEP_S) -> None:
+    With ``shadow`` (default) the float :class:`lde.step.Estimator` steps beside it and
+    :attr:`shadow` (a :class:`firmware_model.shadow.ShadowChecker`) flags each step whose deviation
+    exceeds the bound with ``Status.SHADOW_DEVIATION`` and counts it.
+    """
+
+    def __init__(self, vehicle: Vehicle, dt: float = STEP_S, shadow: bool = True) -> None:
         self.vehicle = vehicle
         self.dt = float(dt)
         self.tables = tables_for(vehicle, _dt_ns(self.dt))
@@ -516,14 +562,22 @@ class FixedEstimator:
         self._ws = np.zeros((4, 16), dtype=np.int64)
         self._out = np.zeros(N_OUT, dtype=np.int64)
         self.state = FastState.initial(self._tv)
+        self._float = Estimator(vehicle, self.dt) if shadow else None
+        self.shadow = ShadowChecker() if shadow else None
 
     def reset(self) -> None:
-        """x = 0, P = P0, held until the next usable step; saturation counters cleared."""
+        """x = 0, P = P0, held until the next usable step; saturation and shadow counters cleared."""
         st = self.state
         reset_kernel(self._tv, st.x, st.P, st.aux, st.sat)
+        st.shadow_state = None
+        st.shadow_count, st.shadow_max_dfw, st.shadow_max_dmw, st.last_report = 0, 0.0, 0.0, None
+        if self._float is not None and self.shadow is not None:
+            self._float.reset()
+            self.shadow.reset()
 
     def step_ints(self, t_ns: int, inputs: EstimatorInputs) -> tuple[int, ...]:
-        """(status, X_beta, X_r, X_Fw, X_Mw, T_align_hat) raw, as :func:`firmware_model.step.step_raw`."""
+        """(status, X_beta, X_r, X_Fw, X_Mw, T_align_hat) raw, as :func:`firmware_model.step.step_raw`
+        (no shadow check: the integer step alone)."""
         st, tv = self.state, self._tv
         v, s, y, c, a, flags = quantise_kernel(tv, float(inputs.speed), float(inputs.steering_angle),
                                                float(inputs.yaw_rate), float(inputs.column_torque),
@@ -534,17 +588,23 @@ class FixedEstimator:
         return (int(status), int(o[0]), int(o[1]), int(o[2]), int(o[3]), int(o[4]))
 
     def step(self, t_ns: int, inputs: EstimatorInputs) -> EstimatorOutput:
-        """One step at ``t_ns`` [ns]; the a-posteriori estimate in SI and the status."""
+        """One step at ``t_ns`` [ns]; the a-posteriori estimate in SI and the status (with the
+        shadow check's SHADOW_DEVIATION when enabled)."""
         s, xb, xr, xf, xm, ta = self.step_ints(t_ns, inputs)
         tb = self.tables
-        return EstimatorOutput(int(t_ns), xf * tb.state_lsb(2), xm * tb.state_lsb(3), ta * tb.t_align_lsb(),
-                               xb * tb.state_lsb(0), xr * tb.state_lsb(1), Status(s))
+        out = EstimatorOutput(int(t_ns), xf * tb.state_lsb(2), xm * tb.state_lsb(3), ta * tb.t_align_lsb(),
+                              xb * tb.state_lsb(0), xr * tb.state_lsb(1), Status(s))
+        if self._float is None or self.shadow is None:
+            return out
+        status = self.shadow.check(out, self._float.step(t_ns, inputs))
+        return replace(out, status=status)
 
     def run_batch(self, t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok,
                   esc_ok) -> BatchResult:
-        """:func:`run_batch` continuing from (and advancing) this estimator's state."""
+        """:func:`run_batch` continuing from (and advancing) this estimator's state (a batch uses
+        its own float shadow state, ``state.shadow_state``, when the shadow is enabled)."""
         return run_batch(t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok, esc_ok,
-                         self.vehicle, state=self.state, dt=self.dt)
+                         self.vehicle, state=self.state, dt=self.dt, shadow=self._float is not None)
 
     def saturations(self) -> dict[str, int]:
         return self.state.saturations()

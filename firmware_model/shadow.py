@@ -2,8 +2,13 @@
 compared with the bound (issue 5: |dFw| <= 5 N and |dMw| <= 2 Nm at every step).
 
 A deviating step gets ``Status.SHADOW_DEVIATION`` (bit 6) in the fixed backend's status and is
-counted. Batch: :func:`shadow_check` on two :class:`lde.step.BatchResult`, or
-:func:`run_batch_with_shadow` that runs both backends. Live: :class:`ShadowChecker` per step.
+counted. The fixed backend does this itself by default (``firmware_model.run_batch(...,
+shadow=True)`` and ``FixedEstimator(vehicle, shadow=True)``), so a replay or a live run with
+``--backend fixed`` reports deviations in ``Status`` without further wiring; the counts are kept
+in ``FastState.shadow_count`` / ``FixedEstimator.shadow.count``.
+
+Batch: :func:`shadow_check` on two :class:`lde.step.BatchResult`, or :func:`run_batch_with_shadow`.
+Live: :class:`ShadowChecker` per step.
 """
 
 from __future__ import annotations
@@ -14,11 +19,7 @@ import numpy as np
 
 from lde.params import Vehicle
 from lde.step import BatchResult, EstimatorOutput, Status
-from lde.step import run_batch as float_run_batch
 from lde.units import STEP_S
-
-from .fast import FastState
-from .fast import run_batch as fixed_run_batch
 
 FW_BOUND_N = 5.0  #: |Fw_fixed - Fw_float| bound [N]
 MW_BOUND_NM = 2.0  #: |Mw_fixed - Mw_float| bound [Nm]
@@ -56,17 +57,21 @@ def shadow_check(fixed: BatchResult, flt: BatchResult, fw_bound: float = FW_BOUN
                         status)
 
 
-def run_batch_with_shadow(t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok,
-                          esc_ok, vehicle: Vehicle, *, state: FastState | None = None,
-                          dt: float = STEP_S) -> tuple[BatchResult, ShadowReport]:
-    """The fixed backend with the float filter as shadow: (fixed result with bit 6 set where it
-    deviates, report). The float filter starts fresh (it shadows a fresh fixed run)."""
-    args = (t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok, esc_ok, vehicle)
-    fixed = fixed_run_batch(*args, state=state, dt=dt)
-    flt = float_run_batch(*args, dt=dt)
-    rep = shadow_check(fixed, flt)
-    out = BatchResult(fixed.t_ns, fixed.fw, fixed.mw, fixed.t_align, fixed.beta, fixed.yaw_rate, rep.status)
-    return out, rep
+def run_batch_with_shadow(
+    t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok, esc_ok,
+    vehicle: Vehicle, *, dt: float = STEP_S,
+) -> tuple[BatchResult, ShadowReport]:
+    """The fixed backend from a fresh state with the float filter as shadow: (fixed result with
+    bit 6 set where it deviates, report)."""
+    from .fast import FastState, tables_vector
+    from .fast import run_batch as fixed_run_batch
+    from .tables import tables_for
+
+    state = FastState.initial(tables_vector(tables_for(vehicle, int(round(dt * 1e9)))))
+    fixed = fixed_run_batch(t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok,
+                            esc_ok, vehicle, state=state, dt=dt, shadow=True)
+    assert state.last_report is not None
+    return fixed, state.last_report
 
 
 class ShadowChecker:
