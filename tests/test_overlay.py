@@ -540,3 +540,51 @@ def test_batch_rejects_ragged_columns():
         run_batch_overlay(
             np.arange(3), np.zeros(2), np.zeros(3), np.ones(3), np.ones(3), np.zeros(3), np.zeros(3), v
         )
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    pattern=st.lists(st.tuples(st.booleans(), st.integers(1, 400)), min_size=1, max_size=12),
+    fw=st.floats(-8000, 8000, allow_nan=False).filter(lambda x: abs(x) > 1.0),
+)
+def test_property_engages_only_after_the_override_hold_off(pattern, fw):
+    """Whatever the override pattern: every (re-)engagement comes at least hold_off after the last
+    overriding step (and rearm_delay after the conditions became ok)."""
+    v = load_vehicle("reference")
+    over = [o for o, n in pattern for _ in range(n)] + [False] * int(1.5e9 / STEP_NS)
+    n = len(over)
+    col = np.where(over, 2.0 * v.overlay.driver_override_torque, 0.0)
+    t = T0 + np.arange(n, dtype=np.int64) * STEP_NS
+    tq, active, state = run_batch_overlay(
+        t, np.full(n, fw), np.zeros(n), np.full(n, VALID), np.full(n, 100 * KMH), np.zeros(n), col, v
+    )
+    last_override = None
+    ok_since = 0
+    for k in range(n):
+        if over[k]:
+            last_override = t[k]
+            ok_since = None
+        elif ok_since is None:
+            ok_since = t[k]
+        if active[k] and (k == 0 or not active[k - 1]):
+            assert not over[k]
+            if last_override is not None:
+                assert t[k] - last_override >= TIMING.hold_off * 1e9
+            assert t[k] - (ok_since if ok_since is not None else t[0]) >= TIMING.rearm_delay * 1e9
+    assert active[-1]  # and it does come back after the last override
+
+
+def test_timing_from_the_vehicle_file_when_present():
+    """If [overlay] carries the timing (hold_off etc.), the limiter uses it."""
+    base = load_vehicle("reference")
+    Limits = dataclasses.make_dataclass(
+        "Limits", [("hold_off", float, dataclasses.field(default=3.0))], bases=(OverlayLimits,), frozen=True
+    )
+    v = dataclasses.replace(base, overlay=Limits())
+    lim, k = _engage(v)
+    good = Inputs(fw=_saturating_fw(v))
+    _run(lim, dataclasses.replace(good, col=10.0), 1, k)
+    out = _run(lim, good, int(2.9e9 / STEP_NS), k + 1)
+    assert not any(x.active for x in out)  # the default 1 s hold-off would have re-engaged
+    out = _run(lim, good, int(0.5e9 / STEP_NS), k + 1 + len(out))
+    assert out[-1].active
