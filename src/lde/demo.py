@@ -6,9 +6,10 @@ Both sides run on one :class:`lde.clock.SimulatedClock`, faster than real time: 
    :class:`vcan_sim.closed_loop.OverlayReceiver`), applies the request, advances its plant by one
    period and sends the MDPS/ESC frames due in it, stamped with the simulated time
    (``preserve_timestamps``);
-2. the clock moves to the step time ``t_k`` (the simulator's time after the period) and the service
-   runs :meth:`lde.service.Service.step_once` at ``t_k``: exactly the code of the live loop, only the
-   waiting is simulated.
+2. the clock moves to the step time ``t_k`` (the start of that period: every frame stamped at or
+   before ``t_k`` is on the bus, later ones wait in the service for the next step, exactly as live)
+   and the service runs :meth:`lde.service.Service.step_once` at ``t_k``: the code of the live
+   loop, only the waiting is simulated. Its ``LDE_Overlay`` reaches the plant at the next period.
 
 The scenario runs twice, with the overlay and without it (the service then requests zero torque),
 with the same seed: same wind, same driver. The summary compares the estimate with the simulator's
@@ -284,8 +285,10 @@ def run_closed_loop(
         wall0 = time.perf_counter()
         k = 0
         while not sim.done and k < n:
-            sim.step()
+            # the period [t_k, t_k + 3.9 ms): its frames go out first (a frame stamped exactly t_k
+            # is in it), then the service steps at t_k and keeps the later ones for the next step
             t_k = sim.t_ns
+            sim.step()
             clock.sleep_until(t_k)
             r = svc.step_once(t_k)
             t_ns[k], fw[k], mw[k], status[k], t_ov[k] = r.t_ns, r.fw, r.mw, r.status, r.t_overlay
