@@ -11,12 +11,17 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
+import sys
 import threading
 from types import FrameType
 
 from ..errors import BusError
+from ..service import StepResult
 
 log = logging.getLogger("lde.service")
+
+#: GIL switch interval while the service runs [s] (CPython's default is 5 ms, longer than a step)
+SWITCH_INTERVAL_S = 2e-4
 
 
 def add_bus_arguments(p: argparse.ArgumentParser) -> None:
@@ -99,6 +104,8 @@ def run(args: argparse.Namespace) -> int:
     from ..units import STEP_NS
 
     logging.getLogger("lde.service").setLevel(logging.INFO)
+    # the recorder's thread must not keep the loop from the GIL for the default 5 ms
+    sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
     profile = load_profile(args.profile)
     vehicle = load_vehicle(args.vehicle)
     if args.realtime:
@@ -143,10 +150,13 @@ def run(args: argparse.Namespace) -> int:
         )
         on_step = None
         if args.duration is not None:
-            n_steps = max(1, int(args.duration * 1e9 / STEP_NS))
+            span_ns = max(STEP_NS, int(args.duration * 1e9))
+            first: list[int] = []
 
-            def on_step(res: object) -> None:  # --duration ends like a signal: ramp out, then stop
-                if service.steps >= n_steps:
+            def on_step(res: StepResult) -> None:  # --duration ends like a signal: ramp out, then stop
+                if not first:
+                    first.append(res.t_ns)
+                elif res.t_ns - first[0] >= span_ns:
                     stop.set()
 
         log.info(
