@@ -98,10 +98,9 @@ def make_traffic(profile, seconds: float, seed: int) -> FrameBatch:
 def write_live_like_recording(path: Path, frames: FrameBatch, profile, vehicle) -> int:
     """A recording as the live service writes it: 3 sent frames per step + JSON channels."""
     res = replay(frames, profile, vehicle, "float")
-    write_recording(path, frames, res, profile)  # rx + LDE_Estimate + LDE_Overlay + JSON
-    # add LDE_Diag per step (the live service sends it; replay has no timing to put in it)
     n = len(res)
     spec = profile.spec("LDE_Diag")
+    # LDE_Diag per step (the live service sends it; replay has no timing to put in it)
     diag = FrameBatch(
         t_ns=res.t_ns,
         can_id=np.full(n, spec.frame_id),
@@ -110,16 +109,8 @@ def write_live_like_recording(path: Path, frames: FrameBatch, profile, vehicle) 
         data=encode_batch(profile, "LDE_Diag", {"StepTime": np.full(n, 50.0)}),
         is_rx=np.zeros(n, bool),
     )
-    tmp = path.with_suffix(".tmp.mcap")
-    log = read_log(path, json_topics="all")
-    with McapWriter(tmp) as w:
-        w.write_frames(FrameBatch.concat([log.frames, diag]))
-        for topic, cols in log.mcap.json.items():
-            names = [c for c in cols if c not in ("log_time",)]
-            cid = w.add_json_channel(topic, names)
-            w.write_json_columns(cid, cols["log_time"], {c: cols[c] for c in names})
-    tmp.replace(path)
-    return len(res) * 3
+    write_recording(path, frames, res, profile, extra_frames=diag)  # + LDE_Estimate, LDE_Overlay, JSON
+    return n * 3
 
 
 def timed(fn, repeat: int):

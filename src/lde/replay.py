@@ -445,16 +445,20 @@ def write_recording(
     profile: Profile,
     *,
     metadata: dict[str, str] | None = None,
+    extra_frames: FrameBatch | None = None,
 ) -> None:
     """An lde MCAP recording of a replay: the input frames (``/can/rx``), the frames lde sends
     (``/can/tx``), and per step ``/lde/estimate``, ``/lde/inputs``, ``/lde/diag`` (JSON).
 
     Replaying it (:func:`replay_log`) uses the recorded step times and gives the same estimates.
+    ``extra_frames`` are recorded too (``/can/rx`` or ``/can/tx`` by their ``is_rx``).
     """
     rx = frames.select(frames.is_rx) if not frames.is_rx.all() else frames
     with McapWriter(path, metadata=metadata) as w:
         w.write_frames(rx)
         w.write_frames(output_frames(res, profile))
+        if extra_frames is not None:
+            w.write_frames(extra_frames)
         t = res.t_ns
         bits = {b: (res.status >> i) & 1 for i, b in enumerate(STATUS_BITS)}
         est_cols = [

@@ -37,13 +37,15 @@ from __future__ import annotations
 import io
 import json
 import math
+import mmap
+import os
 import struct
 import zlib
 from collections.abc import Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numba
 import numpy as np
@@ -131,52 +133,36 @@ def _build_records(order, chan, seq, t, pay, pay_off, pay_len, out, rec_off):
             out[o + 31 + j] = pay[p + j]
 
 
-@numba.njit(cache=True)
-def _scan_records(buf, kind, counts):
-    """Count message records (also per channel into ``counts``): returns (n_can, n_other, status);
-    status < 0 = corrupt record stream."""
-    n = buf.shape[0]
-    i = 0
-    n_can = 0
-    n_other = 0
-    while i < n:
-        if i + 9 > n:
-            return n_can, n_other, -1
-        length = _get(buf, i + 1, 8)
-        if length > np.uint64(n - i - 9):
-            return n_can, n_other, -2
-        if buf[i] == OP_MESSAGE:
-            if length < 22:
-                return n_can, n_other, -3
-            ch = int(_get(buf, i + 9, 2))
-            counts[ch] += 1
-            if kind[ch] == 1:
-                n_can += 1
-            else:
-                n_other += 1
-        i += 9 + int(length)
-    return n_can, n_other, 0
+@numba.njit(cache=True, nogil=True)
+def _walk_chunk(buf, kind, cmap, k0, m0, t, cid, ext, dlc, data, rx, o_chan, o_t, o_off, o_len, counts):
+    """One pass over the records of one decompressed chunk (runs without the GIL).
 
-
-@numba.njit(cache=True)
-def _fill_records(buf, kind, t, cid, ext, dlc, data, rx, o_chan, o_t, o_off, o_len):
-    """Second pass: CAN message fields into the frame columns, other messages into the index table.
-
-    Returns (n_can_filled, n_other, n_bad_can): a CAN-channel message of the wrong size or byte
-    order is counted as bad and skipped.
+    CAN-channel messages (``kind[channel] == 1``) fill the frame columns from row ``k0``, other
+    messages the (channel, log_time, offset, length) table from row ``m0``; ``counts[cmap[ch]]``
+    counts messages per channel. Returns (k_end, m_end, n_bad_can, status): status < 0 = corrupt
+    record stream; a CAN message of the wrong size or byte order is counted as bad and skipped.
     """
     n = buf.shape[0]
     i = 0
-    k = 0
-    m = 0
+    k = k0
+    m = m0
     bad = 0
     while i < n:
-        length = int(_get(buf, i + 1, 8))
+        if i + 9 > n:
+            return k, m, bad, -1
+        length = _get(buf, i + 1, 8)
+        if length > np.uint64(n - i - 9):
+            return k, m, bad, -2
         if buf[i] == OP_MESSAGE:
+            if length < 22:
+                return k, m, bad, -3
             ch = int(_get(buf, i + 9, 2))
+            if cmap[ch] < 0:
+                return k, m, bad, -4
+            counts[cmap[ch]] += 1
             lt = np.int64(_get(buf, i + 15, 8))
             p = i + 31
-            plen = length - 22
+            plen = int(length) - 22
             if kind[ch] == 1:
                 if plen != 19 or buf[p] != 0 or buf[p + 1] != 1:
                     bad += 1
@@ -195,8 +181,8 @@ def _fill_records(buf, kind, t, cid, ext, dlc, data, rx, o_chan, o_t, o_off, o_l
                 o_off[m] = p
                 o_len[m] = plen
                 m += 1
-        i += 9 + length
-    return k, m, bad
+        i += 9 + int(length)
+    return k, m, bad, 0
 
 
 # ----------------------------------------------------------------------------- record helpers
@@ -737,32 +723,37 @@ def read_mcap(
     """
     p = Path(path)
     try:
-        raw = p.read_bytes()
+        fh = p.open("rb")
     except OSError as exc:
         raise LogFormatError(f"{p}: cannot read: {exc}") from exc
-    if len(raw) == 0:
-        raise LogFormatError(f"{p}: empty file")
-    if not raw.startswith(MAGIC):
-        raise LogFormatError(f"{p}: not an MCAP file (no MCAP magic)")
-    try:
-        summary = None if force_library else _summary(io.BytesIO(raw))
-    except Exception:  # noqa: BLE001 - a damaged summary: the linear library reader decides
-        summary = None
-    try:
-        if summary is not None and summary.chunk_indexes:
-            data = _read_fast(raw, summary, validate_crcs, json_topics)
-        else:
-            data = _read_library(raw)
-    except LogFormatError as exc:
-        raise LogFormatError(f"{p}: {exc}") from exc
-    except Exception as exc:  # noqa: BLE001 - the mcap library raises many types on corrupt input
-        raise LogFormatError(f"{p}: corrupt MCAP file ({type(exc).__name__}: {exc})") from exc
+    with fh:
+        size = os.fstat(fh.fileno()).st_size
+        if size == 0:
+            raise LogFormatError(f"{p}: empty file")
+        # memory-mapped: chunks that are not needed are never read from disk
+        raw = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+        if raw[: len(MAGIC)] != MAGIC:
+            raise LogFormatError(f"{p}: not an MCAP file (no MCAP magic)")
+        try:
+            summary = None if force_library else _summary(fh)
+        except Exception:  # noqa: BLE001 - a damaged summary: the linear library reader decides
+            summary = None
+        try:
+            if summary is not None and summary.chunk_indexes:
+                data = _read_fast(raw, summary, validate_crcs, json_topics)
+            else:
+                fh.seek(0)
+                data = _read_library(fh)
+        except LogFormatError as exc:
+            raise LogFormatError(f"{p}: {exc}") from exc
+        except Exception as exc:  # noqa: BLE001 - the mcap library raises many types on corrupt input
+            raise LogFormatError(f"{p}: corrupt MCAP file ({type(exc).__name__}: {exc})") from exc
     if require_can and not any(ti.schema_name == CAN_SCHEMA_NAME for ti in data.topics.values()):
         names = ", ".join(sorted(data.topics)) or "none"
         raise LogFormatError(
             f"{p}: no CAN channel (schema {CAN_SCHEMA_NAME}) in this MCAP file; topics: {names}"
         )
-    _fill_json(data, json_topics, raw)
+    _fill_json(data, json_topics)
     return data
 
 
@@ -794,45 +785,44 @@ def _index_times(raw: bytes, ci) -> tuple[list[np.ndarray], list[np.ndarray]] | 
     return chans, times
 
 
-def _read_fast(
-    raw: bytes, summary, validate_crcs: bool, json_topics: Iterable[str] | str | None = None
-) -> McapData:
+def _chunk_header(raw, o: int) -> tuple[str, int, int, int, int]:
+    """(compression, uncompressed size, crc, records start, records length) of the chunk at ``o``."""
+    if raw[o] != OP_CHUNK:
+        raise LogFormatError(f"chunk index points at opcode {raw[o]:#x}, not a chunk, at offset {o}")
+    _t0, _t1, usize, ucrc = struct.unpack_from("<QQQI", raw, o + 9)
+    (clen,) = struct.unpack_from("<I", raw, o + 37)
+    comp = bytes(raw[o + 41 : o + 41 + clen]).decode()
+    (dlen,) = struct.unpack_from("<Q", raw, o + 41 + clen)
+    start = o + 49 + clen
+    if start + dlen > len(raw):
+        raise LogFormatError(f"chunk at offset {o} runs past the end of the file (truncated?)")
+    return comp, usize, ucrc, start, dlen
+
+
+def _read_fast(raw, summary, validate_crcs: bool, json_topics: Iterable[str] | str | None = None) -> McapData:
     kind = np.zeros(65536, np.int8)
+    cmap = np.full(65536, -1, np.int64)  # channel id -> compact index into the counts; -1 undeclared
     topics: dict[str, TopicInfo] = {}
-    for cid, ch in summary.channels.items():
+    chan_ids = sorted(summary.channels)
+    for idx, cid_ in enumerate(chan_ids):
+        ch = summary.channels[cid_]
         sch = summary.schemas.get(ch.schema_id)
         sname = sch.name if sch else ""
         if sname == CAN_SCHEMA_NAME:
-            kind[cid] = 1
+            kind[cid_] = 1
+        cmap[cid_] = idx
         topics[ch.topic] = TopicInfo(
-            ch.topic, cid, ch.message_encoding, sname, sch.encoding if sch else "", 0
+            ch.topic, cid_, ch.message_encoding, sname, sch.encoding if sch else "", 0
         )
-    mv = memoryview(raw)
-
-    def load(ci) -> bytes:
-        o = ci.chunk_start_offset
-        if raw[o] != OP_CHUNK:
-            raise LogFormatError(f"chunk index points at opcode {raw[o]:#x}, not a chunk, at offset {o}")
-        _t0, _t1, usize, ucrc = struct.unpack_from("<QQQI", raw, o + 9)
-        (clen,) = struct.unpack_from("<I", raw, o + 37)
-        comp = bytes(mv[o + 41 : o + 41 + clen]).decode()
-        (dlen,) = struct.unpack_from("<Q", raw, o + 41 + clen)
-        start = o + 49 + clen
-        if start + dlen > len(raw):
-            raise LogFormatError(f"chunk at offset {o} runs past the end of the file (truncated?)")
-        out = _decompress(comp, mv[start : start + dlen], usize)
-        if len(out) != usize:
-            raise LogFormatError(
-                f"chunk at offset {o}: {len(out)} bytes after decompression, expected {usize}"
-            )
-        if validate_crcs and ucrc and zlib.crc32(out) != ucrc:
-            raise LogFormatError(f"chunk at offset {o}: CRC mismatch")
-        return out
+    n_ch = max(len(chan_ids), 1)
+    if chan_ids and max(chan_ids) >= 65536:  # pragma: no cover - channel ids are uint16
+        raise LogFormatError("channel id out of range")
 
     chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
     # chunks holding only channels nobody asked for (JSON lanes) are not decompressed: their log
     # times and counts come from their message index records
-    needed = {int(c) for c in np.flatnonzero(kind == 1)} | _wanted_json_ids(summary.channels, json_topics)
+    json_ids = _wanted_json_ids(summary.channels, json_topics)
+    needed = {int(c) for c in np.flatnonzero(kind == 1)} | json_ids
     skip_chans: list[np.ndarray] = []
     skip_times: list[np.ndarray] = []
     keep = []
@@ -846,55 +836,100 @@ def _read_fast(
             skip_times += idx[1]
     n_skipped = len(chunks) - len(keep)
     chunks = keep
-    if len(chunks) > 4:
+    heads = [_chunk_header(raw, ci.chunk_start_offset) for ci in chunks]
+    # rows per chunk: at most one message per 31 bytes of records; the arrays are allocated at that
+    # bound (pages never touched cost nothing) and compacted afterwards
+    bound = np.array([h[1] // _MSG_OVERHEAD + 1 for h in heads], np.int64)
+    start = np.concatenate([[0], np.cumsum(bound)])
+    total = int(start[-1])
+    t = np.empty(total, np.int64)
+    cid = np.empty(total, np.uint32)
+    ext = np.empty(total, np.bool_)
+    dlc = np.empty(total, np.uint8)
+    data = np.empty((total, 8), np.uint8)
+    rx = np.empty(total, np.bool_)
+    o_chan = np.empty(total, np.uint16)
+    o_t = np.empty(total, np.int64)
+    o_off = np.empty(total, np.int64)
+    o_len = np.empty(total, np.int64)
+    counts = np.zeros((len(chunks), n_ch), np.int64)
+    results: list[tuple[int, int, int, int]] = [(0, 0, 0, 0)] * len(chunks)
+    bufs: dict[int, np.ndarray] = {}
+
+    def work(i: int) -> None:
+        comp, usize, ucrc, st, dlen = heads[i]
+        off = chunks[i].chunk_start_offset
+        out = _decompress(comp, raw[st : st + dlen], usize)
+        if len(out) != usize:
+            raise LogFormatError(
+                f"chunk at offset {off}: {len(out)} bytes after decompression, expected {usize}"
+            )
+        if validate_crcs and ucrc and zlib.crc32(out) != ucrc:
+            raise LogFormatError(f"chunk at offset {off}: CRC mismatch")
+        buf = np.frombuffer(out, np.uint8)
+        k0 = m0 = int(start[i])
+        results[i] = _walk_chunk(
+            buf, kind, cmap, k0, m0, t, cid, ext, dlc, data, rx, o_chan, o_t, o_off, o_len, counts[i]
+        )
+        if results[i][3] == -4:
+            raise LogFormatError(f"chunk at offset {off}: a message of an undeclared channel")
+        if results[i][3] < 0:
+            raise LogFormatError(f"chunk at offset {off}: corrupt record")
+        chans = set(chunks[i].message_index_offsets)
+        if json_ids and (not chans or chans & json_ids):
+            bufs[i] = buf
+
+    if len(chunks) > 2:
         with ThreadPoolExecutor(max_workers=2) as pool:
-            parts = list(pool.map(load, chunks))
+            list(pool.map(work, range(len(chunks))))
     else:
-        parts = [load(c) for c in chunks]
-    buf = np.frombuffer(b"".join(parts) if len(parts) != 1 else parts[0], np.uint8)
-    counts = np.zeros(65536, np.int64)
-    n_can, n_other, st = _scan_records(buf, kind, counts)
-    if st < 0:
-        raise LogFormatError("corrupt record inside a chunk")
-    t = np.empty(n_can, np.int64)
-    cid = np.empty(n_can, np.uint32)
-    ext = np.empty(n_can, np.bool_)
-    dlc = np.empty(n_can, np.uint8)
-    data = np.empty((n_can, 8), np.uint8)
-    rx = np.empty(n_can, np.bool_)
-    o_chan = np.empty(n_other, np.uint16)
-    o_t = np.empty(n_other, np.int64)
-    o_off = np.empty(n_other, np.int64)
-    o_len = np.empty(n_other, np.int64)
-    k, m, bad = _fill_records(buf, kind, t, cid, ext, dlc, data, rx, o_chan, o_t, o_off, o_len)
+        for i in range(len(chunks)):
+            work(i)
+    can_sl = [slice(int(start[i]), int(r[0])) for i, r in enumerate(results)]
+    oth_sl = [slice(int(start[i]), int(r[1])) for i, r in enumerate(results)]
+
+    def compact(a: np.ndarray, sl: list[slice]) -> np.ndarray:
+        return np.concatenate([a[x] for x in sl]) if sl else a[:0]
+
     frames = FrameBatch(
-        t_ns=t[:k], can_id=cid[:k], is_extended=ext[:k], dlc=dlc[:k], data=data[:k], is_rx=rx[:k]
+        t_ns=compact(t, can_sl),
+        can_id=compact(cid, can_sl),
+        is_extended=compact(ext, can_sl),
+        dlc=compact(dlc, can_sl),
+        data=compact(data, can_sl),
+        is_rx=compact(rx, can_sl),
+    ).sort()
+    o_chunk = np.concatenate(
+        [np.full(r[1] - start[i], i, np.int32) for i, r in enumerate(results)] or [np.zeros(0, np.int32)]
     )
-    frames = frames.sort()
-    out = McapData(
-        frames=frames,
-        topics=topics,
-        bad_can_messages=int(bad),
-        fast_path=True,
-        chunks_read=len(chunks),
-        chunks_skipped=n_skipped,
-    )
-    o_chan, o_t, o_off, o_len = o_chan[:m], o_t[:m], o_off[:m], o_len[:m]
+    o_chan, o_t = compact(o_chan, oth_sl), compact(o_t, oth_sl)
+    o_off, o_len = compact(o_off, oth_sl), compact(o_len, oth_sl)
+    ch_counts = np.zeros(65536, np.int64)
+    ch_counts[chan_ids] = counts.sum(axis=0)[: len(chan_ids)]
     if skip_chans:
         sc = np.concatenate(skip_chans)
-        counts += np.bincount(sc, minlength=65536)
+        ch_counts += np.bincount(sc, minlength=65536)
         o_chan = np.concatenate([o_chan, sc])
         o_t = np.concatenate([o_t, *skip_times])
         o_off = np.concatenate([o_off, np.full(sc.size, -1, np.int64)])  # payload not read
         o_len = np.concatenate([o_len, np.zeros(sc.size, np.int64)])
-    out._other = (buf, o_chan, o_t, o_off, o_len)  # type: ignore[attr-defined]
-    _finish_topics(out, kind, counts)
+        o_chunk = np.concatenate([o_chunk, np.full(sc.size, -1, np.int32)])
+    out = McapData(
+        frames=frames,
+        topics=topics,
+        bad_can_messages=int(sum(r[2] for r in results)),
+        fast_path=True,
+        chunks_read=len(chunks),
+        chunks_skipped=n_skipped,
+    )
+    out._other = (bufs, o_chunk, o_chan, o_t, o_off, o_len)  # type: ignore[attr-defined]
+    _finish_topics(out, kind, ch_counts)
     return out
 
 
 def _finish_topics(out: McapData, kind: np.ndarray, counts: np.ndarray) -> None:
     """Message counts per topic and the sorted log times of the non-CAN topics."""
-    _buf, o_chan, o_t, _o_off, _o_len = out._other  # type: ignore[attr-defined]
+    _bufs, _o_chunk, o_chan, o_t, _o_off, _o_len = out._other  # type: ignore[attr-defined]
     for topic, ti in list(out.topics.items()):
         out.topics[topic] = TopicInfo(**{**ti.__dict__, "count": int(counts[ti.channel_id])})
         if kind[ti.channel_id] != 1:
@@ -902,11 +937,11 @@ def _finish_topics(out: McapData, kind: np.ndarray, counts: np.ndarray) -> None:
             out.times[topic] = ts[np.argsort(ts, kind="stable")]
 
 
-def _read_library(raw: bytes) -> McapData:
+def _read_library(fh: IO[bytes]) -> McapData:
     """The reference path: the ``mcap`` library's reader, one Python object per message."""
     from mcap.reader import make_reader
 
-    reader = make_reader(io.BytesIO(raw))
+    reader = make_reader(fh)
     t: list[int] = []
     payload = bytearray()
     o_chan: list[int] = []
@@ -967,7 +1002,8 @@ def _read_library(raw: bytes) -> McapData:
     ).sort()
     out = McapData(frames=frames, topics=topics, bad_can_messages=bad, fast_path=False)
     out._other = (  # type: ignore[attr-defined]
-        np.frombuffer(bytes(other), np.uint8),
+        {0: np.frombuffer(bytes(other), np.uint8)},
+        np.zeros(len(o_chan), np.int32),
         np.array(o_chan, np.uint16),
         np.array(o_t, np.int64),
         np.array(o_off, np.int64),
@@ -977,8 +1013,8 @@ def _read_library(raw: bytes) -> McapData:
     return out
 
 
-def _fill_json(data: McapData, json_topics: Iterable[str] | str | None, raw: bytes) -> None:
-    buf, o_chan, o_t, o_off, o_len = data._other  # type: ignore[attr-defined]
+def _fill_json(data: McapData, json_topics: Iterable[str] | str | None) -> None:
+    bufs, o_chunk, o_chan, o_t, o_off, o_len = data._other  # type: ignore[attr-defined]
     del data._other  # type: ignore[attr-defined]
     if json_topics is None:
         return
@@ -994,10 +1030,14 @@ def _fill_json(data: McapData, json_topics: Iterable[str] | str | None, raw: byt
             raise LogFormatError(f"topic {topic!r} is {ti.message_encoding!r}, not json")
         idx = np.flatnonzero(o_chan == ti.channel_id)
         idx = idx[np.argsort(o_t[idx], kind="stable")]
-        b = memoryview(buf)
-        offs = o_off[idx].tolist()
-        lens = o_len[idx].tolist()
-        text = b"[" + b",".join(b[o : o + n] for o, n in zip(offs, lens, strict=True)) + b"]"
+        if np.any(o_off[idx] < 0):  # pragma: no cover - asked-for channels are always decompressed
+            raise LogFormatError(f"topic {topic!r}: payloads were not read")
+        views = {c: memoryview(b) for c, b in bufs.items()}
+        parts = [
+            views[c][o : o + n]
+            for c, o, n in zip(o_chunk[idx].tolist(), o_off[idx].tolist(), o_len[idx].tolist(), strict=True)
+        ]
+        text = b"[" + b",".join(parts) + b"]"
         try:
             rows = json.loads(text)
         except ValueError as exc:
