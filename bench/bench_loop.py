@@ -27,22 +27,27 @@ import time
 
 import can
 
+#: the simulator sends each period's frames this long before the service's step [ns]
+FEED_LEAD_NS = 1_500_000
 
-def _feeder_thread(bus: can.BusABC, scenario: str, stop: threading.Event, t_start_ns: int, seed: int):
-    """Real-time feeder: the simulator (closed loop) if available, paced on time.monotonic_ns()."""
+
+def _feeder_thread(bus: can.BusABC, scenario: str, stop: threading.Event, t_first_ns: int, seconds: float):
+    """The simulator, closed loop, one 3.9 ms period per deadline on time.monotonic_ns().
+
+    Its frames are stamped by the bus at send time (no preserved timestamps: as from a kernel).
+    """
     from lde.demo import make_simulation
 
-    sim = make_simulation(bus, scenario, seed=seed, closed_loop=True)
+    sim = make_simulation(bus, scenario, seed=1, closed_loop=True, duration=seconds + 5.0)
 
     def loop() -> None:
-        offset = time.time_ns() - time.monotonic_ns()
         k = 0
-        while not stop.is_set():
-            t_next = t_start_ns + k * sim.step_ns
+        while not stop.is_set() and not sim.done:
+            t_next = t_first_ns + k * sim.step_ns
             now = time.monotonic_ns()
             if t_next > now:
                 time.sleep((t_next - now) / 1e9)
-            sim.advance_to(t_next + offset)
+            sim.step()
             k += 1
 
     th = threading.Thread(target=loop, name="feeder", daemon=True)
@@ -90,11 +95,14 @@ def main(argv: list[str] | None = None) -> int:
     rec = Recorder(args.record, metadata={"profile": "lde", "bench": "1"}) if args.record else None
     svc = Service(svc_bus, profile, vehicle, clock, backend=args.backend, recorder=rec, log_period_s=0)
     stop = threading.Event()
-    feeder = _feeder_thread(feed_bus, args.scenario or DEFAULT_SCENARIO, stop, clock.now_ns(), seed=1)
+    # the service's grid starts in 0.3 s; the simulator's periods start FEED_LEAD_NS before each step
+    t0_ns = clock.now_ns() + 300_000_000
+    scenario = args.scenario or DEFAULT_SCENARIO
+    feeder = _feeder_thread(feed_bus, scenario, stop, t0_ns - FEED_LEAD_NS, args.seconds)
     n_steps = int(args.seconds * 1e9 / STEP_NS)
     t0 = time.perf_counter()
     try:
-        summary = svc.run(max_steps=n_steps)
+        summary = svc.run(max_steps=n_steps, t0_ns=t0_ns)
     finally:
         stop.set()
         feeder.join(2.0)
