@@ -147,7 +147,9 @@ SIM_OPTIONS: dict[str, tuple[str, str, float]] = {
 #: estimator options of the "adaptive" estimator besides the Compensation keys (lde.adaptive):
 #: calibrate = a scenario name: identify tires, friction and offsets on that (undisturbed)
 #: scenario with the same simulated vehicle, payload and options (seed + 1000), then estimate with
-#: them; calibrate_tires = 0 to apply only the friction/offset compensation of that calibration.
+#: them; calibrate_tires = 0 to apply only the friction/offset compensation of that calibration;
+#: payload_known = 1: the estimator's mass, yaw inertia and CG are the loaded vehicle's (what a
+#: wheel-load or mass signal would give through eqs. 17-18) instead of the vehicle file's.
 CALIBRATION_SEED_OFFSET = 1000
 
 
@@ -175,11 +177,15 @@ def _simulate(spec: RunSpec, scenario: str, seed: int) -> Any:
         from vcan_sim.run import scenario_with, simulate
     except ImportError as exc:
         raise LdeError("the simulator package vcan_sim is not importable") from exc
+    from vcan_sim.scenarios import get_scenario
+
     from .params import load_vehicle
 
     opts = dict(spec.sim_options)
     vehicle = load_vehicle(spec.sim_vehicle)
-    sc = scenario_with(scenario, payload=spec.payload) if spec.payload else scenario
+    # the calibration drive carries the same payload as the run (learned while driving undisturbed)
+    payload = spec.payload or get_scenario(spec.scenario).payload
+    sc = scenario_with(scenario, payload=payload)
     speed = opts.get("speed_kmh")
     return simulate(
         sc,
@@ -217,6 +223,10 @@ def simulate_and_estimate(
         opts = dict(spec.est_options)
         cal_scenario = opts.pop("calibrate", None)
         cal_tires = bool(opts.pop("calibrate_tires", 1))
+        if opts.pop("payload_known", 0):
+            # scheduled on the measured load: mass, Iz and CG from the wheel loads (eqs. 17-18)
+            b = sim.body
+            vehicle = vehicle.with_body(mass=b.mass, yaw_inertia=b.yaw_inertia, lf=b.lf, lr=b.lr)
         comp = adaptive.Compensation.from_options(opts)
         if cal_scenario:
             from .calibrate import calibrate
