@@ -14,7 +14,8 @@
 #
 # Exit codes: the command's; 77 = UML cannot run on this machine (reason on stderr, line starting
 # "run_in_uml: SKIP:"); 124 = timed out; 125 = UML booted but the run broke (console tail shown).
-# Environment: UML_KERNEL (default linux.uml), UML_TIMEOUT (s, default 900), UML_MEM (default 2G).
+# Environment: UML_KERNEL (default linux.uml), UML_TIMEOUT (s, default 900), UML_MEM (default 2G),
+# UML_NO_SHIM=1 (do not use the xstate shim; for checking whether a host needs it).
 #
 # Host quirks handled (found by trying; details in docs/overlay.md "UML notes"):
 # * XSAVE area larger than UML 6.1 supports (AMX hosts): the kernel panics at once with
@@ -22,8 +23,10 @@
 #   (needs a C compiler: cc/gcc).
 # * stdin must not be the caller's terminal: UML's console takes it over (con0=fd:0,fd:1 gets
 #   /dev/null here; the command's output goes to a file).
-# * UML backs its RAM with a file in $TMPDIR or /dev/shm; a small /dev/shm (containers: 64 MB)
-#   crashes it later with SIGBUS, so a disk directory is used when /dev/shm is too small.
+# * UML backs its RAM with a file in $TMPDIR or /dev/shm; a small /dev/shm (containers: 64 MB,
+#   noexec) crashes it later with SIGBUS, so a disk directory is used when /dev/shm is too small.
+# * The guest runs its init from the work directory: a noexec $TMPDIR makes the kernel panic
+#   ("No working init found"), so the work directory goes where exec is allowed.
 set -euo pipefail
 
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
@@ -100,8 +103,19 @@ shift
 set -- "$cmd0" "$@"
 
 # --- work directory (on the host fs, visible in the guest at the same path) -----------------
-work=$(mktemp -d "${TMPDIR:-/tmp}/lde-uml.XXXXXX")
-work=$(cd "$work" && pwd -P)
+# it must allow exec (the guest runs its init from there): skip noexec mounts such as some /tmp
+work=""
+for base in "${TMPDIR:-/tmp}" /var/tmp "${XDG_CACHE_HOME:-$HOME/.cache}/lde-uml"; do
+    mkdir -p "$base" 2>/dev/null || continue
+    w=$(mktemp -d "$base/lde-uml.XXXXXX" 2>/dev/null) || continue
+    printf '#!/bin/sh\nexit 0\n' > "$w/exec-check" && chmod +x "$w/exec-check"
+    if "$w/exec-check" 2>/dev/null; then
+        work=$(cd "$w" && pwd -P)
+        break
+    fi
+    rm -rf "$w"
+done
+[[ -n $work ]] || die_skip "no writable directory that allows exec (tried \$TMPDIR, /var/tmp, ~/.cache)"
 cleanup() {
     if [[ $keep == 1 ]]; then
         note "kept $work"
@@ -115,11 +129,13 @@ mkdir -p "$work/scratch" "$work/umldir"
 # --- the xstate shim (see xstate_shim.c) ----------------------------------------------------
 preload=""
 cc_bin=$(command -v cc || command -v gcc || true)
-if [[ -n $cc_bin ]]; then
-    if "$cc_bin" -shared -fPIC -O2 -o "$work/xstate_shim.so" "$HERE/xstate_shim.c" -ldl 2>"$work/cc.log"; then
-        preload=$work/xstate_shim.so
-    else
+if [[ -n $cc_bin && -z ${UML_NO_SHIM:-} ]]; then
+    if ! "$cc_bin" -shared -fPIC -O2 -o "$work/xstate_shim.so" "$HERE/xstate_shim.c" -ldl 2>"$work/cc.log"; then
         note "could not build the xstate shim: $(head -c 400 "$work/cc.log")"
+    elif [[ -n $(env LD_PRELOAD="$work/xstate_shim.so" /bin/true 2>&1) ]]; then
+        note "the xstate shim does not preload: $(env LD_PRELOAD="$work/xstate_shim.so" /bin/true 2>&1 | head -c 300)"
+    else
+        preload=$work/xstate_shim.so
     fi
 fi
 
@@ -127,11 +143,12 @@ fi
 mem_kb=$(numfmt --from=iec "${mem}" 2>/dev/null || echo 2147483648)
 mem_kb=$((mem_kb / 1024))
 shm_kb=$(df -Pk /dev/shm 2>/dev/null | awk 'NR==2 {print $4}' || true)
-if [[ -n $shm_kb && $shm_kb -ge $mem_kb && -w /dev/shm ]]; then
+shm_noexec=$(awk '$2 == "/dev/shm" && $4 ~ /(^|,)noexec(,|$)/ {print "yes"}' /proc/mounts 2>/dev/null || true)
+if [[ -n $shm_kb && $shm_kb -ge $mem_kb && -w /dev/shm && -z $shm_noexec ]]; then
     ramdir=/dev/shm
 else
     ramdir=$work
-    note "/dev/shm is missing or smaller than mem=$mem: UML's RAM file goes to $ramdir"
+    note "/dev/shm is missing, noexec or smaller than mem=$mem: UML's RAM file goes to $ramdir"
 fi
 
 # --- the guest's init ------------------------------------------------------------------------
