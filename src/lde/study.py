@@ -339,7 +339,13 @@ def run_specs(
     if cfg.scheduler is None and cfg.n_workers == 0:
         it: Iterable[RunSpec] = _progress(specs, progress, len(specs))
         return [run_one(s, engine) for s in it]
+    import logging
+
     from distributed import Client, LocalCluster, as_completed
+
+    # the scheduler and nanny INFO lines would drown the progress bar (-v shows them)
+    if logging.getLogger().getEffectiveLevel() >= logging.WARNING:
+        logging.getLogger("distributed").setLevel(logging.WARNING)
 
     local = None
     try:
@@ -514,6 +520,206 @@ def preset_specs(
             backend=backend,
         )
     raise ConfigError(f"unknown study preset {preset!r} (known: paper, smoke)")
+
+
+# --- Fig. 12: linear-equivalent tires under heavy and light load --------------------------------
+
+
+@dataclass(frozen=True)
+class TireIdentification:
+    """Per-tire linear-equivalent parameters fitted to a scenario's truth (``vcan_sim.identify``)."""
+
+    scenario: str
+    cf: float  # N/rad, bicycle equivalent
+    cr: float  # N/rad
+    k: float  # Nm/rad
+    cf_tire: float  # N/rad, tire level (Fy / alpha)
+    cr_tire: float  # N/rad
+    max_alpha_f: float  # rad
+
+
+def identify_tires(
+    scenarios: Sequence[str] = PAPER_SCENARIOS, seeds: Sequence[int] = (0, 1)
+) -> list[TireIdentification]:
+    """The paper's Fig. 12 question on the simulator: Cf, Cr, K per load level (truth-based fit)."""
+    from vcan_sim.identify import identify_scenarios
+
+    out = identify_scenarios(list(scenarios), seeds=tuple(seeds))
+    return [
+        TireIdentification(name, le.cf, le.cr, le.k, le.cf_tire, le.cr_tire, le.max_alpha_f)
+        for name, le in out.items()
+    ]
+
+
+def representative_tires(ids: Sequence[TireIdentification]) -> tuple[float, float, float]:
+    """Mean (Cf, Cr, K) over the load levels: the representative values (the paper's conclusion)."""
+    return (
+        float(np.mean([i.cf for i in ids])),
+        float(np.mean([i.cr for i in ids])),
+        float(np.mean([i.k for i in ids])),
+    )
+
+
+def write_tire_vehicle(path: Path, base: str, cf: float, cr: float, k: float, note: str) -> Path:
+    """A vehicle file extending ``base`` with the given per-tire [tires]."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(
+        f"# {note}\n"
+        f'extends = "{base}"\n'
+        f'name = "{path.stem}"\n'
+        f'description = "{base} with representative linear-equivalent tires (lde study, Fig. 12)"\n\n'
+        "[tires]\n"
+        f"cf_N_per_rad = {cf:.0f}\n"
+        f"cr_N_per_rad = {cr:.0f}\n"
+        f"align_rate_Nm_per_rad = {k:.0f}\n"
+    )
+    return path
+
+
+def plot_tires(ids: Sequence[TireIdentification], path: Path) -> Path:
+    """Cornering stiffness and aligning-torque rate per load level (like the paper's Fig. 12)."""
+    plt = _pyplot()
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(8, 3.2))
+    x = np.arange(len(ids))
+    w = 0.38
+    a1.bar(x - w / 2, [i.cf / 1000 for i in ids], w, label="C_f")
+    a1.bar(x + w / 2, [i.cr / 1000 for i in ids], w, label="C_r")
+    a1.set_xticks(x, [i.scenario for i in ids])
+    a1.set_ylabel("per tire [kN/rad]")
+    a1.set_title("cornering stiffness (bicycle equivalent)", fontsize=9)
+    a1.legend(fontsize=8)
+    a2.bar(x, [i.k for i in ids], 0.5, color="tab:orange")
+    a2.set_xticks(x, [i.scenario for i in ids])
+    a2.set_ylabel("K [Nm/rad]")
+    a2.set_title("aligning-torque rate", fontsize=9)
+    for ax in (a1, a2):
+        ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# --- the improvement ladder and the friction / offset study ---------------------------------------
+
+#: scenarios of the accuracy target (issue 6, item 3)
+TARGET_SCENARIOS = (
+    "heavy_load",
+    "light_load",
+    "payload_full",
+    "payload_trunk",
+    "payload_four",
+    "payload_left",
+    "lane_change",
+)
+
+
+def ladder_specs(
+    winner: str,
+    tire_vehicle: str,
+    seeds: Sequence[int] = (0, 1),
+    scenarios: Sequence[str] = TARGET_SCENARIOS,
+    duration: float | None = None,
+) -> list[RunSpec]:
+    """What each step buys, measured: the same scenarios under successive estimator versions."""
+    steps: list[tuple[str, dict[str, Any]]] = [
+        ("0 reference", dict(est_vehicle="reference")),
+        (f"1 {winner} (Table 1 winner)", dict(est_vehicle=winner)),
+        ("2 + Fig. 12 tires", dict(est_vehicle=tire_vehicle)),
+        (
+            "3 + calibration (friction, torsion, accel.)",
+            dict(est_vehicle=winner, estimator="adaptive", est_options=(("calibrate", "lane_change"),)),
+        ),
+        (
+            "4 + load-scheduled m, Iz, CG",
+            dict(
+                est_vehicle=winner,
+                estimator="adaptive",
+                est_options=(("calibrate", "lane_change"), ("payload_known", 1)),
+            ),
+        ),
+    ]
+    return [
+        RunSpec(scenario=sc, seed=seed, duration=duration, group=label, trace=(seed == seeds[0]), **kw)
+        for label, kw in steps
+        for sc in scenarios
+        for seed in seeds
+    ]
+
+
+#: the friction / sensor-offset cases of the simulator (issue 6, item 5)
+FAULT_CASES: tuple[tuple[str, tuple[tuple[str, OptionValue], ...]], ...] = (
+    ("friction 0.35 Nm", (("friction_Nm", 0.35),)),
+    ("friction 0.8 Nm", (("friction_Nm", 0.8),)),
+    ("angle offset 1 deg", (("steer_offset_deg", 1.0),)),
+    ("yaw-rate bias 0.2 deg/s", (("yaw_bias_deg_s", 0.2),)),
+)
+
+
+def fault_specs(
+    winner: str,
+    tire_vehicle: str,
+    seeds: Sequence[int] = (0, 1),
+    scenarios: Sequence[str] = ("light_load", "lane_change"),
+    duration: float | None = None,
+) -> list[RunSpec]:
+    """Friction and sensor offsets in the simulator, without and with the learned compensation."""
+    specs = []
+    for case, sim_opts in FAULT_CASES:
+        for est_label, kw in (
+            ("uncompensated", dict(est_vehicle=tire_vehicle)),
+            (
+                "learned",
+                dict(est_vehicle=winner, estimator="adaptive", est_options=(("calibrate", "lane_change"),)),
+            ),
+        ):
+            for sc in scenarios:
+                for seed in seeds:
+                    specs.append(
+                        RunSpec(
+                            scenario=sc,
+                            seed=seed,
+                            duration=duration,
+                            sim_options=sim_opts,
+                            group=f"{case} / {est_label}",
+                            **kw,
+                        )
+                    )
+    return specs
+
+
+def pivot_markdown(results: Sequence[RunResult], value: str = "nrmse") -> str:
+    """A markdown table: one row per scenario, one column per group; cells "Fw / Mw" (mean over
+    seeds; NRMSE in %, or RMS in N / Nm for undisturbed scenarios)."""
+    groups: list[str] = []
+    scen: list[str] = []
+    cells: dict[tuple[str, str], list[metrics.Accuracy]] = {}
+    for r in results:
+        g, sc = r.spec.group, r.spec.scenario
+        if g not in groups:
+            groups.append(g)
+        if sc not in scen:
+            scen.append(sc)
+        if r.ok and r.accuracy is not None:
+            cells.setdefault((sc, g), []).append(r.accuracy)
+    lines = ["| scenario | " + " | ".join(groups) + " |", "|---|" + "---|" * len(groups)]
+    for sc in scen:
+        row = [sc]
+        for g in groups:
+            accs = cells.get((sc, g), [])
+            if not accs:
+                row.append("failed")
+            elif accs[0].kind is metrics.Kind.UNDISTURBED:
+                row.append(
+                    f"{np.mean([a.rms_fw for a in accs]):.0f} N / {np.mean([a.rms_mw for a in accs]):.0f} Nm"
+                )
+            else:
+                f = 100 * np.mean([a.nrmse_fw for a in accs])
+                m = 100 * np.mean([a.nrmse_mw for a in accs])
+                row.append(f"{f:.1f} / {m:.1f}")
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
 
 
 # --- summaries ---------------------------------------------------------------------------------------

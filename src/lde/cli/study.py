@@ -7,6 +7,12 @@ Presets (``--preset``):
   case of the simulator (mass, inertia and CG as in Fig. 9) and ``--seeds`` seeds; ranks the sets by
   the eq. (19) error index (Fig. 11) and plots the winner's estimates against truth (Figs. 13-14).
 - ``smoke`` — 4 short runs (est1/est3 on heavy/light): checks the whole chain in seconds.
+- ``ladder`` — what each estimator step buys on the target scenarios (heavy, light, every payload,
+  the undisturbed lane change): reference file, Table 1 winner, + Fig. 12 tires (identified on the
+  simulator under heavy and light load), + calibration from an undisturbed drive (friction, torsion
+  bar, accelerometer tilt, offsets; ``lde.adaptive``), + mass/inertia/CG scheduled on the load.
+- ``faults`` — steering friction and sensor offsets in the simulator, uncompensated and learned.
+- ``all`` — paper, then Fig. 12, ladder and faults with the paper's winner; ``summary_all.md``.
 
 Runs go to a ``LocalCluster(n_workers=--workers, threads_per_worker=1)`` by default or to an existing
 scheduler with ``--scheduler tcp://HOST:8786``; ``--workers 0`` runs in this process.
@@ -15,6 +21,8 @@ scheduler with ``--scheduler tcp://HOST:8786``; ``--workers 0`` runs in this pro
 from __future__ import annotations
 
 import argparse
+import csv
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -104,7 +112,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
-        "--preset", choices=("paper", "smoke"), default="paper", help="which sweep (default: paper)"
+        "--preset",
+        choices=("paper", "smoke", "ladder", "faults", "all"),
+        default="paper",
+        help="which sweep (default: paper; all = paper + Fig. 12 + ladder + faults)",
+    )
+    p.add_argument(
+        "--winner", help="candidate set for ladder/faults (default: the paper sweep's winner, else est3)"
     )
     p.add_argument(
         "--seeds", type=int, default=2, metavar="N", help="simulator seeds per load case (paper: 2)"
@@ -123,33 +137,104 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.seeds < 1:
         raise ConfigError("--seeds must be >= 1")
-    specs = study.preset_specs(
-        args.preset,
-        seeds=tuple(range(args.seeds)),
-        candidates=args.candidates,
-        scenarios=args.scenarios,
-        payloads=args.payloads,
-        duration=args.duration,
-        estimator=args.estimator,
-        backend=args.backend,
-        sim_options=parse_options(args.sim_option, "--sim-option"),
-        est_options=parse_options(args.est_option, "--est-option"),
-    )
-    print(f"lde study: {len(specs)} runs ({args.preset})", file=sys.stderr)
-    results = study.run_specs(specs, cluster_config(args), progress=not args.no_progress)
     out: Path = args.out
-    prefix = args.preset
-    paths = [study.write_csv(results, out / f"{prefix}_runs.csv")]
-    scores = study.rank_candidates(results)
+    seeds = tuple(range(args.seeds))
+    cluster = cluster_config(args)
+    progress = not args.no_progress
+    report: list[str] = []
+    failed = 0
+    winner = args.winner
+    if args.preset in ("paper", "smoke", "all"):
+        preset = "paper" if args.preset == "all" else args.preset
+        specs = study.preset_specs(
+            preset,
+            seeds=seeds,
+            candidates=args.candidates,
+            scenarios=args.scenarios,
+            payloads=args.payloads,
+            duration=args.duration,
+            estimator=args.estimator,
+            backend=args.backend,
+            sim_options=parse_options(args.sim_option, "--sim-option"),
+            est_options=parse_options(args.est_option, "--est-option"),
+        )
+        results = _run(specs, preset, cluster, progress)
+        failed += _failures(results)
+        study.write_csv(results, out / f"{preset}_runs.csv")
+        scores = study.rank_candidates(results)
+        if scores:
+            study.write_scores_csv(scores, out / f"{preset}_scores.csv")
+            study.plot_error_index(scores, out / f"{preset}_error_index.png")
+            text = study.scores_table(scores)
+            print(text)
+            winner = scores[0].candidate
+            print(f"\nwinner (smallest mean error index J): {winner}")
+            report += [
+                f"## {preset}: error index per candidate set ({len(results)} runs)",
+                "",
+                "```",
+                text,
+                "```",
+                "",
+                f"Winner: **{winner}**.",
+                "",
+            ]
+        if any(r.trace is not None for r in results):
+            study.plot_traces(results, out / f"{preset}_traces.png")
+    if args.preset in ("ladder", "faults", "all"):
+        winner = winner or "est3"
+        ids = study.identify_tires(seeds=seeds)
+        cf, cr, k = study.representative_tires(ids)
+        _write_rows([dataclasses.asdict(i) for i in ids], out / "tires_fig12.csv")
+        study.plot_tires(ids, out / "tires_fig12.png")
+        note = "Fig. 12 on vcan_sim: " + "; ".join(
+            f"{i.scenario}: Cf {i.cf:.0f}, Cr {i.cr:.0f}, K {i.k:.0f}" for i in ids
+        )
+        tire_vehicle = study.write_tire_vehicle(
+            (out / "vehicles" / f"{winner}_fig12.toml").resolve(), winner, cf, cr, k, note
+        )
+        print(note)
+        report += ["## Fig. 12: linear-equivalent tires (per tire)", "", note, ""]
+        for preset, make in (("ladder", study.ladder_specs), ("faults", study.fault_specs)):
+            if args.preset not in (preset, "all"):
+                continue
+            specs = make(winner, str(tire_vehicle), seeds=seeds, duration=args.duration)
+            results = _run(specs, preset, cluster, progress)
+            failed += _failures(results)
+            study.write_csv(results, out / f"{preset}_runs.csv")
+            table = study.pivot_markdown(results)
+            print(table)
+            report += [f"## {preset}: NRMSE Fw / Mw in % (undisturbed: RMS of the estimate)", "", table, ""]
+            if preset == "ladder":
+                last = [r for r in results if r.spec.group.startswith("4") and r.trace is not None]
+                first = [r for r in results if r.spec.group.startswith("0") and r.trace is not None]
+                if last:
+                    study.plot_traces(last, out / "ladder_final_traces.png", title="final estimator")
+                if first:
+                    study.plot_traces(
+                        first, out / "ladder_reference_traces.png", title="reference vehicle file"
+                    )
+    if report:
+        (out / f"summary_{args.preset}.md").write_text("\n".join(report) + "\n")
+    print(f"results in {out}/")
+    return 1 if failed else 0
+
+
+def _run(specs, name, cluster, progress):
+    print(f"lde study: {name}: {len(specs)} runs", file=sys.stderr)
+    return study.run_specs(specs, cluster, progress=progress)
+
+
+def _failures(results) -> int:
     failed = [r for r in results if not r.ok]
-    if scores:
-        paths.append(study.write_scores_csv(scores, out / f"{prefix}_scores.csv"))
-        paths.append(study.plot_error_index(scores, out / f"{prefix}_error_index.png"))
-        print(study.scores_table(scores))
-        print(f"\nwinner (smallest mean error index J): {scores[0].candidate}")
-    if any(r.trace is not None for r in results):
-        paths.append(study.plot_traces(results, out / f"{prefix}_traces.png"))
     for r in failed[:10]:
         print(f"FAILED {r.spec.label}: {r.error}", file=sys.stderr)
-    print("wrote " + ", ".join(str(p) for p in paths))
-    return 1 if failed else 0
+    return len(failed)
+
+
+def _write_rows(rows: list[dict], path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
