@@ -17,20 +17,33 @@ alternative, for measurement), ``riccati`` (offline DARE), ``synthetic`` (test d
 
 from __future__ import annotations
 
-from .fast import FastState, FixedEstimator, run_batch
-from .shadow import FW_BOUND_N, MW_BOUND_NM, ShadowChecker, ShadowReport, run_batch_with_shadow, shadow_check
-from .tables import FixedTables, tables_for
+import importlib
+from typing import Any
 
-__all__ = [
-    "FW_BOUND_N",
-    "MW_BOUND_NM",
-    "FastState",
-    "FixedEstimator",
-    "FixedTables",
-    "ShadowChecker",
-    "ShadowReport",
-    "run_batch",
-    "run_batch_with_shadow",
-    "shadow_check",
-    "tables_for",
-]
+# Lazy exports (PEP 562): importing the package stays cheap and ``python -m
+# firmware_model.gen_tables`` does not import the generator twice.
+_EXPORTS = {
+    "FastState": "fast",
+    "FixedEstimator": "fast",
+    "run_batch": "fast",
+    "FW_BOUND_N": "shadow",
+    "MW_BOUND_NM": "shadow",
+    "ShadowChecker": "shadow",
+    "ShadowReport": "shadow",
+    "run_batch_with_shadow": "shadow",
+    "shadow_check": "shadow",
+    "FixedTables": "tables",
+    "tables_for": "tables",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(list(globals()) + __all__)

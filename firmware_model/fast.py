@@ -564,15 +564,17 @@ class FixedEstimator:
         self.state = FastState.initial(self._tv)
         self._float = Estimator(vehicle, self.dt) if shadow else None
         self.shadow = ShadowChecker() if shadow else None
+        if self._float is not None:
+            # one float shadow state for step() and run_batch(): they can be mixed
+            self.state.shadow_state = self._float.state
 
     def reset(self) -> None:
         """x = 0, P = P0, held until the next usable step; saturation and shadow counters cleared."""
         st = self.state
         reset_kernel(self._tv, st.x, st.P, st.aux, st.sat)
-        st.shadow_state = None
         st.shadow_count, st.shadow_max_dfw, st.shadow_max_dmw, st.last_report = 0, 0.0, 0.0, None
         if self._float is not None and self.shadow is not None:
-            self._float.reset()
+            self._float.reset()  # resets st.shadow_state in place (the same object)
             self.shadow.reset()
 
     def step_ints(self, t_ns: int, inputs: EstimatorInputs) -> tuple[int, ...]:
@@ -601,8 +603,8 @@ class FixedEstimator:
 
     def run_batch(self, t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok,
                   esc_ok) -> BatchResult:
-        """:func:`run_batch` continuing from (and advancing) this estimator's state (a batch uses
-        its own float shadow state, ``state.shadow_state``, when the shadow is enabled)."""
+        """:func:`run_batch` continuing from (and advancing) this estimator's state, the float
+        shadow's included (``step`` and ``run_batch`` calls can be mixed)."""
         return run_batch(t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok, esc_ok,
                          self.vehicle, state=self.state, dt=self.dt, shadow=self._float is not None)
 

@@ -96,3 +96,25 @@ def test_live_shadow_checker(vehicle):
 
     assert chk.check(replace(out, mw=out.mw + 3.0), out) & Status.SHADOW_DEVIATION
     assert chk.count == 1
+
+
+def test_step_and_run_batch_can_be_mixed_with_the_shadow(vehicle):
+    from lde.step import EstimatorInputs
+
+    d = make_drive(vehicle, "gusts", duration_s=3.0, seed=8)
+    whole = run_batch(*d.inputs(), vehicle)
+    est = FixedEstimator(vehicle)
+    k = len(d) // 2
+    first = est.run_batch(*(x[:k] for x in d.inputs()))
+    rest = []
+    for i in range(k, len(d)):
+        u = EstimatorInputs(d.speed[i], d.steering_angle[i], d.yaw_rate[i], d.column_torque[i],
+                            d.assist_torque[i], bool(d.mdps_ok[i]), bool(d.esc_ok[i]))
+        rest.append(est.step(int(d.t_ns[i]), u))
+    np.testing.assert_array_equal(np.concatenate([first.fw, [o.fw for o in rest]]), whole.fw)
+    np.testing.assert_array_equal(np.concatenate([first.status, [int(o.status) for o in rest]]), whole.status)
+    assert est.shadow is not None and est.shadow.count == 0
+    est.reset()
+    again = est.run_batch(*d.inputs())
+    np.testing.assert_array_equal(again.fw, whole.fw)
+    np.testing.assert_array_equal(again.status, whole.status)

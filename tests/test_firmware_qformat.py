@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from fractions import Fraction
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -60,8 +61,8 @@ def test_frac_bits_for_holds_the_value_with_headroom(x):
 
 @given(i64, st.integers(min_value=1, max_value=62))
 def test_shift_round_is_round_half_up(v, s):
-    # exact rational reference: floor(v / 2^s + 1/2)
-    assert shift_round(v, s) == math.floor((2 * v + (1 << s)) / (2 << s)) == (v + (1 << (s - 1))) >> s
+    # exact rational reference: floor(v / 2^s + 1/2), with Fraction (no float rounding)
+    assert shift_round(v, s) == math.floor(Fraction(v, 1 << s) + Fraction(1, 2)) == (v + (1 << (s - 1))) >> s
 
 
 @given(st.integers(min_value=-(2**31), max_value=2**31), st.integers(min_value=0, max_value=20))
