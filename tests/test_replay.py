@@ -39,6 +39,17 @@ def sample_replay(profile, vehicle):
     return replay_log(SAMPLE, profile, vehicle, "float")
 
 
+def _backend_or_skip(name: str) -> str:
+    from lde.errors import ConfigError
+    from lde.replay import resolve_backend
+
+    try:
+        resolve_backend(name)
+    except ConfigError as exc:
+        pytest.skip(str(exc))
+    return name
+
+
 def read_truth() -> dict[str, np.ndarray]:
     with TRUTH.open() as fh:
         rows = list(csv.DictReader(fh))
@@ -46,9 +57,11 @@ def read_truth() -> dict[str, np.ndarray]:
     return {"t_ns": t_ns, **{k: np.array([float(r[k]) for r in rows]) for k in ("Fw", "Mw")}}
 
 
-def test_acceptance_linear_log_converges_to_truth(sample_replay):
+@pytest.mark.parametrize("backend", ["float", "fixed"])
+def test_acceptance_linear_log_converges_to_truth(backend, profile, vehicle):
     """THE acceptance test: after settling, the replayed estimate is within 5% of the true Fw, Mw."""
-    _log, res = sample_replay
+    _log, res = replay_log(SAMPLE, profile, vehicle, _backend_or_skip(backend))
+    assert res.backend == backend
     truth = read_truth()
     j = np.searchsorted(truth["t_ns"], res.t_ns, side="right") - 1
     fw_true, mw_true = truth["Fw"][j], truth["Mw"][j]

@@ -42,7 +42,7 @@ def time_column(name: str, t_ns: np.ndarray) -> Column:
 
 @numba.njit(cache=True)
 def _format(ints, finite, decimals, sep, sep_off, end, nan_text, out, row_off):
-    m, n = ints.shape
+    n, m = ints.shape
     o = 0
     digits = np.empty(24, np.uint8)
     for i in range(n):
@@ -51,12 +51,12 @@ def _format(ints, finite, decimals, sep, sep_off, end, nan_text, out, row_off):
             for j in range(sep_off[c], sep_off[c + 1]):
                 out[o] = sep[j]
                 o += 1
-            if not finite[c, i]:
+            if not finite[i, c]:
                 for j in range(nan_text.shape[0]):
                     out[o] = nan_text[j]
                     o += 1
                 continue
-            v = ints[c, i]
+            v = ints[i, c]
             neg = v < 0
             if neg:
                 v = -v
@@ -94,8 +94,8 @@ def format_rows(
         raise ValueError("one separator per column")
     n = int(np.asarray(columns[0].values).shape[0]) if columns else 0
     m = len(columns)
-    ints = np.zeros((m, n), np.int64)
-    finite = np.ones((m, n), np.bool_)
+    ints = np.zeros((n, m), np.int64)  # row-major: the kernel reads one row at a time
+    finite = np.ones((n, m), np.bool_)
     dec = np.zeros(m, np.int64)
     for c, col in enumerate(columns):
         v = np.asarray(col.values)
@@ -103,14 +103,14 @@ def format_rows(
             raise ValueError(f"column {col.name!r} has shape {v.shape}, expected ({n},)")
         dec[c] = col.decimals
         if col.prescaled:
-            ints[c] = v.astype(np.int64)
+            ints[:, c] = v.astype(np.int64)
         elif v.dtype.kind in "iub":
-            ints[c] = v.astype(np.int64) * (10**col.decimals)
+            ints[:, c] = v.astype(np.int64) * (10**col.decimals)
         else:
             f = v.astype(np.float64)
             ok = np.isfinite(f) & (np.abs(f) * 10.0**col.decimals < 9e18)
-            finite[c] = ok
-            ints[c] = np.rint(np.where(ok, f, 0.0) * 10.0**col.decimals).astype(np.int64)
+            finite[:, c] = ok
+            ints[:, c] = np.rint(np.where(ok, f, 0.0) * 10.0**col.decimals).astype(np.int64)
     sep_b = [s.encode() for s in separators]
     sep = np.frombuffer(b"".join(sep_b) or b"\0", np.uint8)
     sep_off = np.zeros(m + 1, np.int64)
