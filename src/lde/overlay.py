@@ -86,14 +86,18 @@ __all__ = [
 ]
 
 
+# state codes as plain ints for the compiled kernel (numba constants); OverlayState names them
+ST_OFF, ST_RAMP_IN, ST_ACTIVE, ST_RAMP_OUT, ST_FAULT = 0, 1, 2, 3, 4
+
+
 class OverlayState(enum.IntEnum):
     """``LDE_Overlay.State`` (dbc/lde.dbc VAL_ table)."""
 
-    OFF = 0
-    RAMP_IN = 1
-    ACTIVE = 2
-    RAMP_OUT = 3
-    FAULT = 4
+    OFF = ST_OFF
+    RAMP_IN = ST_RAMP_IN
+    ACTIVE = ST_ACTIVE
+    RAMP_OUT = ST_RAMP_OUT
+    FAULT = ST_FAULT
 
 
 #: Status bits that are input faults (ramp out; FAULT when persistent)
@@ -211,7 +215,7 @@ def limiter_params(vehicle: Vehicle, timing: OverlayTiming | None = None) -> np.
 def new_limiter_state() -> tuple[np.ndarray, np.ndarray]:
     """Fresh (int64 slots ``LS_*``, float64 slots ``LF_*``): OFF, zero torque, no history."""
     si = np.full(N_LS, -1, dtype=np.int64)
-    si[LS_STATE] = 0
+    si[LS_STATE] = ST_OFF
     si[LS_HAVE_T] = 0
     si[LS_LAST_T] = 0
     si[LS_OVERRIDE_UNTIL] = np.iinfo(np.int64).min
@@ -269,17 +273,17 @@ def overlay_kernel(p, si, sf, t_ns, fw, mw, status, speed, steer, col_tq, enable
     state = si[LS_STATE]
     torque = sf[LF_TORQUE]
     go = False
-    if state == 4:  # FAULT: ramp to zero; leave after fault_recover fault-free (and at zero)
+    if state == ST_FAULT:  # ramp to zero; leave after fault_recover fault-free (and at zero)
         if (
             not input_fault
             and t_ns - si[LS_CLEAR_SINCE] >= np.int64(p[LP_FAULT_RECOVER_NS])
             and torque == 0.0
         ):
-            state = 0
+            state = ST_OFF
     elif input_fault and t_ns - si[LS_FAULT_SINCE] >= np.int64(p[LP_FAULT_PERSIST_NS]):
-        state = 4
+        state = ST_FAULT
     else:
-        engaged = state == 1 or state == 2
+        engaged = state in (ST_RAMP_IN, ST_ACTIVE)
         go = ok and (
             engaged or (t_ns >= si[LS_OVERRIDE_UNTIL] and t_ns - si[LS_OK_SINCE] >= np.int64(p[LP_REARM_NS]))
         )
@@ -299,12 +303,12 @@ def overlay_kernel(p, si, sf, t_ns, fw, mw, status, speed, steer, col_tq, enable
         torque = torque - lim
     torque = min(max(torque, -p[LP_MAX_T]), p[LP_MAX_T])
 
-    if state != 4:
+    if state != ST_FAULT:
         if go:
-            if state != 2:
-                state = 2 if torque == target else 1
+            if state != ST_ACTIVE:
+                state = ST_ACTIVE if torque == target else ST_RAMP_IN
         else:
-            state = 0 if torque == 0.0 else 3
+            state = ST_OFF if torque == 0.0 else ST_RAMP_OUT
     si[LS_STATE] = state
     sf[LF_TORQUE] = torque
     return torque
