@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from lde.errors import ConfigError
 from lde.model import discrete_matrices
 from lde.params import Vehicle, load_vehicle
 from lde.units import KMH, STEP_NS
@@ -140,7 +141,7 @@ def _const(value: float) -> tuple[int, int]:
     f = frac_bits_for(abs(value), headroom=1.0)
     raw, sat = QFormat(32, f).to_raw(value)
     if sat:  # cannot happen with frac_bits_for; guard against a silent clamp
-        raise ValueError(f"constant {value!r} does not fit Q.{f}")
+        raise ConfigError(f"constant {value!r} does not fit Q.{f}")
     return raw, f
 
 
@@ -210,11 +211,21 @@ def generate(vehicle: Vehicle, dt_ns: int = STEP_NS) -> dict[str, Any]:
     r_n = [q_cov.to_raw(est.r_yaw / sig[1] ** 2)[0], q_cov.to_raw(est.r_align / sT**2)[0]]
     q_dens = (est.q_beta, est.q_yaw, est.q_fw, est.q_mw)
     qd_n = [q_cov.to_raw(q * dt / s**2)[0] for q, s in zip(q_dens, sig, strict=True)]
-    p0_real = [p**2 / s**2 for p, s in zip((est.p0_beta, est.p0_yaw, est.p0_fw, est.p0_mw), sig, strict=True)]
+    p0_sd = (est.p0_beta, est.p0_yaw, est.p0_fw, est.p0_mw)
+    p0_real = [p**2 / s**2 for p, s in zip(p0_sd, sig, strict=True)]
     for i, p in enumerate(p0_real):
         if not q_cov.fits(p + qd_n[i] * q_cov.lsb, headroom=2.0):
-            raise ValueError(
-                f"P0 of {STATE_NAMES[i]} ({p:.3g} in units of sigma^2) leaves no headroom in {q_cov}"
+            raise ConfigError(
+                f"{vehicle.name}: initial std of {STATE_NAMES[i]} ({p0_sd[i]:.3g}) is {math.sqrt(p):.3g} "
+                f"times its steady-state scale: the fixed-point covariance ({q_cov}) has no 2x headroom"
+            )
+    q_names = ("q_beta", "q_yaw", "q_fw", "q_mw")
+    noise = (("r_yaw", r_n[0]), ("r_align", r_n[1]), *zip(q_names, qd_n, strict=True))
+    for name, raw in noise:
+        if raw < (16 if name.startswith("r_") else 1):
+            raise ConfigError(
+                f"{vehicle.name}: estimator {name} is too small against the covariance scale for the "
+                f"fixed-point formats ({raw} LSB of {q_cov})"
             )
     p0_n = [q_cov.to_raw(p)[0] for p in p0_real]
 

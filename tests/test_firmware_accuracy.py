@@ -118,3 +118,17 @@ def test_step_and_run_batch_can_be_mixed_with_the_shadow(vehicle):
     again = est.run_batch(*d.inputs())
     np.testing.assert_array_equal(again.fw, whole.fw)
     np.testing.assert_array_equal(again.status, whole.status)
+
+
+@pytest.mark.parametrize("name", ["est1", "est2", "est3", "est4", "est5"])
+def test_other_shipped_vehicles_within_bound(name):
+    """The Table 1 candidate sets: constants generated in memory, same bound, no saturation."""
+    v = load_vehicle(name)
+    d = make_drive(v, "gusts", duration_s=6.0, seed=6)
+    state = FastState.initial(tables_vector(tables_for(v)))
+    fx = run_batch(*d.inputs(), v, state=state)
+    fl = float_run_batch(*d.inputs(), v)
+    assert np.abs(fx.fw - fl.fw).max() <= FW_BOUND_N
+    assert np.abs(fx.mw - fl.mw).max() <= MW_BOUND_NM
+    assert state.shadow_count == 0
+    assert sum(state.saturations().values()) == 0

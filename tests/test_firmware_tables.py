@@ -133,3 +133,16 @@ def test_tables_for_another_vehicle_are_generated_in_memory(vehicle):
     tb = tables_for(other)
     assert isinstance(tb, FixedTables)
     assert tb.inputs_sha256 == gen.inputs_hash(other) != tables_for(vehicle).inputs_sha256
+
+
+def test_generator_rejects_a_tuning_outside_the_formats(vehicle):
+    from dataclasses import replace
+
+    from lde.errors import ConfigError
+
+    huge_p0 = replace(vehicle, estimator=replace(vehicle.estimator, p0_fw=1e6))
+    with pytest.raises(ConfigError, match="headroom"):
+        gen.generate(huge_p0)
+    tiny_q = replace(vehicle, estimator=replace(vehicle.estimator, q_beta=1e-16))
+    with pytest.raises(ConfigError, match="q_beta"):
+        gen.generate(tiny_q)
