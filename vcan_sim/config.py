@@ -187,9 +187,9 @@ class DriverParams:
         gain_spread: relative per-seed spread of the gains (uniform +-) [-].
     """
 
-    preview_time: float = 1.0
-    lateral_gain: float = 6.0
-    integral_gain: float = 1.0
+    preview_time: float = 1.3
+    lateral_gain: float = 4.0
+    integral_gain: float = 0.3
     heading_gain: float = 0.0
     understeer_gradient: float = 0.0018
     lag_time: float = 0.15

@@ -14,7 +14,7 @@ Other columns are the plant's true states and inputs (not sensor readings): see
 
 from __future__ import annotations
 
-import csv
+import io
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -80,19 +80,25 @@ def concat_truth(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
-def write_truth_csv(path: str | Path, truth: Mapping[str, np.ndarray], t_ns: np.ndarray | None = None) -> None:
-    """CSV with a header; ``t`` printed exactly from ``t_ns`` (microsecond digits kept, 9 decimals)."""
+def write_truth_csv(path: str | Path, truth: Mapping[str, np.ndarray], t_ns: np.ndarray | None = None,
+                    digits: int = 12) -> None:
+    """CSV with a header. ``t`` is printed exactly from ``t_ns`` when given (9 decimals, the log's
+    time base), the other columns with ``digits`` significant digits."""
     names = list(truth)
-    n = len(truth[names[0]]) if names else 0
+    other = [k for k in names if k != "t" or t_ns is None]
+    body = io.StringIO()
+    if other:
+        np.savetxt(body, np.column_stack([np.asarray(truth[k], np.float64) for k in other]),
+                   fmt=f"%.{digits}g", delimiter=",")
+    rows = body.getvalue().splitlines()
+    if t_ns is not None and "t" in names:
+        t_txt = [f"{v // 1_000_000_000}.{v % 1_000_000_000:09d}" for v in np.asarray(t_ns, np.int64).tolist()]
+        rows = [f"{a},{b}" for a, b in zip(t_txt, rows, strict=True)] if other else t_txt
+        names = ["t"] + other
     try:
         with open(path, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(names)
-            if t_ns is not None:
-                t_txt = [f"{v // 1_000_000_000}.{v % 1_000_000_000:09d}" for v in np.asarray(t_ns, np.int64)]
-            cols = [truth[k] for k in names]
-            for i in range(n):
-                w.writerow([t_txt[i] if (k == "t" and t_ns is not None) else repr(float(c[i]))
-                            for k, c in zip(names, cols)])
+            fh.write(",".join(names) + "\n")
+            if rows:
+                fh.write("\n".join(rows) + "\n")
     except OSError as exc:
         raise ConfigError(f"cannot write truth CSV {path}: {exc}") from exc
