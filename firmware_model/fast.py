@@ -409,6 +409,14 @@ def quantise_kernel(tv, speed, steer, yaw, tcol, tas):  # pragma: no cover - com
 
 
 @njit(cache=True)
+def step_si_kernel(tv, coef, x, P, aux, sat, ws, t_ns, speed, steering_angle, yaw_rate, column_torque,
+                   assist_torque, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
+    """Quantise SI inputs and step (one compiled call per live step); returns the status."""
+    v, s, y, c, a, flags = quantise_kernel(tv, speed, steering_angle, yaw_rate, column_torque, assist_torque)
+    return step_kernel(tv, coef, x, P, aux, sat, ws, t_ns, v, s, y, c, a, flags, mdps_ok, esc_ok, out)
+
+
+@njit(cache=True)
 def batch_kernel(tv, coef, x, P, aux, sat, t_ns, speed, steering_angle, yaw_rate, column_torque,
                  assist_torque, mdps_ok, esc_ok, outs, status):  # pragma: no cover - compiled
     """Quantise and step every row; ``outs`` (n, N_OUT) int64 raw, ``status`` (n,) uint8."""
@@ -580,12 +588,11 @@ class FixedEstimator:
     def step_ints(self, t_ns: int, inputs: EstimatorInputs) -> tuple[int, ...]:
         """(status, X_beta, X_r, X_Fw, X_Mw, T_align_hat) raw, as :func:`firmware_model.step.step_raw`
         (no shadow check: the integer step alone)."""
-        st, tv = self.state, self._tv
-        v, s, y, c, a, flags = quantise_kernel(tv, float(inputs.speed), float(inputs.steering_angle),
-                                               float(inputs.yaw_rate), float(inputs.column_torque),
-                                               float(inputs.assist_torque))
-        status = step_kernel(tv, self._coef, st.x, st.P, st.aux, st.sat, self._ws, np.int64(t_ns), v, s, y,
-                             c, a, flags, bool(inputs.mdps_ok), bool(inputs.esc_ok), self._out)
+        st = self.state
+        status = step_si_kernel(self._tv, self._coef, st.x, st.P, st.aux, st.sat, self._ws, np.int64(t_ns),
+                                float(inputs.speed), float(inputs.steering_angle), float(inputs.yaw_rate),
+                                float(inputs.column_torque), float(inputs.assist_torque),
+                                bool(inputs.mdps_ok), bool(inputs.esc_ok), self._out)
         o = self._out
         return (int(status), int(o[0]), int(o[1]), int(o[2]), int(o[3]), int(o[4]))
 
