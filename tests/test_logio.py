@@ -211,6 +211,33 @@ def test_mcap_without_chunks_uses_library_fallback(tmp_path: Path):
     assert_frames_equal(data.frames, frames)
 
 
+def test_mcap_cut_recording_is_recovered_up_to_its_last_chunk(tmp_path: Path):
+    """A recording cut by a crash (no summary, last chunk incomplete) gives every complete chunk."""
+    frames = random_frames(4000, seed=12)
+    path = tmp_path / "live.mcap"
+    w = McapWriter(path, chunk_size=4096)
+    for a in range(0, 4000, 500):
+        w.write_frames(frames[a : a + 500])
+        w.sync()  # what the live recorder does every 0.25 s
+    size = path.stat().st_size
+    w.close()
+    from mcap.reader import make_reader
+
+    with path.open("rb") as fh:
+        last = max(make_reader(fh).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: last.chunk_start_offset + last.chunk_length // 2])  # crash
+    log = read_log(cut)
+    assert log.mcap is not None and log.mcap.truncated and log.stats.truncated_last_line == 1
+    n = len(log.frames)
+    assert 3000 <= n < 4000
+    assert_frames_equal(log.frames, frames[:n])
+    # a complete file without summary (footer cut away): everything
+    whole = tmp_path / "nosummary.mcap"
+    whole.write_bytes(path.read_bytes()[:size])
+    assert_frames_equal(read_log(whole).frames, frames)
+
+
 def test_mcap_streaming_writer_many_flushes(tmp_path: Path):
     frames = random_frames(3000, seed=6)
     path = tmp_path / "s.mcap"
@@ -280,7 +307,7 @@ def _bad_files(tmp: Path) -> dict[str, Path]:
         "text.mcap": b"hello world\n",
         "binary.log": bytes(range(256)) * 4,
         "not_candump.log": b"this is not a log\nat all\n",
-        "cut.mcap": raw[: len(raw) // 2],
+        "cut.mcap": raw[:40],  # inside the header: nothing to recover
         "garbled_chunk.mcap": raw[:g] + bytes(64) + raw[g + 64 :],
         "bad.asc": b"date Mon Jan 1 00:00:00 2024\nbase hex timestamps absolute\n   garbage garbage\n",
         "bad.blf": b"LOGG" + bytes(100),

@@ -13,8 +13,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import LogFormatError
 from ..frames import FrameBatch
 from .candump import format_candump, looks_like_candump, parse_candump_bytes, write_candump
@@ -64,7 +62,8 @@ class ReadStats:
         error_frames: error frames skipped.
         remote_frames: remote frames skipped.
         malformed_lines: candump lines that did not parse (first one: ``first_malformed_line``).
-        truncated_last_line: 1 if the last line of a text log was cut off (and skipped).
+        truncated_last_line: 1 if the last line of a text log (or the last record of an MCAP file
+            without summary: a recording cut by a crash) was cut off and skipped.
         bad_messages: MCAP CAN-channel messages of the wrong size/encoding (skipped).
     """
 
@@ -159,7 +158,11 @@ def read_log(
     fmt = fmt or detect_format(p)
     if fmt == "mcap":
         data = read_mcap(p, json_topics=json_topics)
-        stats = ReadStats(frames=len(data.frames), bad_messages=data.bad_can_messages)
+        stats = ReadStats(
+            frames=len(data.frames),
+            bad_messages=data.bad_can_messages,
+            truncated_last_line=int(data.truncated),
+        )
         out = LogData(p, "mcap", data.frames, stats, mcap=data)
     elif fmt == "candump":
         try:
@@ -198,7 +201,3 @@ def _describe(s: ReadStats) -> str:
         if v:
             parts.append(f"{v} {name.replace('_', ' ')}")
     return ", ".join(parts)
-
-
-def frames_are_sorted(frames: FrameBatch) -> bool:
-    return bool(np.all(np.diff(frames.t_ns) >= 0))

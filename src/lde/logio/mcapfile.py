@@ -456,6 +456,14 @@ class McapWriter:
         self._t_min = t_lo if self._t_min is None else min(self._t_min, t_lo)
         self._t_max = max(self._t_max, t_hi)
 
+    def sync(self, fsync: bool = False) -> None:
+        """:meth:`flush`, then push the file's buffer to the OS (a killed process loses nothing
+        written so far; ``fsync`` also survives a power loss, at a cost)."""
+        self.flush()
+        self._f.flush()
+        if fsync:
+            os.fsync(self._f.fileno())
+
     def _write_lane(self, order, chan, seq, t, pay, off, length) -> None:
         """Message records of ``order`` (time-sorted) as chunks of about ``chunk_size`` bytes."""
         rec_len = _MSG_OVERHEAD + length[order]
@@ -674,6 +682,8 @@ class McapData:
         bad_can_messages: CAN-channel messages of the wrong size or encoding (skipped).
         fast_path: True if the chunk-level numba reader was used (else the ``mcap`` library's).
         chunks_read, chunks_skipped: chunks decompressed / known from their message indexes only.
+        truncated: the file has no summary and ends inside a record (a recording cut by a crash):
+            everything up to the last complete chunk was read.
     """
 
     frames: FrameBatch
@@ -684,6 +694,7 @@ class McapData:
     fast_path: bool = True
     chunks_read: int = 0
     chunks_skipped: int = 0
+    truncated: bool = False
 
 
 def _decompress(compression: str, data: bytes, size: int) -> bytes:
@@ -741,6 +752,9 @@ def read_mcap(
         try:
             if summary is not None and summary.chunk_indexes:
                 data = _read_fast(raw, summary, validate_crcs, json_topics)
+            elif not force_library and (scan := _scan_top_level(raw)) is not None:
+                data = _read_fast(raw, scan, validate_crcs, json_topics)
+                data.truncated = scan.truncated
             else:
                 fh.seek(0)
                 data = _read_library(fh)
@@ -783,6 +797,67 @@ def _index_times(raw: bytes, ci) -> tuple[list[np.ndarray], list[np.ndarray]] | 
         times.append(pairs[:, 0].astype(np.int64))
         chans.append(np.full(pairs.shape[0], ch, np.uint16))
     return chans, times
+
+
+@dataclass
+class _ChunkRef:
+    chunk_start_offset: int
+    message_index_offsets: dict[int, int] = field(default_factory=dict)
+
+
+@dataclass
+class _Scan:
+    """A summary rebuilt by a linear scan (same attributes as ``mcap.summary.Summary`` uses here)."""
+
+    schemas: dict[int, Any]
+    channels: dict[int, Any]
+    chunk_indexes: list[_ChunkRef]
+    truncated: bool
+
+
+def _scan_top_level(raw) -> _Scan | None:
+    """Schemas, channels and chunks of a file without summary, by walking its top-level records.
+
+    Stops at the data end record, at the end of the file, or at a record cut short (``truncated``).
+    Returns None when the file has messages outside chunks or schema/channel records only inside
+    chunks (the ``mcap`` library reads those).
+    """
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Channel, Schema
+
+    schemas: dict[int, Any] = {}
+    channels: dict[int, Any] = {}
+    chunks: list[_ChunkRef] = []
+    pos = len(MAGIC)
+    n = len(raw)
+    truncated = False
+    while True:
+        if pos + 9 > n:
+            truncated = pos < n
+            break
+        op = raw[pos]
+        (length,) = struct.unpack_from("<Q", raw, pos + 1)
+        if pos + 9 + length > n:
+            truncated = True
+            break
+        if op in (OP_SCHEMA, OP_CHANNEL):
+            body = ReadDataStream(io.BytesIO(bytes(raw[pos + 9 : pos + 9 + length])))
+            if op == OP_SCHEMA:
+                rec = Schema.read(body)
+                schemas[rec.id] = rec
+            else:
+                rec = Channel.read(body)
+                channels[rec.id] = rec
+        elif op == OP_CHUNK:
+            chunks.append(_ChunkRef(pos))
+        elif op == OP_MESSAGE:
+            return None
+        elif op in (OP_DATA_END, OP_FOOTER):
+            break
+        pos += 9 + int(length)
+    if not channels or not chunks:
+        return None
+    return _Scan(schemas, channels, chunks, truncated)
 
 
 def _chunk_header(raw, o: int) -> tuple[str, int, int, int, int]:
