@@ -6,7 +6,9 @@ noisy yaw rate and torques, a few MDPS/ESC faults and a low-speed stretch so eve
 through :func:`lde.step.run_batch`, ``--repeat`` times after one warm-up (numba compilation or
 cache load). Then ``--calls`` single :meth:`lde.step.Estimator.step` calls, each timed with
 ``perf_counter_ns``, ``--repeat`` times. Prints medians with min/max (batch) and p10/p50/p90/p99
-(per call). Target (task brief): an hour of steps in well under 1 s.
+(per call), and the CPU time of the batch runs (``process_time``: on a shared machine the wall
+time also counts waiting for a core; see the load average). Target (task brief): an hour of
+steps in well under 1 s.
 
     python bench/bench_step.py                      # 1 hour, 7 repeats, 20000 live calls
     python bench/bench_step.py --hours 0.1 --repeat 3 --json out.json
@@ -58,13 +60,16 @@ def bench_batch(vehicle, inputs, repeat: int) -> dict:
     run_batch(vehicle=vehicle, **{k: v[:100] for k, v in inputs.items()})
     warm = time.perf_counter() - t0
     n = len(inputs["t_ns"])
-    times = []
+    times, cpu = [], []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         run_batch(vehicle=vehicle, **inputs)
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
     med = statistics.median(times)
     return {
+        "cpu_median_s": statistics.median(cpu),
+        "cpu_min_s": min(cpu),
         "steps": n,
         "warmup_s": warm,
         "median_s": med,
@@ -187,6 +192,10 @@ def main() -> int:
         f"(min {batch['min_s'] * 1e3:.1f}, max {batch['max_s'] * 1e3:.1f}; {args.repeat} repeats), "
         f"{batch['steps_per_s'] / 1e6:.2f} M steps/s, {batch['ns_per_step']:.0f} ns/step "
         f"(warm-up {batch['warmup_s']:.2f} s)"
+    )
+    print(
+        f"run_batch CPU time (process_time; robust on a shared machine): median "
+        f"{batch['cpu_median_s'] * 1e3:.1f} ms, min {batch['cpu_min_s'] * 1e3:.1f} ms"
     )
     print(
         f"Estimator.step: median {live['median_us']:.2f} us/call (p10 {live['p10_us']:.2f}, "
