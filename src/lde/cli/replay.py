@@ -86,6 +86,10 @@ def _summary(path: Path, log, res, elapsed: float) -> str:
         f"{'lde.overlay' if res.overlay else 'not available (T_overlay = 0)'};"
         f" took {elapsed:.3f} s (" + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in res.timings.items()) + ")",
     ]
+    if len(res) == 0:
+        lines.append(
+            "  note: no estimator step: the log has no accepted frame of the profile's anchor (MDPS) message"
+        )
     return "\n".join(lines)
 
 
