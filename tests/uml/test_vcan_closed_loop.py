@@ -1,0 +1,185 @@
+"""Real SocketCAN closed loop: ``lde run`` and ``lde sim`` as separate processes on vcan0.
+
+Marked ``vcan``: runs only where a real vcan0 exists, i.e. inside user-mode Linux
+(``tests/uml/run_in_uml.sh``; the host-side test drives the ``vcan`` tests there). UML runs its
+processes on one CPU, so the service misses deadlines there: as SPEC section 6 says, timing is judged
+by counter continuity and step counts, not by jitter.
+
+One service, two simulator runs of the same scenario and seed, first closed loop (the simulator applies
+the ``LDE_Overlay`` it receives), then open loop (it ignores it). Checked:
+
+* ``candump``: both output messages (``LDE_Estimate``, ``LDE_Overlay``) and ``LDE_Diag`` arrive once
+  per service step, every frame with a valid Profile 1 CRC and the counter +1 mod 15 without gaps;
+* the closed loop works: the driver's holding torque in the simulator's truth is much smaller with
+  the overlay than without;
+* the service's recording on real SocketCAN (kernel timestamps) replays to the live outputs exactly.
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+import shutil
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from lde.e2e import p01_check
+from lde.params import load_vehicle
+from lde.profiles import load_profile
+from lde.recording import read_recording
+from lde.replay import replay_log
+from lde.units import STEP_NS
+
+pytestmark = [pytest.mark.vcan, pytest.mark.slow]
+
+CHANNEL = "vcan0"
+SCENARIO = "light_load"  # 2 m/s crosswind from 3 s: the driver holds < 1 Nm, the overlay takes it over
+SIM_S = 12.0
+SETTLE_S = 7.0  # compare the holding torque after the wind has built up and the overlay ramped in
+LDE = [sys.executable, "-m", "lde"]
+
+
+def _sim(tmp: Path, name: str, *extra: str) -> subprocess.CompletedProcess[str]:
+    cmd = [*LDE, "sim", "-i", "socketcan", "-c", CHANNEL, "--scenario", SCENARIO, "--seed", "5"]
+    cmd += ["--duration", str(SIM_S), "--truth", str(tmp / f"{name}.csv"), *extra]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+
+
+def _driver_torque(path: Path) -> np.ndarray:
+    with path.open() as fh:
+        rows = list(csv.DictReader(fh))
+    t = np.array([float(r["t"]) for r in rows])
+    tq = np.array([float(r["T_driver"]) for r in rows])
+    return tq[t - t[0] >= SETTLE_S]
+
+
+@dataclass
+class Run:
+    tmp: Path
+    dump: Path
+    rec_path: Path
+    closed: subprocess.CompletedProcess[str]
+    open_: subprocess.CompletedProcess[str]
+    service_rc: int
+    service_out: str
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
+    """candump, then ``lde run --record``, then ``lde sim`` closed loop, then open loop; SIGTERM."""
+    if shutil.which("candump") is None:
+        pytest.skip("can-utils (candump) not installed")
+    tmp = tmp_path_factory.mktemp("closed_loop")
+    dump = tmp / "dump.log"
+    rec_path = tmp / "service.mcap"
+    with dump.open("w") as fh:
+        candump = subprocess.Popen(["candump", "-L", CHANNEL], stdout=fh)
+        service = subprocess.Popen(
+            [*LDE, "run", "-i", "socketcan", "-c", CHANNEL, "--backend", "fixed", "--record", str(rec_path)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        try:
+            deadline = time.monotonic() + 120  # until the service is stepping (imports are slow in UML)
+            while time.monotonic() < deadline and not (rec_path.exists() and rec_path.stat().st_size > 4096):
+                time.sleep(0.5)
+            closed = _sim(tmp, "closed")
+            open_ = _sim(tmp, "open", "--open-loop")
+            time.sleep(1.0)
+            service.terminate()  # SIGTERM: ramp out, close the recording
+            out, _ = service.communicate(timeout=120)
+        finally:
+            for p in (service, candump):
+                if p.poll() is None:
+                    p.terminate()
+                    p.wait(timeout=30)
+    print(closed.stderr, open_.stderr, out, sep="\n")
+    return Run(tmp, dump, rec_path, closed, open_, service.returncode, out)
+
+
+def test_processes_end_cleanly(run: Run) -> None:
+    assert run.closed.returncode == 0, run.closed.stderr
+    assert run.open_.returncode == 0, run.open_.stderr
+    assert run.service_rc == 0, run.service_out  # SIGTERM -> ramp out, recording closed, exit 0
+    assert read_recording(run.rec_path).complete
+
+
+def test_outputs_every_step_with_valid_e2e(run: Run) -> None:
+    """candump: one LDE_Estimate, LDE_Overlay and LDE_Diag per step, valid CRC, no counter gap."""
+    profile = load_profile("lde")
+    frames: dict[int, list[bytes]] = defaultdict(list)
+    for m in can.CanutilsLogReader(str(run.dump)):
+        frames[m.arbitration_id].append(bytes(m.data))
+    rec = read_recording(run.rec_path)
+    n_steps = len(rec.step_times_ns)
+    assert n_steps > 1000, f"only {n_steps} steps"
+    for name in ("LDE_Estimate", "LDE_Overlay", "LDE_Diag"):
+        fid = profile.output_id(name)
+        got = frames[fid]
+        assert abs(len(got) - n_steps) <= 2, f"{name}: {len(got)} frames for {n_steps} steps"
+        assert all(p01_check(fid, d) for d in got), name
+        counters = [d[1] & 0x0F for d in got]
+        gaps = [i for i, (a, b) in enumerate(zip(counters, counters[1:], strict=False)) if b != (a + 1) % 15]
+        assert not gaps, f"{name}: counter gaps at {gaps[:5]}"
+    d = rec.diag
+    lat = d["latency_us"][d["latency_us"] >= 0]
+
+    def p(a: np.ndarray, q: float) -> str:
+        return f"{np.percentile(a, q):.0f} us"
+
+    print(
+        f"UML timing over {n_steps} steps: period error p50 {p(d['period_error_us'], 50)} "
+        f"p99 {p(d['period_error_us'], 99)}; step time p50 {p(d['step_time_us'], 50)} "
+        f"p99 {p(d['step_time_us'], 99)}; latency p50 {p(lat, 50)} p99 {p(lat, 99)}; "
+        f"deadline misses {int(d['deadline_misses'][-1])}, skipped {int(d['skipped'][-1])}"
+    )
+
+
+def test_recording_on_socketcan_replays_exactly(run: Run) -> None:
+    """Kernel timestamps, recorded step times: the replay gives the live outputs bit for bit."""
+    rec = read_recording(run.rec_path)
+    _, res = replay_log(run.rec_path, load_profile("lde"), load_vehicle("reference"), backend="fixed")
+    np.testing.assert_array_equal(res.t_ns, rec.step_times_ns)
+    np.testing.assert_array_equal(res.fw, rec.estimate["Fw"])
+    np.testing.assert_array_equal(res.mw, rec.estimate["Mw"])
+    # the SIGTERM ramp-out (overlay switched off, not visible in the frames) is left out
+    n_cmp = len(rec.step_times_ns) - int(3.0e9 / STEP_NS)
+    np.testing.assert_array_equal(res.t_overlay[:n_cmp], rec.estimate["T_overlay"][:n_cmp])
+
+
+def test_closed_loop_relieves_the_driver(run: Run) -> None:
+    """The simulator applies the received overlay: the driver's holding torque drops.
+
+    Judged only when the service kept its 3.9 ms pace during the closed-loop run: UML runs both
+    processes on one (host-shared) CPU, and a service that skips most of its steps cannot keep the
+    MDPS side's E2E receiver (timeout 3 periods) trusting its overlay requests.
+    """
+    used = int(re.search(r"overlay frames used (\d+)", run.closed.stderr).group(1))
+    rec = read_recording(run.rec_path)
+    t = rec.step_times_ns
+    t_end = int(t[-1])
+    # the closed-loop run is the first SIM_S seconds of simulator traffic; steps per wall second there
+    rx_t = rec.rx.t_ns
+    first_rx = int(rx_t[0]) if len(rx_t) else t_end
+    window = (t >= first_rx) & (t < first_rx + int(SIM_S * 1e9))
+    pace = np.count_nonzero(window) / (SIM_S * 1e9 / STEP_NS)
+    on = np.mean(np.abs(_driver_torque(run.tmp / "closed.csv")))
+    off = np.mean(np.abs(_driver_torque(run.tmp / "open.csv")))
+    print(
+        f"closed loop: service pace {100 * pace:.0f} % of 256 steps/s, overlay frames used by the simulator "
+        f"{used}; mean |T_driver| after {SETTLE_S} s: closed loop {on:.3f} Nm, open loop {off:.3f} Nm"
+    )
+    if pace < 0.9:
+        pytest.skip(f"UML too slow here: the service ran {100 * pace:.0f} % of its steps (needs >= 90 %)")
+    assert used > 0.5 * SIM_S * 1e9 / STEP_NS
+    assert off > 0.2
+    assert on < 0.6 * off
