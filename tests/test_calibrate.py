@@ -167,3 +167,12 @@ def test_compensation_removes_friction_offset_and_bias_from_grid_inputs():
     ).steer_offset == pytest.approx(DEG)
     with pytest.raises(Exception, match="unknown compensation option"):
         Compensation.from_options({"frcition_Nm": 1})
+
+
+def test_identifies_a_yaw_rate_bias():
+    v = _truth_vehicle()
+    d = _drive(v)
+    d = replace(d, yaw_rate=d.yaw_rate + 0.2 * DEG)
+    cal = calibrate.calibrate(d, load_vehicle("reference"))
+    assert cal.yaw_bias == pytest.approx(0.2 * DEG, abs=0.01 * DEG)
+    assert cal.cf == pytest.approx(52000.0, rel=0.05)

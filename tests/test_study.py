@@ -54,3 +54,58 @@ def test_spec_label_and_row_carry_options():
     assert s.label == "light/rear/reference/s0/friction_Nm=0.6/comp=1"
     row = study.RunResult(s, None, "boom").as_row()
     assert row["sim_options"] == "friction_Nm=0.6" and row["error"] == "boom"
+
+
+def _acc(kind, f, m):
+    from lde.metrics import Accuracy
+
+    return Accuracy(kind, 100, f * 1000, m * 500, m * 500, 1000.0, 500.0, 500.0, f, m, m)
+
+
+def test_pivot_markdown_means_over_seeds_and_marks_failures():
+    from lde.metrics import Kind
+
+    res = [
+        study.RunResult(RunSpec("heavy_load", seed=0, group="A"), _acc(Kind.DISTURBED, 0.02, 0.04)),
+        study.RunResult(RunSpec("heavy_load", seed=1, group="A"), _acc(Kind.DISTURBED, 0.04, 0.06)),
+        study.RunResult(RunSpec("heavy_load", group="B"), None, "boom"),
+        study.RunResult(RunSpec("lane_change", group="A"), _acc(Kind.UNDISTURBED, 0.016, 0.012)),
+    ]
+    text = study.pivot_markdown(res)
+    lines = text.splitlines()
+    assert lines[0] == "| scenario | A | B |"
+    assert lines[2] == "| heavy_load | 3.0 / 5.0 | failed |"
+    assert lines[3].startswith("| lane_change | 16 N / 6 Nm |")
+
+
+def test_a_spinning_simulated_car_is_discarded():
+    import numpy as np
+
+    from lde.errors import LdeError
+    from lde.units import DEG
+
+    ok = {"delta_sw": np.array([0.0, 10 * DEG]), "vx": np.array([27.8, 27.5])}
+    study._check_plant(ok)
+    with pytest.raises(LdeError, match="lost control"):
+        study._check_plant({"delta_sw": np.array([0.0, 400 * DEG]), "vx": np.array([27.8, 27.0])})
+    with pytest.raises(LdeError, match="lost control"):
+        study._check_plant({"delta_sw": np.array([0.0, 1 * DEG]), "vx": np.array([27.8, -3.0])})
+
+
+def test_tire_vehicle_file_extends_the_candidate(tmp_path):
+    from lde.params import load_vehicle
+
+    p = study.write_tire_vehicle(tmp_path / "est3_fig12.toml", "est3", 61800.0, 55700.0, 7120.0, "note")
+    v = load_vehicle(p)
+    assert v.body.mass == load_vehicle("est3").body.mass
+    assert (v.tires.cf, v.tires.cr, v.tires.align_rate) == (61800.0, 55700.0, 7120.0)
+
+
+def test_ladder_and_fault_specs_cover_every_step():
+    lad = study.ladder_specs("est3", "/x/est3_fig12.toml", seeds=(0, 1))
+    assert len(lad) == 6 * len(study.TARGET_SCENARIOS) * 2
+    assert len({s.group for s in lad}) == 6
+    assert any(dict(s.est_options).get("payload_known") for s in lad)
+    faults = study.fault_specs("est3", "/x/est3_fig12.toml", seeds=(0,))
+    assert {s.group.split(" / ")[1] for s in faults} == {"uncompensated", "learned"}
+    assert all(s.sim_options for s in faults)

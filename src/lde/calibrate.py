@@ -4,8 +4,9 @@ Inputs are the estimator's SI inputs on the step grid (:class:`DriveData`): stee
 and rate, yaw rate, lateral acceleration, speed, column and assist torque. The body parameters
 (m, Iz, lf, lr, N) come from a base vehicle file; identified are the per-tire cornering
 stiffnesses ``Cf``, ``Cr``, the aligning-torque rate ``K``, and — because they bias the estimate
-exactly like a disturbance would — the steering Coulomb friction, a steering-angle offset and an
-aligning-torque (torque-sensor) offset.
+exactly like a disturbance would — the steering Coulomb friction, a steering-angle offset, a
+yaw-rate bias (the mean measured yaw rate: the drive must end on its initial heading, as a lane
+change and back on a straight road does) and an aligning-torque (torque-sensor) offset.
 
 Method (least squares on the bicycle-model equations, no disturbance: Fw = Mw = 0). With
 ``a_y`` the measured lateral acceleration and ``r_dot`` the derivative of the yaw rate, eqs. (7)-(8)
@@ -35,6 +36,19 @@ linear in the trail ``K/Cf`` [m], the Coulomb friction ``T_fric`` [Nm at the col
 offset ``T_0`` [Nm]; ``K = Cf (K/Cf)``. ``w`` (:data:`FRICTION_RATE_WIDTH`) smooths the sign and
 ``S`` is the low-pass below, applied to the regressor as to the torque it explains.
 
+The lateral accelerometer rolls with the body and reads ``s a_y`` with ``s = 1 + g k_roll`` (about
+1.06 for a sedan's 0.0065 rad per m/s^2): forces from (a) come out s times too large. The kinematics
+give s and K without that error: with ``alpha_f = T_align,corr / (2K)`` (friction and offset of
+(c) removed) and the road-wheel angle corrected for twist and offset,
+
+    beta = delta_f - lf r / vx - alpha_f,     a_y,meas = s vx (beta_dot + r)
+         = s vx (d/dt(delta_f - lf r/vx) + r) - (s / K) vx T_align,corr_dot / 2               (d)
+
+linear in (s, s/K). The fit runs (a)-(c), then (d), then (a)-(c) again on ``a_y / s``; it takes
+``Cf = K / trail`` (the aligning torque and the kinematics pin Cf better than (b), whose
+regressors carry the sensors' sample-and-hold delays) and solves (b) once more for Cr, c_tb and d0
+with that Cf.
+
 All signals go through the same zero-phase Gaussian low-pass (sigma :data:`SMOOTH_S`) before
 ``r_dot`` is taken, so that no signal leads another. Samples are used where the speed exceeds
 the estimator's minimum speed and the lateral acceleration stays in the tires' linear range
@@ -63,6 +77,8 @@ FRICTION_RATE_WIDTH = 2.0 * DEG
 MAX_COND = 1.0e4
 #: ... and with the torsion compliance as a fourth unknown, this (else the column is taken as rigid)
 TORSION_MAX_COND = 100.0
+#: plausible range of the accelerometer scale s (roll tilt: 1 + g x roll gradient) [-]
+MIN_ACCEL_SCALE, MAX_ACCEL_SCALE = 0.85, 1.25
 #: fewer usable samples than this is an error
 MIN_SAMPLES = 500
 
@@ -102,9 +118,13 @@ class Calibration:
         trail: K / Cf [m] (pneumatic plus mechanical trail).
         friction: Coulomb friction of the steering referred to the column [Nm].
         steer_offset: steering-wheel angle offset [rad] (measured minus true).
+        yaw_bias: yaw-rate sensor bias [rad/s] (measured minus true): the mean measured yaw rate
+            over the drive, which must end on its initial heading.
         align_offset: offset of N (T_column + T_assist) [Nm] at the steering axis.
         torsion_compliance: c_tb, steering-wheel angle per column torque [rad/Nm] (0: rigid).
         torsion_identified: False when c_tb was not separable and the column was taken as rigid.
+        accel_scale: s, lateral accelerometer reading per true lateral acceleration [-] (the body
+            roll tilts the sensor toward gravity: s = 1 + g x roll gradient).
         n: samples used; rms_slip: residual of (b) [rad]; rms_align: residual of (c) [Nm].
         cond: condition number of the (b) regression (large: Cf and Cr not separable).
     """
@@ -115,9 +135,11 @@ class Calibration:
     trail: float
     friction: float
     steer_offset: float
+    yaw_bias: float
     align_offset: float
     torsion_compliance: float
     torsion_identified: bool
+    accel_scale: float
     n: int
     rms_slip: float
     rms_align: float
@@ -131,8 +153,9 @@ class Calibration:
             f"Cf = {self.cf:.0f} N/rad, Cr = {self.cr:.0f} N/rad, K = {self.align_rate:.0f} Nm/rad "
             f"(trail {1000 * self.trail:.1f} mm), steering friction {self.friction:.3f} Nm at the column, "
             f"steering-angle offset {self.steer_offset / DEG:.2f} deg, "
+            f"yaw-rate bias {self.yaw_bias / DEG:.3f} deg/s, "
             f"T_align offset {self.align_offset:.2f} Nm, "
-            f"torsion bar {self._torsion()}; "
+            f"torsion bar {self._torsion()}, accelerometer scale {self.accel_scale:.3f}; "
             f"{self.n} samples, residuals {self.rms_slip / DEG:.3f} deg and {self.rms_align:.2f} Nm, "
             f"cond {self.cond:.0f}"
         )
@@ -172,8 +195,7 @@ def calibrate(
     dt = float(np.median(np.diff(t)))
     if not dt > 0.0:
         raise CalibrationError("drive time must increase")
-    b = base.body
-    m, iz, lf, lr, L, N = b.mass, b.yaw_inertia, b.lf, b.lr, b.wheelbase, base.steering.ratio
+    N = base.steering.ratio
     sig = smooth_s / dt
 
     def sm(a: np.ndarray) -> np.ndarray:
@@ -208,18 +230,90 @@ def calibrate(
             f"|a_y| < {MAX_LAT_ACCEL} m/s^2, valid inputs); at least {MIN_SAMPLES} are needed"
         )
 
+    # a yaw-rate bias: the drive returns to its initial heading (a straight road, a lane change and
+    # back), so the true yaw rate averages to zero over it and the measured mean is the bias
+    yaw_bias = float(np.mean(r[use]))
+    r = r - yaw_bias
+    # pass 1: (a)-(c) with the accelerometer as it reads
+    p1 = _fit_bc(ay, r, r_dot, vx, delta_f, t_col, t_align, fric_sign, use, base, identify_torsion)
+    # (d) accelerometer scale s and K from the kinematics, beta from the aligning torque
+    scale, k = _fit_d(p1, ay, r, vx, delta_f, t_col, t_align, fric_sign, t, use, base)
+    # pass 2: (a)-(c) with a_y / s; Cf = K / trail, then (b) for Cr with Cf fixed
+    p2 = _fit_bc(ay / scale, r, r_dot, vx, delta_f, t_col, t_align, fric_sign, use, base, identify_torsion)
+    cf = k / p2.trail
+    p3 = _fit_bc(
+        ay / scale, r, r_dot, vx, delta_f, t_col, t_align, fric_sign, use, base, identify_torsion, cf_fixed=cf
+    )
+    return Calibration(
+        cf=cf,
+        cr=p3.cr,
+        align_rate=k,
+        trail=p2.trail,
+        friction=p2.friction,
+        steer_offset=p3.d0 * N,
+        yaw_bias=yaw_bias,
+        align_offset=p2.t0,
+        torsion_compliance=p3.c_tb,
+        torsion_identified=p3.torsion_ok,
+        accel_scale=scale,
+        n=n,
+        rms_slip=p3.rms_slip,
+        rms_align=p2.rms_align,
+        cond=p3.cond,
+    )
+
+
+@dataclass(frozen=True)
+class _PassBC:
+    cf: float
+    cr: float
+    d0: float
+    c_tb: float
+    torsion_ok: bool
+    cond: float
+    rms_slip: float
+    trail: float
+    friction: float
+    t0: float
+    rms_align: float
+
+
+def _fit_bc(
+    ay: np.ndarray,
+    r: np.ndarray,
+    r_dot: np.ndarray,
+    vx: np.ndarray,
+    delta_f: np.ndarray,
+    t_col: np.ndarray,
+    t_align: np.ndarray,
+    fric_sign: np.ndarray,
+    use: np.ndarray,
+    base: Vehicle,
+    identify_torsion: bool,
+    cf_fixed: float | None = None,
+) -> _PassBC:
+    """Regressions (a)-(c) of the module docstring on the smoothed signals (rows ``use``)."""
+    b = base.body
+    m, iz, lf, lr, L, N = b.mass, b.yaw_inertia, b.lf, b.lr, b.wheelbase, base.steering.ratio
+    n = int(np.count_nonzero(use))
     # (a) per-tire axle forces from the measurements
     ff = (lr * m * ay + iz * r_dot) / (2.0 * L)
     fr = (lf * m * ay - iz * r_dot) / (2.0 * L)
     # (b) delta_sw/N - L r / vx = Ff/Cf - Fr/Cr + (Tcol/N) c_tb + d0
     y1 = delta_f[use] - L * r[use] / vx[use]
-    base_cols = [ff[use], -fr[use], np.ones(n)]
+    if cf_fixed is not None:
+        y1 = y1 - ff[use] / cf_fixed
+        base_cols = [-fr[use], np.ones(n)]
+    else:
+        base_cols = [ff[use], -fr[use], np.ones(n)]
     c1, cond, X1 = _lstsq(np.column_stack(base_cols + [t_col[use] / N]), y1)
     torsion_ok = identify_torsion and cond <= TORSION_MAX_COND
     if not torsion_ok:
         c1, cond, X1 = _lstsq(np.column_stack(base_cols), y1)
         c1 = np.append(c1, 0.0)
         X1 = np.column_stack([X1, np.zeros(n)])
+    if cf_fixed is not None:
+        c1 = np.concatenate([[1.0 / cf_fixed], c1])
     comp_f, comp_r, d0, c_tb = (float(v) for v in c1)
     if cond > MAX_COND:
         raise CalibrationError(
@@ -231,9 +325,8 @@ def calibrate(
             f"identified compliances are not positive (1/Cf = {comp_f:.3g}, 1/Cr = {comp_r:.3g} rad/N): "
             "the drive lacks transient steering (a lane change or a slalom identifies Cf and Cr)"
         )
-    cf, cr = 1.0 / comp_f, 1.0 / comp_r
-    res1 = y1 - X1 @ c1
-    # (c) N (Tcol + Tassist) = trail 2Ff + N T_fric tanh(rate/w) + T_0
+    res1 = y1 - X1 @ c1[1:] if cf_fixed is not None else y1 - X1 @ c1
+    # (c) N (Tcol + Tassist) = trail 2Ff + N T_fric S(tanh(rate/w)) + T_0
     X2 = np.column_stack([2.0 * ff[use], N * fric_sign[use], np.ones(n)])
     y2 = t_align[use]
     c2, *_ = np.linalg.lstsq(X2, y2, rcond=None)
@@ -241,24 +334,56 @@ def calibrate(
     res2 = y2 - X2 @ c2
     if not trail > 0.0:
         raise CalibrationError(f"identified trail K/Cf = {trail:.3g} m is not positive")
-    return Calibration(
-        cf=cf,
-        cr=cr,
-        align_rate=trail * cf,
+    return _PassBC(
+        cf=1.0 / comp_f,
+        cr=1.0 / comp_r,
+        d0=d0,
+        c_tb=c_tb,
+        torsion_ok=torsion_ok,
+        cond=cond,
+        rms_slip=float(np.sqrt(np.mean(res1**2))),
         trail=trail,
         friction=fric,
-        steer_offset=d0 * N,
-        align_offset=t0,
-        torsion_compliance=c_tb,
-        torsion_identified=torsion_ok,
-        n=n,
-        rms_slip=float(np.sqrt(np.mean(res1**2))),
+        t0=t0,
         rms_align=float(np.sqrt(np.mean(res2**2))),
-        cond=cond,
     )
 
 
-def vehicle_toml(cal: Calibration, base: Vehicle, name: str = "calibrated", log: str = "") -> str:
+def _fit_d(
+    p: _PassBC,
+    ay: np.ndarray,
+    r: np.ndarray,
+    vx: np.ndarray,
+    delta_f: np.ndarray,
+    t_col: np.ndarray,
+    t_align: np.ndarray,
+    fric_sign: np.ndarray,
+    t: np.ndarray,
+    use: np.ndarray,
+    base: Vehicle,
+) -> tuple[float, float]:
+    """(d): accelerometer scale s and K from a_y = s vx (beta_dot + r), beta = delta - lf r/vx - alpha_f.
+
+    ``alpha_f = T_align,corr / (2K)`` with the friction and offset of pass 1; the road-wheel angle
+    corrected for the torsion twist and offset. Linear in (s, s/K)."""
+    N, lf = base.steering.ratio, base.body.lf
+    ta = t_align - N * p.friction * fric_sign - p.t0
+    dc = delta_f - p.c_tb * t_col / N - p.d0
+    u1 = vx * (np.gradient(dc - lf * r / vx, t) + r)
+    u2 = vx * np.gradient(ta, t) / 2.0
+    X = np.column_stack([u1[use], u2[use]])
+    (a, b), *_ = np.linalg.lstsq(X, ay[use], rcond=None)
+    if not (MIN_ACCEL_SCALE <= a <= MAX_ACCEL_SCALE and b < 0.0):
+        raise CalibrationError(
+            f"accelerometer scale {a:.3f} (or the aligning-torque slope) is implausible: "
+            "check the lateral-acceleration signal and the steering ratio"
+        )
+    return float(a), float(-a / b)
+
+
+def vehicle_toml(
+    cal: Calibration, base: Vehicle, name: str = "calibrated", log: str = "", full: Calibration | None = None
+) -> str:
     """A vehicle file that ``extends`` the base vehicle and overrides ``[tires]``.
 
     Friction and offsets are written as comments: the vehicle schema has no keys for them yet.
@@ -273,13 +398,23 @@ def vehicle_toml(cal: Calibration, base: Vehicle, name: str = "calibrated", log:
     from_log = f" from {log}" if log else ""
     lines = [
         f"# Written by `lde calibrate`{from_log}: linear-equivalent tire parameters identified by least",
-        "# squares on the bicycle-model equations over a drive without disturbance (src/lde/calibrate.py).",
+        "# squares on the bicycle-model equations over a drive without disturbance (src/lde/calibrate.py),",
+        "# for the estimator step as it is (steering angle / N taken as the road-wheel angle, friction",
+        "# not modelled): the torsion-bar twist is folded into these effective values.",
         f"# {cal.n} samples; residuals {cal.rms_slip / DEG:.4f} deg (slip balance) and "
         f"{cal.rms_align:.3f} Nm (aligning torque); condition number {cal.cond:.1f}.",
-        f"# Also identified (not yet in the vehicle schema): steering Coulomb friction {cal.friction:.3f} Nm "
-        "at the column,",
-        f"# steering-wheel angle offset {cal.steer_offset / DEG:.3f} deg, "
-        f"T_align offset {cal.align_offset:.3f} Nm.",
+    ]
+    if full is not None:
+        lines += [
+            "# Full calibration (for the compensated estimator lde.adaptive; not in the vehicle schema yet):",
+            f"#   Cf {full.cf:.0f} N/rad, Cr {full.cr:.0f} N/rad, K {full.align_rate:.0f} Nm/rad,",
+            f"#   torsion bar {_torsion_text(full.torsion_compliance, full.torsion_identified)},",
+        ]
+    lines += [
+        f"#   steering Coulomb friction {cal.friction:.3f} Nm at the column, accelerometer scale "
+        f"{cal.accel_scale:.3f},",
+        f"#   steering-wheel angle offset {cal.steer_offset / DEG:.3f} deg, yaw-rate bias "
+        f"{cal.yaw_bias / DEG:.4f} deg/s, T_align offset {cal.align_offset:.3f} Nm.",
         f"extends = {_toml_str(extends)}",
         f"name = {_toml_str(name)}",
         f"description = {_toml_str(f'{base.name} with tires calibrated by lde calibrate{from_log}')}",
@@ -307,13 +442,18 @@ def _toml_str(s: str) -> str:
 
 
 def write_vehicle(
-    cal: Calibration, base: Vehicle, path: Path, name: str = "calibrated", log: str = ""
+    cal: Calibration,
+    base: Vehicle,
+    path: Path,
+    name: str = "calibrated",
+    log: str = "",
+    full: Calibration | None = None,
 ) -> Path:
     """Write :func:`vehicle_toml` to ``path`` and check that it loads."""
     from .params import load_vehicle
 
     try:
-        path.write_text(vehicle_toml(cal, base, name=name, log=log))
+        path.write_text(vehicle_toml(cal, base, name=name, log=log, full=full))
     except OSError as exc:
         raise ConfigError(f"cannot write {path}: {exc}") from exc
     load_vehicle(path)

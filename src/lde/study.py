@@ -208,13 +208,20 @@ def simulate_and_estimate(
     from .step import Status
 
     sim = _simulate(spec, spec.scenario, spec.seed)
+    _check_plant(sim.truth)
     vehicle = load_vehicle(spec.est_vehicle)
     profile = load_profile(spec.profile)
     if spec.estimator == "replay":
         from .replay import replay
 
-        if spec.est_options:
-            raise ConfigError("estimator options need --estimator adaptive")
+        opts = dict(spec.est_options)
+        cal_scenario = opts.pop("calibrate", None)
+        if opts:
+            raise ConfigError(f"estimator options {sorted(opts)} need --estimator adaptive")
+        if cal_scenario:
+            # what `lde calibrate` writes: effective tires for the step as it is (no torsion model)
+            cal = _calibrate_on(spec, str(cal_scenario), vehicle, profile, identify_torsion=False)
+            vehicle = _with_tires(vehicle, cal.cf, cal.cr, cal.align_rate)
         out = replay(sim.frames, profile, vehicle, spec.backend)
         t_ns, fw, mw, status = out.t_ns, out.fw, out.mw, out.status
     elif spec.estimator == "adaptive":
@@ -229,15 +236,11 @@ def simulate_and_estimate(
             vehicle = vehicle.with_body(mass=b.mass, yaw_inertia=b.yaw_inertia, lf=b.lf, lr=b.lr)
         comp = adaptive.Compensation.from_options(opts)
         if cal_scenario:
-            from .calibrate import calibrate
-
-            cal_sim = _simulate(spec, str(cal_scenario), spec.seed + CALIBRATION_SEED_OFFSET)
-            cal = calibrate(
-                adaptive.drive_from_grid(adaptive.grid_from_frames(cal_sim.frames, profile)), vehicle
-            )
+            cal = _calibrate_on(spec, str(cal_scenario), vehicle, profile)
             comp = adaptive.Compensation(
                 friction=cal.friction,
                 steer_offset=cal.steer_offset,
+                yaw_bias=cal.yaw_bias,
                 align_offset=cal.align_offset,
                 torsion_compliance=cal.torsion_compliance,
             )
@@ -252,6 +255,33 @@ def simulate_and_estimate(
     tr = sim.truth
     truth = metrics.Truth(t=np.asarray(tr["t"]), fw=tr["Fw"], mw=tr["Mw"], mw_ref=tr["Mw_ref"])
     return np.asarray(t_ns, dtype=np.float64) * 1e-9, fw, mw, valid, truth
+
+
+#: a run whose simulated driver needs more steering than this lost control [rad]
+MAX_STEERING_WHEEL = 180.0 * DEG
+
+
+def _check_plant(truth: dict[str, np.ndarray]) -> None:
+    """Reject a run in which the simulated car left the straight-driving domain (a spin)."""
+    dsw = float(np.max(np.abs(truth["delta_sw"])))
+    vx = np.asarray(truth["vx"])
+    if dsw > MAX_STEERING_WHEEL or float(vx.min()) < 0.5 * float(vx[0]):
+        raise LdeError(
+            f"the simulated vehicle lost control (|steering wheel| up to {dsw / DEG:.0f} deg, "
+            f"speed down to {float(vx.min()):.1f} m/s): not a straight-driving case, run discarded"
+        )
+
+
+def _calibrate_on(
+    spec: RunSpec, scenario: str, vehicle: Any, profile: Any, identify_torsion: bool = True
+) -> Any:
+    """Calibrate on an undisturbed drive of the same simulated car (another seed)."""
+    from . import adaptive
+    from .calibrate import calibrate
+
+    cal_sim = _simulate(spec, scenario, spec.seed + CALIBRATION_SEED_OFFSET)
+    grid = adaptive.grid_from_frames(cal_sim.frames, profile)
+    return calibrate(adaptive.drive_from_grid(grid), vehicle, identify_torsion=identify_torsion)
 
 
 def _with_tires(vehicle: Any, cf: float, cr: float, k: float) -> Any:
@@ -502,7 +532,7 @@ def preset_specs(
             sim_options=sim_options,
             estimator=estimator,
             est_options=est_options,
-            trace_candidate="est3" if "est3" in cands else cands[0],
+            trace_candidate=next((c for c in cands if Path(c).stem.startswith("est3")), cands[0]),
             backend=backend,
         )
     if preset == "smoke":
@@ -628,11 +658,15 @@ def ladder_specs(
         (f"1 {winner} (Table 1 winner)", dict(est_vehicle=winner)),
         ("2 + Fig. 12 tires", dict(est_vehicle=tire_vehicle)),
         (
-            "3 + calibration (friction, torsion, accel.)",
+            "3 tires from lde calibrate (step as is)",
+            dict(est_vehicle=winner, est_options=(("calibrate", "lane_change"),)),
+        ),
+        (
+            "4 + learned compensation (friction, torsion, offsets)",
             dict(est_vehicle=winner, estimator="adaptive", est_options=(("calibrate", "lane_change"),)),
         ),
         (
-            "4 + load-scheduled m, Iz, CG",
+            "5 + load-scheduled m, Iz, CG",
             dict(
                 est_vehicle=winner,
                 estimator="adaptive",
@@ -743,7 +777,8 @@ def rank_candidates(results: Sequence[RunResult], key: str = "est_vehicle") -> l
     groups: dict[str, list[metrics.Accuracy]] = {}
     for r in results:
         if r.ok and r.accuracy is not None:
-            groups.setdefault(str(getattr(r.spec, key)), []).append(r.accuracy)
+            name = str(getattr(r.spec, key))
+            groups.setdefault(Path(name).stem if name.endswith(".toml") else name, []).append(r.accuracy)
     scores = []
     for name, accs in groups.items():
         scores.append(

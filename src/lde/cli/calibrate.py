@@ -4,8 +4,10 @@ LOG is any log ``lde replay`` reads (MCAP, candump ``-L``, python-can formats) o
 significant disturbance* (still air, flat road) with transient steering: a few lane changes or a
 slalom at 60-120 km/h. Body parameters (mass, yaw inertia, CG, steering ratio) come from
 ``--vehicle`` (default: reference); the result is a vehicle file that ``extends`` it and overrides
-``[tires]``, for ``lde run/replay --vehicle FILE``. Method: ``lde.calibrate`` (least squares on the
-bicycle-model equations; friction and offsets as extra regressors).
+``[tires]`` with effective values for the estimator step as it is (the torsion-bar twist folded
+in), for ``lde run/replay --vehicle FILE``; the full calibration (tire values with the torsion bar
+modelled, friction, offsets, accelerometer scale) is written as comments. Method: ``lde.calibrate``
+(least squares on the bicycle-model equations; friction and offsets as extra regressors).
 """
 
 from __future__ import annotations
@@ -44,8 +46,12 @@ def run(args: argparse.Namespace) -> int:
     base = load_vehicle(args.vehicle)
     log = read_log(args.log)
     grid = grid_from_frames(log.frames, args.profile)
-    cal = calibrate(drive_from_grid(grid), base)
-    out = write_vehicle(cal, base, args.out, name=args.name, log=str(args.log))
-    print(cal.summary())
+    drive = drive_from_grid(grid)
+    full = calibrate(drive, base)
+    # the file is for the estimator step as it is: no torsion model, so fit effective values
+    cal = calibrate(drive, base, identify_torsion=False)
+    out = write_vehicle(cal, base, args.out, name=args.name, log=str(args.log), full=full)
+    print("full calibration:        " + full.summary())
+    print("effective (vehicle file): " + cal.summary())
     print(f"wrote {out}")
     return 0

@@ -137,99 +137,133 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.seeds < 1:
         raise ConfigError("--seeds must be >= 1")
-    out: Path = args.out
-    seeds = tuple(range(args.seeds))
-    cluster = cluster_config(args)
-    progress = not args.no_progress
-    report: list[str] = []
-    failed = 0
+    ctx = _Ctx(
+        out=args.out,
+        seeds=tuple(range(args.seeds)),
+        cluster=cluster_config(args),
+        progress=not args.no_progress,
+    )
     winner = args.winner
-    if args.preset in ("paper", "smoke", "all"):
-        preset = "paper" if args.preset == "all" else args.preset
-        specs = study.preset_specs(
-            preset,
-            seeds=seeds,
-            candidates=args.candidates,
-            scenarios=args.scenarios,
-            payloads=args.payloads,
-            duration=args.duration,
-            estimator=args.estimator,
-            backend=args.backend,
-            sim_options=parse_options(args.sim_option, "--sim-option"),
-            est_options=parse_options(args.est_option, "--est-option"),
+    sweep_kw = dict(
+        scenarios=args.scenarios,
+        payloads=args.payloads,
+        duration=args.duration,
+        estimator=args.estimator,
+        backend=args.backend,
+        sim_options=parse_options(args.sim_option, "--sim-option"),
+        est_options=parse_options(args.est_option, "--est-option"),
+    )
+    if args.preset in ("paper", "smoke"):
+        winner = _sweep(ctx, args.preset, args.candidates, sweep_kw, "Table 1 sets as shipped")
+    if args.preset == "all":
+        cands = tuple(args.candidates or study.CANDIDATES)
+        tire_files = _fig12(ctx, cands)
+        _sweep(ctx, "paper", cands, sweep_kw, "Table 1 sets with the shipped (placeholder) tires")
+        best = _sweep(
+            ctx, "paper_fig12", tuple(tire_files.values()), sweep_kw, "Table 1 sets with the Fig. 12 tires"
         )
-        results = _run(specs, preset, cluster, progress)
-        failed += _failures(results)
-        study.write_csv(results, out / f"{preset}_runs.csv")
-        scores = study.rank_candidates(results)
-        if scores:
-            study.write_scores_csv(scores, out / f"{preset}_scores.csv")
-            study.plot_error_index(scores, out / f"{preset}_error_index.png")
-            text = study.scores_table(scores)
-            print(text)
-            winner = scores[0].candidate
-            print(f"\nwinner (smallest mean error index J): {winner}")
-            report += [
-                f"## {preset}: error index per candidate set ({len(results)} runs)",
-                "",
-                "```",
-                text,
-                "```",
-                "",
-                f"Winner: **{winner}**.",
-                "",
-            ]
-        if any(r.trace is not None for r in results):
-            study.plot_traces(results, out / f"{preset}_traces.png")
+        winner = winner or Path(best).stem.removesuffix("_fig12")
     if args.preset in ("ladder", "faults", "all"):
         winner = winner or "est3"
-        ids = study.identify_tires(seeds=seeds)
-        cf, cr, k = study.representative_tires(ids)
-        _write_rows([dataclasses.asdict(i) for i in ids], out / "tires_fig12.csv")
-        study.plot_tires(ids, out / "tires_fig12.png")
-        note = "Fig. 12 on vcan_sim: " + "; ".join(
-            f"{i.scenario}: Cf {i.cf:.0f}, Cr {i.cr:.0f}, K {i.k:.0f}" for i in ids
-        )
-        tire_vehicle = study.write_tire_vehicle(
-            (out / "vehicles" / f"{winner}_fig12.toml").resolve(), winner, cf, cr, k, note
-        )
-        print(note)
-        report += ["## Fig. 12: linear-equivalent tires (per tire)", "", note, ""]
+        tire_vehicle = _fig12(ctx, (winner,))[winner] if args.preset != "all" else tire_files[winner]
         for preset, make in (("ladder", study.ladder_specs), ("faults", study.fault_specs)):
             if args.preset not in (preset, "all"):
                 continue
-            specs = make(winner, str(tire_vehicle), seeds=seeds, duration=args.duration)
-            results = _run(specs, preset, cluster, progress)
-            failed += _failures(results)
-            study.write_csv(results, out / f"{preset}_runs.csv")
+            specs = make(winner, tire_vehicle, seeds=ctx.seeds, duration=args.duration)
+            results = _run(specs, preset, ctx)
+            study.write_csv(results, ctx.out / f"{preset}_runs.csv")
             table = study.pivot_markdown(results)
             print(table)
-            report += [f"## {preset}: NRMSE Fw / Mw in % (undisturbed: RMS of the estimate)", "", table, ""]
+            ctx.report += [
+                f"## {preset}: NRMSE Fw / Mw in % (undisturbed: RMS of the estimate)",
+                "",
+                table,
+                "",
+            ]
             if preset == "ladder":
-                last = [r for r in results if r.spec.group.startswith("4") and r.trace is not None]
-                first = [r for r in results if r.spec.group.startswith("0") and r.trace is not None]
-                if last:
-                    study.plot_traces(last, out / "ladder_final_traces.png", title="final estimator")
-                if first:
-                    study.plot_traces(
-                        first, out / "ladder_reference_traces.png", title="reference vehicle file"
-                    )
-    if report:
-        (out / f"summary_{args.preset}.md").write_text("\n".join(report) + "\n")
-    print(f"results in {out}/")
-    return 1 if failed else 0
+                for prefix, name, title in (
+                    ("5", "ladder_final_traces.png", "final estimator (step 5)"),
+                    ("0", "ladder_reference_traces.png", "reference vehicle file (step 0)"),
+                ):
+                    tr = [r for r in results if r.spec.group.startswith(prefix) and r.trace is not None]
+                    if tr:
+                        study.plot_traces(tr, ctx.out / name, title=title)
+    if ctx.report:
+        (ctx.out / f"summary_{args.preset}.md").write_text("\n".join(ctx.report) + "\n")
+    print(f"results in {ctx.out}/")
+    return 1 if ctx.failed else 0
 
 
-def _run(specs, name, cluster, progress):
+@dataclasses.dataclass
+class _Ctx:
+    out: Path
+    seeds: tuple[int, ...]
+    cluster: study.ClusterConfig
+    progress: bool
+    report: list[str] = dataclasses.field(default_factory=list)
+    failed: int = 0
+
+
+def _sweep(ctx: _Ctx, preset: str, candidates, sweep_kw: dict, what: str) -> str:
+    """A candidate sweep: CSV, scores, Fig. 11-style bars and Fig. 13/14-style traces; the winner."""
+    base = "smoke" if preset == "smoke" else "paper"
+    specs = study.preset_specs(base, seeds=ctx.seeds, candidates=candidates, **sweep_kw)
+    results = _run(specs, preset, ctx)
+    study.write_csv(results, ctx.out / f"{preset}_runs.csv")
+    scores = study.rank_candidates(results)
+    if not scores:
+        raise ConfigError(f"{preset}: every run failed (see above)")
+    study.write_scores_csv(scores, ctx.out / f"{preset}_scores.csv")
+    study.plot_error_index(scores, ctx.out / f"{preset}_error_index.png", title=f"Error index: {what}")
+    text = study.scores_table(scores)
+    winner = scores[0].candidate
+    print(text)
+    print(f"\nwinner (smallest mean error index J): {winner}")
+    n_bad = sum(not r.ok for r in results)
+    ctx.report += [
+        f"## {preset}: {what} ({len(results)} runs, {n_bad} discarded)",
+        "",
+        "```",
+        text,
+        "```",
+        "",
+        f"Winner: **{Path(winner).stem}**.",
+        "",
+    ]
+    if any(r.trace is not None for r in results):
+        study.plot_traces(results, ctx.out / f"{preset}_traces.png")
+    return winner
+
+
+def _fig12(ctx: _Ctx, candidates) -> dict[str, str]:
+    """Identify the tires under heavy and light load; write ``vehicles/<cand>_fig12.toml`` per candidate."""
+    ids = study.identify_tires(seeds=ctx.seeds)
+    cf, cr, k = study.representative_tires(ids)
+    _write_rows([dataclasses.asdict(i) for i in ids], ctx.out / "tires_fig12.csv")
+    study.plot_tires(ids, ctx.out / "tires_fig12.png")
+    note = "Fig. 12 on vcan_sim (per tire): " + "; ".join(
+        f"{i.scenario}: Cf {i.cf:.0f} N/rad, Cr {i.cr:.0f} N/rad, K {i.k:.0f} Nm/rad" for i in ids
+    )
+    note += f"; representative (mean): Cf {cf:.0f}, Cr {cr:.0f}, K {k:.0f}"
+    print(note)
+    ctx.report += ["## Fig. 12: linear-equivalent tires", "", note, ""]
+    return {
+        c: str(
+            study.write_tire_vehicle((ctx.out / "vehicles" / f"{c}_fig12.toml").resolve(), c, cf, cr, k, note)
+        )
+        for c in candidates
+    }
+
+
+def _run(specs, name: str, ctx: _Ctx):
     print(f"lde study: {name}: {len(specs)} runs", file=sys.stderr)
-    return study.run_specs(specs, cluster, progress=progress)
-
-
-def _failures(results) -> int:
-    failed = [r for r in results if not r.ok]
-    for r in failed[:10]:
+    results = study.run_specs(specs, ctx.cluster, progress=ctx.progress)
+    bad = [r for r in results if not r.ok]
+    for r in bad[:10]:
         print(f"FAILED {r.spec.label}: {r.error}", file=sys.stderr)
-    return len(failed)
+    # a run in which the simulated driver lost control is discarded, not an lde failure
+    ctx.failed += sum("lost control" not in r.error for r in bad)
+    return results
 
 
 def _write_rows(rows: list[dict], path: Path) -> None:
