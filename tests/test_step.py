@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.linalg import expm
 
 from lde import model, step
@@ -311,3 +313,36 @@ def test_run_batch_rejects_mismatched_arrays(veh):
     inputs["yaw_rate"] = inputs["yaw_rate"][:-1]
     with pytest.raises(LdeError, match="yaw_rate"):
         _run(veh, inputs)
+
+
+# --- robustness over the DBC input ranges ------------------------------------------------------
+
+
+def _col(lo, hi, n):
+    return st.lists(st.one_of(st.floats(lo, hi), st.just(float("nan"))), min_size=n, max_size=n)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    speed=_col(0.0, 300 * KMH, 60),
+    angle=_col(-800 * DEG, 800 * DEG, 60),
+    yaw=_col(-100 * DEG, 100 * DEG, 60),
+    col=_col(-20.0, 20.0, 60),
+    ast=_col(-100.0, 100.0, 60),
+    mdps=st.lists(st.booleans(), min_size=60, max_size=60),
+    esc=st.lists(st.booleans(), min_size=60, max_size=60),
+)
+def test_any_inputs_in_dbc_ranges_give_finite_outputs_and_consistent_status(
+    speed, angle, yaw, col, ast, mdps, esc
+):
+    veh = load_vehicle("reference")
+    n = 60
+    res = step.run_batch(
+        T0_NS + np.arange(n, dtype=np.int64) * STEP_NS, speed, angle, yaw, col, ast, mdps, esc, veh
+    )
+    for name in ("fw", "mw", "t_align", "beta", "yaw_rate"):
+        assert np.all(np.isfinite(getattr(res, name))), name
+    faults = Status.MDPS_FAULT | Status.ESC_FAULT | Status.LOW_SPEED | Status.NOT_CONVERGED
+    for s in res.status:
+        assert bool(s & Status.VALID) == (not (s & faults))
+        assert not s & (Status.SHADOW_DEVIATION | Status.DEADLINE_MISS)
