@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import struct
 import threading
 from collections import deque
@@ -200,6 +201,16 @@ def _diag_record(res: Any, skipped: int, e2e_rejects: int) -> dict[str, Any]:
     }
 
 
+def _normal_priority() -> None:
+    """Run the calling thread on the normal scheduler: created by a SCHED_FIFO service (``--realtime``)
+    it would inherit the loop's real-time priority, and writing files is not real-time work."""
+    try:
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (AttributeError, OSError):  # not Linux, or not permitted: keep what we have
+        pass
+
+
 def _sync(writer: McapWriter) -> None:
     """Write the queued messages as chunks and push them to the OS (survives a SIGKILL)."""
     writer.flush()
@@ -273,6 +284,7 @@ class Recorder:
 
     # ------------------------------------------------------------------ writer thread
     def _loop(self) -> None:
+        _normal_priority()
         while not self._stop.wait(self._flush_interval):
             self._drain()
 

@@ -194,6 +194,7 @@ class Service:
         self._stopping = False  # ramp-out requested (shutdown)
         self.steps = 0
         self.send_errors = 0  # frames the bus refused (full tx queue, bus-off), counted, not raised
+        self.recv_errors = 0  # failed receive calls, counted, not raised
         self.last: StepResult | None = None
 
     def _warm_up(self) -> None:
@@ -221,7 +222,13 @@ class Service:
         rec = self.recorder
         pending = self._pending
         while True:
-            msg = recv(0.0)
+            try:
+                msg = recv(0.0)
+            except (can.CanError, OSError) as exc:  # interface down, driver error: count, keep stepping
+                self.recv_errors += 1
+                if self.recv_errors == 1 or self.recv_errors % 1000 == 0:
+                    log.warning("CAN receive failed (%d so far): %s", self.recv_errors, exc)
+                return
             if msg is None:
                 return
             if msg.is_error_frame or msg.is_remote_frame:
@@ -312,7 +319,7 @@ class Service:
         msg.timestamp = self.now_ns() / 1e9
         try:
             self.bus.send(msg)
-        except can.CanError as exc:
+        except (can.CanError, OSError) as exc:
             # a full tx queue or a bus-off must not kill the loop: count and go on
             self.send_errors += 1
             if self.send_errors == 1 or self.send_errors % 1000 == 0:
