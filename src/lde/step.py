@@ -20,13 +20,19 @@ Per step k (time ``t_ns`` passed in, never read here), with inputs in SI:
 
 Status (IntFlag :class:`Status`, bits as in docs/ARCHITECTURE.md): NOT_CONVERGED until
 ``converge_time`` has passed since the filter (re)started with both measurements, i.e. after
-:meth:`Estimator.reset`, after a hold, and after an MDPS fault; VALID when none of MDPS_FAULT,
+:meth:`Estimator.reset`, after a hold, and after an MDPS fault (so it is also set while held);
+VALID when none of MDPS_FAULT,
 ESC_FAULT, LOW_SPEED, NOT_CONVERGED is set. SHADOW_DEVIATION and DEADLINE_MISS belong to the
 service and are never set here.
 
 The same jitted :func:`step_kernel` runs per call in :meth:`Estimator.step` and in the jitted
 loop of :func:`run_batch`; they give bit-identical outputs (tested). The fixed-point backend
 (``firmware_model``) offers the same ``run_batch`` signature and :class:`BatchResult`.
+
+Cost (``bench/bench_step.py``, 2-core shared VM): an hour of steps (923,077) in about 0.5 s of
+CPU time, about 4.5 us per live ``Estimator.step`` call. About half of the batch time is numba's
+reference counting of the array arguments of the small kernels (a build without it measured
+0.25 s); the arithmetic itself is ~280 ns per step.
 """
 
 from __future__ import annotations
