@@ -170,6 +170,12 @@ def _engage(v, sign: float = 1.0) -> tuple[OverlayLimiter, int]:
 # --- fault classes: every one must ramp to zero, rate limited -----------------------------------
 
 
+def _dir(v, i: Inputs) -> float:
+    """Direction of the law's demand for these inputs (+1 left, -1 right, 0 none)."""
+    d = feedforward_torque(v, i.fw, i.mw)
+    return float(np.sign(d)) if math.isfinite(d) else 0.0
+
+
 def _vehicle_fault_classes(v):
     o = v.overlay
     return {
@@ -183,8 +189,14 @@ def _vehicle_fault_classes(v):
         "above_max_speed": lambda i: dataclasses.replace(i, speed=o.max_speed * 1.1),
         "steering_left": lambda i: dataclasses.replace(i, steer=o.max_steering_angle * 1.1),
         "steering_right": lambda i: dataclasses.replace(i, steer=-o.max_steering_angle * 1.1),
-        "override_left": lambda i: dataclasses.replace(i, col=o.driver_override_torque * 1.1),
-        "override_right": lambda i: dataclasses.replace(i, col=-o.driver_override_torque * 1.1),
+        "override_against": lambda i: dataclasses.replace(
+            i, col=-(_dir(v, i) or 1.0) * o.driver_override_torque * 1.1
+        ),
+        "override_beyond": lambda i: dataclasses.replace(
+            i,
+            col=(_dir(v, i) or 1.0)
+            * (abs(feedforward_torque(v, i.fw, i.mw)) + o.driver_override_torque * 1.1),
+        ),
         "disabled": lambda i: dataclasses.replace(i, enable=False),
         "nan_fw": lambda i: dataclasses.replace(i, fw=math.nan),
         "nan_mw": lambda i: dataclasses.replace(i, mw=math.inf),
@@ -273,11 +285,26 @@ class OverlaySafetyMixin:
             assert not self._engages(steer=sign * (o.max_steering_angle + eps))
 
     def test_driver_override_boundaries(self):
-        o = self.vehicle.overlay
+        """The driver may hold from 0 to the whole holding torque along the demand's direction:
+        override when more than driver_override_torque outside that band."""
+        v = self.vehicle
+        thr = v.overlay.driver_override_torque
         eps = 1e-9
         for sign in (1.0, -1.0):
-            assert self._engages(col=sign * o.driver_override_torque)
-            assert not self._engages(col=sign * (o.driver_override_torque + eps))
+            fw = _saturating_fw(v, sign)
+            s = float(np.sign(feedforward_torque(v, fw, 0.0)))
+            hold = abs(feedforward_torque(v, fw, 0.0))
+            # against the overlay
+            assert self._engages(fw=fw, col=-s * thr)
+            assert not self._engages(fw=fw, col=-s * (thr + eps))
+            # with it: up to the whole holding torque plus the threshold
+            assert self._engages(fw=fw, col=s * hold)
+            assert self._engages(fw=fw, col=s * (hold + thr))
+            assert not self._engages(fw=fw, col=s * (hold + thr + 1e-6))
+        # no demand: the plain threshold both ways
+        for sign in (1.0, -1.0):
+            assert self._engages(fw=0.0, col=sign * thr)
+            assert not self._engages(fw=0.0, col=sign * (thr + eps))
 
     def test_each_status_bit(self):
         for bit in Status:
@@ -553,7 +580,8 @@ def test_property_engages_only_after_the_override_hold_off(pattern, fw):
     v = load_vehicle("reference")
     over = [o for o, n in pattern for _ in range(n)] + [False] * int(1.5e9 / STEP_NS)
     n = len(over)
-    col = np.where(over, 2.0 * v.overlay.driver_override_torque, 0.0)
+    against = -np.sign(feedforward_torque(v, fw, 0.0))  # the driver steers against the overlay
+    col = np.where(over, against * 2.0 * v.overlay.driver_override_torque, 0.0)
     t = T0 + np.arange(n, dtype=np.int64) * STEP_NS
     tq, active, state = run_batch_overlay(
         t, np.full(n, fw), np.zeros(n), np.full(n, VALID), np.full(n, 100 * KMH), np.zeros(n), col, v

@@ -44,8 +44,12 @@ Disengage conditions (each ramps to zero):
 * estimator not ready: VALID clear, NOT_CONVERGED or LOW_SPEED set;
 * speed outside ``[min_speed, max_speed]`` (inclusive);
 * steering-wheel angle ``|delta_sw| > max_steering_angle``;
-* driver override ``|T_column| > driver_override_torque``: re-engaging waits ``hold_off`` after the
-  last overriding step (and then ``rearm_delay`` of all conditions ok);
+* driver override: the driver's column torque outside what the disturbance explains by more than
+  ``thr = driver_override_torque``: along the demand's direction ``s``, ``s T_column < -thr``
+  (steering against the overlay) or ``s T_column > |T_demand| + thr`` (more than the whole holding
+  torque); without a demand ``|T_column| > thr``. A driver who holds *with* the overlay (it is
+  clipped at ``max_torque``; the driver holds the rest) is not overriding. Re-engaging waits
+  ``hold_off`` after the last overriding step (and then ``rearm_delay`` of all conditions ok);
 * ``enable`` false (the service's shutdown ramp-out, or the overlay switched off).
 
 DEGRADED alone does not disengage (the estimate is usable); DEADLINE_MISS is the service's own bit.
@@ -252,7 +256,18 @@ def overlay_kernel(p, si, sf, t_ns, fw, mw, status, speed, steer, col_tq, enable
     finite = math.isfinite(demand) and math.isfinite(speed) and math.isfinite(steer) and math.isfinite(col_tq)
     input_fault = (not finite) or (status & FAULT_BITS) != 0
     not_ready = (status & _VALID_BIT) == 0 or (status & NOT_READY_BITS) != 0
-    override = finite and abs(col_tq) > p[LP_OVERRIDE]
+    # driver override: the driver's torque outside what the disturbance explains. In the demand's
+    # direction the driver may hold anything from 0 up to the whole holding torque |demand| (the
+    # overlay is clipped, the driver holds the rest), so the band is [-thr, |demand| + thr] along
+    # that direction, [-thr, thr] without a demand.
+    thr = p[LP_OVERRIDE]
+    lo = -thr
+    hi = thr
+    if demand > 0.0:
+        hi = demand + thr
+    elif demand < 0.0:
+        lo = demand - thr
+    override = finite and (col_tq < lo or col_tq > hi)
     in_window = finite and speed >= p[LP_MIN_V] and speed <= p[LP_MAX_V] and abs(steer) <= p[LP_MAX_STEER]
     if override:
         si[LS_OVERRIDE_UNTIL] = t_ns + np.int64(p[LP_HOLD_OFF_NS])
