@@ -171,7 +171,7 @@ class Vehicle:
 
 # --- file schema: TOML key -> (attribute, factor to SI) -------------------------------------
 
-_SCHEMA: dict[str, tuple[type, dict[str, tuple[str, float]]]] = {
+_SCHEMA: dict[str, tuple[type, dict[str, tuple[str, float | None]]]] = {
     "vehicle": (
         VehicleParams,
         {
