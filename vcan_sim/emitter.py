@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
-from lde.codec import MessageCodec, encode_frames, si_to_dbc
+from lde.codec import MessageCodec, MessageEncoder, encode_frames, si_to_dbc
 from lde.frames import FrameBatch, ns_to_seconds
 from lde.profiles import Profile
 
@@ -49,6 +49,7 @@ class MessageStream:
     unsigned: frozenset[str] = frozenset()
     modulus: int = 15
     sent: int = 0
+    encoder: MessageEncoder | None = None  # scalar path for the few frames of one live step
 
 
 def build_streams(profile: Profile, duration_ns: int, h_ns: int, sp: SensorParams,
@@ -68,7 +69,7 @@ def build_streams(profile: Profile, duration_ns: int, h_ns: int, sp: SensorParam
         streams.append(MessageStream(
             name=name, inputs=spec.inputs, t_rel_ns=t, sample=t // h_ns,
             noise=SensorNoise.draw(spec.inputs, t.size, sp, rng), unsigned=unsigned,
-            modulus=spec.scheme.modulus,
+            modulus=spec.scheme.modulus, encoder=MessageEncoder(profile, name),
         ))
     return streams
 
@@ -93,10 +94,30 @@ def emit_range(profile: Profile, stream: MessageStream, k0: int, k1: int, out_ri
     for name in stream.unsigned:
         si[name] = np.abs(si[name])
     cols = si_to_dbc(profile, stream.name, si)
-    frames = encode_frames(profile, stream.name, t0_ns + stream.t_rel_ns[a:b], cols,
-                           counter_start=_counter(a, stream.modulus))
+    t_abs = t0_ns + stream.t_rel_ns[a:b]
+    if b - a <= _SCALAR_MAX and stream.encoder is not None:
+        frames = _encode_scalar(stream, cols, t_abs, a)
+    else:
+        frames = encode_frames(profile, stream.name, t_abs, cols, counter_start=_counter(a, stream.modulus))
     stream.sent = b
     return frames
+
+
+_SCALAR_MAX = 3  # up to this many frames: one MessageEncoder.encode each (cheaper than a batch)
+
+
+def _encode_scalar(stream: MessageStream, cols: dict, t_abs: np.ndarray, first: int) -> FrameBatch:
+    """The same bytes as :func:`encode_frames`, frame by frame (the live step path)."""
+    enc = stream.encoder
+    n = t_abs.shape[0]
+    data = np.zeros((n, 8), np.uint8)
+    for i in range(n):
+        enc.counter = _counter(first + i, stream.modulus)
+        raw = enc.encode({k: float(np.asarray(v).reshape(-1)[i]) for k, v in cols.items()})
+        data[i, : len(raw)] = np.frombuffer(raw, np.uint8)
+    length = enc.codec.length
+    return FrameBatch(t_ns=t_abs, can_id=np.full(n, enc.frame_id, np.uint32), is_extended=np.zeros(n, bool),
+                      dlc=np.full(n, length, np.uint8), data=data, is_rx=np.ones(n, bool))
 
 
 def _counter(n_sent: int, modulus: int) -> int:

@@ -89,9 +89,10 @@ def test_same_seed_same_bytes_other_seed_other_bytes():
     assert not np.array_equal(a.frames.data[100:], c.frames.data[100:len(a.frames)])
 
 
-def test_stepping_equals_fast_path():
-    fast = simulate("wind_step", seed=3, duration=2.0)
-    sim = Simulation("wind_step", seed=3, duration=2.0)
+@pytest.mark.parametrize("profile_name", ["lde", "hyundai"])
+def test_stepping_equals_fast_path(profile_name):
+    fast = simulate("wind_step", seed=3, duration=2.0, profile=profile_name)
+    sim = Simulation("wind_step", seed=3, duration=2.0, profile=profile_name)
     steps = []
     while not sim.done:
         steps.append(sim.step())
