@@ -51,6 +51,7 @@ def test_to_raw_rounds_to_nearest_and_saturates():
     assert q.to_real(q.to_raw(3.25)[0]) == 3.25
 
 
+@settings(derandomize=True)  # seeded: the same examples every run
 @given(st.floats(min_value=1e-9, max_value=1e9))
 def test_frac_bits_for_holds_the_value_with_headroom(x):
     f = frac_bits_for(x, headroom=2.0)
@@ -59,17 +60,20 @@ def test_frac_bits_for_holds_the_value_with_headroom(x):
     assert 2.0 * x > q32(f + 1).real_max  # and it is the most fractional bits that do
 
 
+@settings(derandomize=True)  # seeded: the same examples every run
 @given(i64, st.integers(min_value=1, max_value=62))
 def test_shift_round_is_round_half_up(v, s):
     # exact rational reference: floor(v / 2^s + 1/2), with Fraction (no float rounding)
     assert shift_round(v, s) == math.floor(Fraction(v, 1 << s) + Fraction(1, 2)) == (v + (1 << (s - 1))) >> s
 
 
+@settings(derandomize=True)  # seeded: the same examples every run
 @given(st.integers(min_value=-(2**31), max_value=2**31), st.integers(min_value=0, max_value=20))
 def test_shift_round_left_is_exact(v, s):
     assert shift_round(v, -s) == v * 2**s
 
 
+@settings(derandomize=True)  # seeded: the same examples every run
 @given(st.integers(min_value=-(2**62), max_value=2**62), st.integers(min_value=1, max_value=2**62))
 def test_div_round_nearest_ties_away_from_zero(n, d):
     q = div_round(n, d)
@@ -80,6 +84,7 @@ def test_div_round_nearest_ties_away_from_zero(n, d):
     assert div_round(-n, d) == -q
 
 
+@settings(derandomize=True)  # seeded: the same examples every run
 @given(i64, i64)
 def test_add_sat64_saturates_never_wraps(a, b):
     r, hit = add_sat64(a, b)
@@ -100,7 +105,7 @@ def test_saturate_and_counters():
     assert c.total() == 0
 
 
-@settings(max_examples=50)
+@settings(max_examples=50, derandomize=True)
 @given(st.floats(min_value=-1e3, max_value=1e3, allow_nan=False))
 def test_to_raw_error_at_most_half_lsb(x):
     q = q32(20)

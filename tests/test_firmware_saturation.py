@@ -73,7 +73,7 @@ def test_float_and_fixed_agree_on_fault_status_for_nonfinite_inputs(vehicle):
         np.testing.assert_array_equal(status, fl.status)
 
 
-@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=20, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(
     speed=st.floats(min_value=8.4, max_value=69.4),  # min speed .. the model's maximum (250 km/h)
     steer=st.floats(min_value=-15.9, max_value=15.9),
