@@ -70,8 +70,9 @@ def airflow(vx: float, vy: float, wx_b: float, wy_b: float) -> tuple[float, floa
 
 
 @numba.njit(cache=True)
-def crosswind(vx: float, vy: float, wx_b: float, wy_b: float, wheelbase: float,
-              ap: np.ndarray) -> tuple[float, float, float, float, float]:
+def crosswind(
+    vx: float, vy: float, wx_b: float, wy_b: float, wheelbase: float, ap: np.ndarray
+) -> tuple[float, float, float, float, float]:
     """(F_x [N], F_y [N], M_z about mid-wheelbase [Nm], v_r [m/s], beta_cw [rad]); eqs. (1)-(2)."""
     vr, beta = airflow(vx, vy, wx_b, wy_b)
     q = 0.5 * ap[A_RHO] * vr * vr * ap[A_AREA]

@@ -87,8 +87,13 @@ class LockstepStats:
     steps: int = 0
 
 
-def run_lockstep(sim, bus: can.BusABC, receiver: OverlayReceiver,
-                 service_step: Callable[[int], object], latency_ns: int = 200_000) -> LockstepStats:
+def run_lockstep(
+    sim,
+    bus: can.BusABC,
+    receiver: OverlayReceiver,
+    service_step: Callable[[int], object],
+    latency_ns: int = 200_000,
+) -> LockstepStats:
     """Deterministic closed loop on one bus, without wall-clock time (tests, the demo).
 
     Per 3.9 ms period: the simulation steps with the current overlay request, its frames go on

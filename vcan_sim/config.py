@@ -181,7 +181,8 @@ class DriverParams:
 
     Attributes:
         preview_time [s], lateral_gain [(m/s^2)/m], integral_gain [(m/s^2)/(m s)],
-        heading_gain [rad(sw)/rad], understeer_gradient: the driver's learnt k_us [rad s^2/m], lag_time [s], arm_stiffness [Nm/rad], arm_damping [Nm s/rad],
+        heading_gain [rad(sw)/rad], understeer_gradient: the driver's learnt k_us [rad s^2/m],
+        lag_time [s], arm_stiffness [Nm/rad], arm_damping [Nm s/rad],
         arm_integral [Nm/(rad s)] (slow build-up of holding torque),
         noise_torque: std of the driver's torque noise [Nm]; noise_time: its correlation time [s];
         gain_spread: relative per-seed spread of the gains (uniform +-) [-].
@@ -279,8 +280,10 @@ _CHASSIS_KEYS = {
     "load_filter_time_s": ("load_filter_time", 1.0),
 }
 _TIRE_KEYS = {f.name: (f.name, 1.0) for f in fields(TireCoeffs)}
-_TIRE_KEYS = {("fz0_N" if k == "fz0" else "t0_m" if k == "t0" else "mech_trail_m" if k == "mech_trail" else k): v
-              for k, v in _TIRE_KEYS.items()}
+_TIRE_KEYS = {
+    ("fz0_N" if k == "fz0" else "t0_m" if k == "t0" else "mech_trail_m" if k == "mech_trail" else k): v
+    for k, v in _TIRE_KEYS.items()
+}
 _STEERING_KEYS = {
     "wheel_inertia_kgm2": ("wheel_inertia", 1.0),
     "rack_inertia_kgm2": ("rack_inertia", 1.0),
@@ -354,8 +357,9 @@ def _build(cls: type, keymap: dict[str, tuple[str, float | None]], raw: Any, src
         raise ConfigError(f"{src}: [{where}] must be a table")
     unknown = sorted(set(raw) - set(keymap))
     if unknown:
-        raise ConfigError(f"{src}: unknown key(s) in [{where}]: {', '.join(unknown)} "
-                          f"(known: {', '.join(sorted(keymap))})")
+        raise ConfigError(
+            f"{src}: unknown key(s) in [{where}]: {', '.join(unknown)} (known: {', '.join(sorted(keymap))})"
+        )
     kw: dict[str, Any] = {}
     for key, value in raw.items():
         attr, factor = keymap[key]
@@ -376,14 +380,19 @@ def sim_params_from_vehicle(vehicle: Vehicle) -> SimParams:
     src = vehicle.source or vehicle.name
     subs = {k: raw.pop(k) for k in list(raw) if k in _SUBTABLES or k == "seats"}
     chassis = _build(ChassisParams, _CHASSIS_KEYS, raw, src, "sim")
-    parts = {name: _build(cls, keys, subs.get(name, {}), src, f"sim.{name}")
-             for name, (cls, keys) in _SUBTABLES.items()}
+    parts = {
+        name: _build(cls, keys, subs.get(name, {}), src, f"sim.{name}")
+        for name, (cls, keys) in _SUBTABLES.items()
+    }
     seats = default_seats()
     seat_raw = subs.get("seats", {})
     if not isinstance(seat_raw, dict):
         raise ConfigError(f"{src}: [sim.seats] must be a table of tables")
-    seat_keys = {"x_behind_front_axle_m": ("x_behind_front_axle", 1.0), "y_left_m": ("y_left", 1.0),
-                 "z_m": ("z", 1.0)}
+    seat_keys = {
+        "x_behind_front_axle_m": ("x_behind_front_axle", 1.0),
+        "y_left_m": ("y_left", 1.0),
+        "z_m": ("z", 1.0),
+    }
     for name, tab in seat_raw.items():
         if not isinstance(tab, dict) or "x_behind_front_axle_m" not in tab or "y_left_m" not in tab:
             raise ConfigError(f"{src}: [sim.seats.{name}] needs x_behind_front_axle_m and y_left_m")
@@ -406,14 +415,25 @@ def validate_sim(sp: SimParams, src: str = "<sim>") -> None:
     check(c.roll_stiffness_front > 0 and c.roll_stiffness_rear > 0, "roll stiffnesses must be > 0")
     check(c.roll_inertia > 0 and 0.5 <= c.sprung_fraction <= 1.0, "roll inertia > 0, sprung fraction 0.5..1")
     check(c.load_filter_time > 0, "load_filter_time_s must be > 0")
-    check(t.fz0 > 0 and t.pKy1 > 0 and t.pKy2 > 0 and t.pDy1 > 0 and t.pCy1 > 0, "tire coefficients must be > 0")
+    check(
+        t.fz0 > 0 and t.pKy1 > 0 and t.pKy2 > 0 and t.pDy1 > 0 and t.pCy1 > 0, "tire coefficients must be > 0"
+    )
     check(t.pEy1 <= 1.0 and t.Et <= 1.0, "Magic Formula E must be <= 1")
-    check(s.wheel_inertia > 0 and s.rack_inertia > 0 and s.torsion_stiffness > 0, "steering inertias, stiffness > 0")
+    check(
+        s.wheel_inertia > 0 and s.rack_inertia > 0 and s.torsion_stiffness > 0,
+        "steering inertias, stiffness > 0",
+    )
     check(s.coulomb_smoothing > 0, "coulomb_smoothing_rad_per_s must be > 0")
     check(len(s.boost_torque) == len(s.boost_assist) >= 2, "boost curve needs equal-length lists (>= 2)")
-    check(all(b > a for a, b in zip(s.boost_torque, s.boost_torque[1:])), "boost_torque_Nm must increase")
+    check(
+        all(b > a for a, b in zip(s.boost_torque, s.boost_torque[1:], strict=False)),
+        "boost_torque_Nm must increase",
+    )
     check(len(s.boost_speed) == len(s.boost_scale) >= 1, "boost speed/scale lists need equal length")
-    check(all(b > a for a, b in zip(s.boost_speed, s.boost_speed[1:])), "boost_speed_kmh must increase")
+    check(
+        all(b > a for a, b in zip(s.boost_speed, s.boost_speed[1:], strict=False)),
+        "boost_speed_kmh must increase",
+    )
     check(s.overlay_max > 0 and s.overlay_time > 0, "overlay_max_Nm and overlay_time_s must be > 0")
     check(sp.aero.frontal_area > 0 and sp.aero.air_density > 0, "aero area and density must be > 0")
     check(sp.driver.lag_time > 0 and sp.driver.noise_time > 0, "driver lag/noise times must be > 0")

@@ -41,8 +41,9 @@ DR_TP, DR_KY, DR_KI, DR_KPSI, DR_TAU, DR_KA, DR_DA, DR_KIA, DR_MODE, DR_GEO, DR_
 N_DRIVER = 11
 
 
-def pack_driver(d: DriverParams, mode: int, rng: np.random.Generator | None, wheelbase: float,
-                ratio: float) -> np.ndarray:
+def pack_driver(
+    d: DriverParams, mode: int, rng: np.random.Generator | None, wheelbase: float, ratio: float
+) -> np.ndarray:
     """Driver vector, gains varied by +-gain_spread (uniform) when an rng is given (per seed)."""
 
     def vary(x: float) -> float:
@@ -51,16 +52,34 @@ def pack_driver(d: DriverParams, mode: int, rng: np.random.Generator | None, whe
         return x * (1.0 + rng.uniform(-d.gain_spread, d.gain_spread))
 
     return np.array(
-        [d.preview_time, vary(d.lateral_gain), vary(d.integral_gain), d.heading_gain, vary(d.lag_time),
-         vary(d.arm_stiffness), d.arm_damping, d.arm_integral, float(mode), ratio * wheelbase,
-         ratio * d.understeer_gradient],
+        [
+            d.preview_time,
+            vary(d.lateral_gain),
+            vary(d.integral_gain),
+            d.heading_gain,
+            vary(d.lag_time),
+            vary(d.arm_stiffness),
+            d.arm_damping,
+            d.arm_integral,
+            float(mode),
+            ratio * wheelbase,
+            ratio * d.understeer_gradient,
+        ],
         dtype=np.float64,
     )
 
 
 @numba.njit(cache=True)
-def wanted_angle(y: float, psi: float, vx: float, vy: float, y_ref_preview: float, e_int: float,
-                 angle_cmd: float, dp: np.ndarray) -> tuple[float, float]:
+def wanted_angle(
+    y: float,
+    psi: float,
+    vx: float,
+    vy: float,
+    y_ref_preview: float,
+    e_int: float,
+    angle_cmd: float,
+    dp: np.ndarray,
+) -> tuple[float, float]:
     """(th_raw [rad], e [m]): the wanted steering-wheel angle and the preview error."""
     if int(dp[DR_MODE]) == DRIVER_ANGLE:
         return angle_cmd, 0.0

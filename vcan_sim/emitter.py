@@ -52,8 +52,9 @@ class MessageStream:
     encoder: MessageEncoder | None = None  # scalar path for the few frames of one live step
 
 
-def build_streams(profile: Profile, duration_ns: int, h_ns: int, sp: SensorParams,
-                  rng: np.random.Generator) -> list[MessageStream]:
+def build_streams(
+    profile: Profile, duration_ns: int, h_ns: int, sp: SensorParams, rng: np.random.Generator
+) -> list[MessageStream]:
     """Schedules of the profile's input messages (anchor message first)."""
     names = [profile.anchor_message] + [m for m in profile.messages if m != profile.anchor_message]
     streams = []
@@ -62,20 +63,38 @@ def build_streams(profile: Profile, duration_ns: int, h_ns: int, sp: SensorParam
         t = np.arange(i * PHASE_NS, duration_ns, spec.period_ns, dtype=np.int64)
         codec = MessageCodec(profile, name)
         unsigned = frozenset(
-            inp for inp in spec.inputs
-            if all(not codec.signals[s].signed and (codec.signals[s].minimum or 0.0) >= 0.0
-                   for s in profile.inputs[inp].signals)
+            inp
+            for inp in spec.inputs
+            if all(
+                not codec.signals[s].signed and (codec.signals[s].minimum or 0.0) >= 0.0
+                for s in profile.inputs[inp].signals
+            )
         )
-        streams.append(MessageStream(
-            name=name, inputs=spec.inputs, t_rel_ns=t, sample=t // h_ns,
-            noise=SensorNoise.draw(spec.inputs, t.size, sp, rng), unsigned=unsigned,
-            modulus=spec.scheme.modulus, encoder=MessageEncoder(profile, name),
-        ))
+        streams.append(
+            MessageStream(
+                name=name,
+                inputs=spec.inputs,
+                t_rel_ns=t,
+                sample=t // h_ns,
+                noise=SensorNoise.draw(spec.inputs, t.size, sp, rng),
+                unsigned=unsigned,
+                modulus=spec.scheme.modulus,
+                encoder=MessageEncoder(profile, name),
+            )
+        )
     return streams
 
 
-def emit_range(profile: Profile, stream: MessageStream, k0: int, k1: int, out_ring: np.ndarray,
-               delay: int, sp: SensorParams, t0_ns: int) -> FrameBatch | None:
+def emit_range(
+    profile: Profile,
+    stream: MessageStream,
+    k0: int,
+    k1: int,
+    out_ring: np.ndarray,
+    delay: int,
+    sp: SensorParams,
+    t0_ns: int,
+) -> FrameBatch | None:
     """Encode the frames of ``stream`` whose samples lie in sub-steps [k0, k1); advance ``stream.sent``.
 
     ``out_ring`` holds plant output rows indexed ``k % len(out_ring)`` (it must still hold k0 - delay).
@@ -116,8 +135,14 @@ def _encode_scalar(stream: MessageStream, cols: dict, t_abs: np.ndarray, first: 
         raw = enc.encode({k: float(np.asarray(v).reshape(-1)[i]) for k, v in cols.items()})
         data[i, : len(raw)] = np.frombuffer(raw, np.uint8)
     length = enc.codec.length
-    return FrameBatch(t_ns=t_abs, can_id=np.full(n, enc.frame_id, np.uint32), is_extended=np.zeros(n, bool),
-                      dlc=np.full(n, length, np.uint8), data=data, is_rx=np.ones(n, bool))
+    return FrameBatch(
+        t_ns=t_abs,
+        can_id=np.full(n, enc.frame_id, np.uint32),
+        is_extended=np.zeros(n, bool),
+        dlc=np.full(n, length, np.uint8),
+        data=data,
+        is_rx=np.ones(n, bool),
+    )
 
 
 def _counter(n_sent: int, modulus: int) -> int:
@@ -145,15 +170,28 @@ class PumpStats:
 def to_messages(frames: FrameBatch, channel: str | None = None) -> list[can.Message]:
     """python-can messages with the frames' (simulated) timestamps."""
     return [
-        can.Message(timestamp=ns_to_seconds(int(frames.t_ns[i])), arbitration_id=int(frames.can_id[i]),
-                    is_extended_id=bool(frames.is_extended[i]), dlc=int(frames.dlc[i]),
-                    data=bytes(frames.data[i, : frames.dlc[i]]), channel=channel)
+        can.Message(
+            timestamp=ns_to_seconds(int(frames.t_ns[i])),
+            arbitration_id=int(frames.can_id[i]),
+            is_extended_id=bool(frames.is_extended[i]),
+            dlc=int(frames.dlc[i]),
+            data=bytes(frames.data[i, : frames.dlc[i]]),
+            channel=channel,
+        )
         for i in range(len(frames))
     ]
 
 
-def pump(sim, bus: can.BusABC, *, realtime: bool = True, closed_loop: bool = True,
-         receiver=None, keep_frames: bool = False, stop: Callable[[], bool] | None = None) -> PumpStats:
+def pump(
+    sim,
+    bus: can.BusABC,
+    *,
+    realtime: bool = True,
+    closed_loop: bool = True,
+    receiver=None,
+    keep_frames: bool = False,
+    stop: Callable[[], bool] | None = None,
+) -> PumpStats:
     """Run ``sim`` (a :class:`vcan_sim.run.Simulation`) to its end, sending its frames on ``bus``.
 
     ``realtime``: each frame goes out when the wall clock reaches its simulated time (sleeping with
@@ -162,8 +200,8 @@ def pump(sim, bus: can.BusABC, *, realtime: bool = True, closed_loop: bool = Tru
     (a :class:`vcan_sim.closed_loop.OverlayReceiver`) and its request drives the overlay torque.
     """
     st = PumpStats()
-    wall0 = time.monotonic()
     sim0 = sim.t_ns
+    wall0: float | None = None  # set at the first frame, after the first step's warm-up
 
     def take(msg: can.Message | None) -> None:
         if msg is None or receiver is None:
@@ -182,6 +220,8 @@ def pump(sim, bus: can.BusABC, *, realtime: bool = True, closed_loop: bool = Tru
         if keep_frames:
             st.frames.append(frames)
         for msg in to_messages(frames):
+            if wall0 is None:
+                wall0 = time.monotonic() - (int(round(msg.timestamp * 1e9)) - sim0) * 1e-9
             if realtime:
                 due = wall0 + (int(round(msg.timestamp * 1e9)) - sim0) * 1e-9
                 while True:
@@ -199,6 +239,6 @@ def pump(sim, bus: can.BusABC, *, realtime: bool = True, closed_loop: bool = Tru
             except can.CanError as exc:
                 st.send_errors += 1
                 log.warning("send failed: %s", exc)
-    st.wall_s = time.monotonic() - wall0
+    st.wall_s = time.monotonic() - wall0 if wall0 is not None else 0.0
     st.sim_s = (sim.t_ns - sim0) * 1e-9
     return st

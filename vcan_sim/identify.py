@@ -68,8 +68,9 @@ def _fit(y: np.ndarray, x: np.ndarray) -> tuple[float, float]:
     return c, (1.0 - float(np.dot(res, res)) / tot) if tot > 0 else float("nan")
 
 
-def identify(truth: Mapping[str, np.ndarray], lf: float, lr: float,
-             min_speed: float = 50.0 / 3.6) -> LinearEquivalent:
+def identify(
+    truth: Mapping[str, np.ndarray], lf: float, lr: float, min_speed: float = 50.0 / 3.6
+) -> LinearEquivalent:
     """Fit C_f, C_r, K (per tire) to a run's truth columns; ``lf``, ``lr`` of the actual (loaded) CG."""
     m = np.asarray(truth["vx"]) >= min_speed
     af = np.asarray(truth["alpha_f"])[m]
@@ -83,12 +84,23 @@ def identify(truth: Mapping[str, np.ndarray], lf: float, lr: float,
     cf_t, _ = _fit(fyf / 2.0, af)
     cr_t, _ = _fit(fyr / 2.0, ar)
     k, r2k = _fit(np.asarray(truth["T_align"])[m] / 2.0, af)
-    return LinearEquivalent(cf, cr, k, cf_t, cr_t, r2f, r2r, r2k, int(m.sum()),
-                            float(np.abs(af).max()) if af.size else float("nan"))
+    return LinearEquivalent(
+        cf,
+        cr,
+        k,
+        cf_t,
+        cr_t,
+        r2f,
+        r2r,
+        r2k,
+        int(m.sum()),
+        float(np.abs(af).max()) if af.size else float("nan"),
+    )
 
 
-def static_stiffness(vehicle: Vehicle | None = None, sp: SimParams | None = None,
-                     payload: str = "none") -> tuple[float, float, float]:
+def static_stiffness(
+    vehicle: Vehicle | None = None, sp: SimParams | None = None, payload: str = "none"
+) -> tuple[float, float, float]:
     """(C_f, C_r, K) per tire [N/rad, N/rad, Nm/rad]: Magic Formula tangents at the static wheel loads
     (mean of left and right)."""
     v = vehicle or load_vehicle()
@@ -101,22 +113,31 @@ def static_stiffness(vehicle: Vehicle | None = None, sp: SimParams | None = None
     return cf, cr, k
 
 
-def bicycle_steady_state(m: float, lf: float, lr: float, cf: float, cr: float, vx: float,
-                         delta_f: float) -> tuple[float, float]:
+def bicycle_steady_state(
+    m: float, lf: float, lr: float, cf: float, cr: float, vx: float, delta_f: float
+) -> tuple[float, float]:
     """Steady (beta [rad], r [rad/s]) of the linear bicycle model, eqs. (7)-(9), per-tire C_f, C_r.
 
     0 = -2(Cf+Cr)/(m vx) beta + (-1 - 2(lf Cf - lr Cr)/(m vx^2)) r + 2 Cf/(m vx) delta_f
     0 = -2(lf Cf - lr Cr)/Iz beta - 2(lf^2 Cf + lr^2 Cr)/(Iz vx) r + 2 lf Cf/Iz delta_f   (Iz cancels)
     """
-    a = np.array([[-2 * (cf + cr) / (m * vx), -1.0 - 2 * (lf * cf - lr * cr) / (m * vx * vx)],
-                  [-2 * (lf * cf - lr * cr), -2 * (lf * lf * cf + lr * lr * cr) / vx]])
+    a = np.array(
+        [
+            [-2 * (cf + cr) / (m * vx), -1.0 - 2 * (lf * cf - lr * cr) / (m * vx * vx)],
+            [-2 * (lf * cf - lr * cr), -2 * (lf * lf * cf + lr * lr * cr) / vx],
+        ]
+    )
     b = np.array([2 * cf / (m * vx), 2 * lf * cf])
     beta, r = np.linalg.solve(a, -b * delta_f)
     return float(beta), float(r)
 
 
-def identify_scenarios(names: Iterable[str], seeds: Iterable[int] = (0,), vehicle: Vehicle | str | None = None,
-                       duration: float | None = None) -> dict[str, LinearEquivalent]:
+def identify_scenarios(
+    names: Iterable[str],
+    seeds: Iterable[int] = (0,),
+    vehicle: Vehicle | str | None = None,
+    duration: float | None = None,
+) -> dict[str, LinearEquivalent]:
     """:func:`identify` over runs of several scenarios (truth of all seeds pooled per scenario)."""
     from .run import simulate  # noqa: PLC0415 - run imports this module's siblings
 

@@ -15,8 +15,13 @@ TRUTH_TOPIC = "/truth"
 
 def write_mcap(path: str | Path, res: SimResult) -> None:
     """MCAP: the frames on ``/can/rx`` and one JSON truth record per 3.9 ms step on ``/truth``."""
-    meta = {"scenario": res.scenario.name, "seed": str(res.seed), "profile": res.profile,
-            "source": "vcan_sim", "t0_ns": str(res.t0_ns)}
+    meta = {
+        "scenario": res.scenario.name,
+        "seed": str(res.seed),
+        "profile": res.profile,
+        "source": "vcan_sim",
+        "t0_ns": str(res.t0_ns),
+    }
     props = {name: {"type": "number", "description": unit} for name, (_, unit) in TRUTH_COLUMNS.items()}
     with McapWriter(path, profile=res.profile, metadata=meta) as w:
         w.write_frames(res.frames)
@@ -24,8 +29,13 @@ def write_mcap(path: str | Path, res: SimResult) -> None:
         w.write_json_columns(cid, res.truth_t_ns, res.truth)
 
 
-def write_outputs(res: SimResult, log: str | Path | None = None, truth: str | Path | None = None,
-                  mcap: str | Path | None = None, channel: str = "vcan0") -> list[Path]:
+def write_outputs(
+    res: SimResult,
+    log: str | Path | None = None,
+    truth: str | Path | None = None,
+    mcap: str | Path | None = None,
+    channel: str = "vcan0",
+) -> list[Path]:
     """Write whichever outputs are given; the paths written."""
     done: list[Path] = []
     if log:

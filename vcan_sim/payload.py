@@ -62,8 +62,9 @@ class LoadedBody:
     wheel_loads: tuple[float, float, float, float]
 
 
-def static_wheel_loads(mass: float, x_behind_front: float, y_left: float, wheelbase: float,
-                       tread: float) -> tuple[float, float, float, float]:
+def static_wheel_loads(
+    mass: float, x_behind_front: float, y_left: float, wheelbase: float, tread: float
+) -> tuple[float, float, float, float]:
     """Static wheel loads (FL, FR, RL, RR) [N] of a mass at (x behind the front axle, y left) [m]."""
     w = mass * G
     front = w * (wheelbase - x_behind_front) / wheelbase
@@ -113,8 +114,14 @@ def loaded_body(vehicle: Vehicle, sp: SimParams, payload: Payload) -> LoadedBody
     if not (0.2 < x_cg < L - 0.2):
         raise ConfigError(f"payload puts the CG {x_cg:.2f} m behind the front axle: outside the wheelbase")
     return LoadedBody(
-        mass=mass, yaw_inertia=iz, lf=x_cg, lr=L - x_cg, y_cg=y_cg, cg_height=z_cg,
-        dx_ref=-(x_cg - x0), dy_ref=y_cg - y0,
+        mass=mass,
+        yaw_inertia=iz,
+        lf=x_cg,
+        lr=L - x_cg,
+        y_cg=y_cg,
+        cg_height=z_cg,
+        dx_ref=-(x_cg - x0),
+        dy_ref=y_cg - y0,
         wheel_loads=(fz[0], fz[1], fz[2], fz[3]),
     )
 
@@ -123,11 +130,20 @@ def loaded_body(vehicle: Vehicle, sp: SimParams, payload: Payload) -> LoadedBody
 PAYLOADS: dict[str, Payload] = {
     "none": Payload((), "none"),
     "passenger": Payload((("front_passenger", 75.0),), "passenger"),
-    "four_occupants": Payload((("front_passenger", 75.0), ("rear_left", 75.0), ("rear_right", 75.0)),
-                              "four_occupants"),
+    "four_occupants": Payload(
+        (("front_passenger", 75.0), ("rear_left", 75.0), ("rear_right", 75.0)), "four_occupants"
+    ),
     "trunk": Payload((("trunk", 150.0),), "trunk"),
-    "full": Payload((("front_passenger", 80.0), ("rear_left", 80.0), ("rear_right", 80.0),
-                     ("rear_middle", 80.0), ("trunk", 130.0)), "full"),
+    "full": Payload(
+        (
+            ("front_passenger", 80.0),
+            ("rear_left", 80.0),
+            ("rear_right", 80.0),
+            ("rear_middle", 80.0),
+            ("trunk", 130.0),
+        ),
+        "full",
+    ),
     "left_side": Payload((("rear_left", 90.0), ("rear_left", 70.0)), "left_side"),
 }
 

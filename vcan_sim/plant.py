@@ -64,14 +64,60 @@ from .steering import boost, boost_tables, coulomb
 from .tires import pack_tire, tire_forces
 
 # ------------------------------------------------------------------ state layout
-(X_X, X_Y, X_PSI, X_VX, X_VY, X_R, X_PHI, X_PHID, X_THSW, X_WSW, X_THP, X_WP,
- X_TOV, X_AT, X_EINT, X_THD, X_HOLD) = range(17)
+(
+    X_X,
+    X_Y,
+    X_PSI,
+    X_VX,
+    X_VY,
+    X_R,
+    X_PHI,
+    X_PHID,
+    X_THSW,
+    X_WSW,
+    X_THP,
+    X_WP,
+    X_TOV,
+    X_AT,
+    X_EINT,
+    X_THD,
+    X_HOLD,
+) = range(17)
 N_STATE = 17
 
 # ------------------------------------------------------------------ parameter vector
-(P_M, P_IZ, P_LF, P_LR, P_YCG, P_TF, P_TR, P_H, P_HRA, P_KPF, P_KPR, P_CPF, P_CPR, P_IXX, P_MS,
- P_FRR, P_KV, P_TAUAT, P_N, P_JSW, P_JP, P_KTB, P_CTB, P_CSW, P_CP, P_TCOUL, P_WEPS, P_OVMAX,
- P_OVTAU, P_DXREF) = range(30)
+(
+    P_M,
+    P_IZ,
+    P_LF,
+    P_LR,
+    P_YCG,
+    P_TF,
+    P_TR,
+    P_H,
+    P_HRA,
+    P_KPF,
+    P_KPR,
+    P_CPF,
+    P_CPR,
+    P_IXX,
+    P_MS,
+    P_FRR,
+    P_KV,
+    P_TAUAT,
+    P_N,
+    P_JSW,
+    P_JP,
+    P_KTB,
+    P_CTB,
+    P_CSW,
+    P_CP,
+    P_TCOUL,
+    P_WEPS,
+    P_OVMAX,
+    P_OVTAU,
+    P_DXREF,
+) = range(30)
 N_PARAM = 30
 
 # ------------------------------------------------------------------ per-sub-step inputs
@@ -81,22 +127,106 @@ D_WX, D_WY, D_BANK, D_YREFP, D_TNOISE, D_VREF, D_TOVREQ, D_SWCMD = range(8)
 N_DRIVE = 8
 
 # ------------------------------------------------------------------ outputs (one row per sub-step)
-(O_VX, O_VY, O_R, O_BETA, O_X, O_Y, O_PSI, O_AY, O_AYKIN, O_DSW, O_WSW, O_DF, O_TCOL, O_TAST,
- O_TOV, O_TALIGN, O_TDRV, O_FW, O_MW, O_MWREF, O_FYW, O_MZW, O_FBANK, O_WIND, O_BCW, O_VR, O_BANK,
- O_PHI, O_FZ1, O_FZ2, O_FZ3, O_FZ4, O_AF, O_AR, O_FYF, O_FYR, O_TBOOST, O_MZT) = range(38)
+(
+    O_VX,
+    O_VY,
+    O_R,
+    O_BETA,
+    O_X,
+    O_Y,
+    O_PSI,
+    O_AY,
+    O_AYKIN,
+    O_DSW,
+    O_WSW,
+    O_DF,
+    O_TCOL,
+    O_TAST,
+    O_TOV,
+    O_TALIGN,
+    O_TDRV,
+    O_FW,
+    O_MW,
+    O_MWREF,
+    O_FYW,
+    O_MZW,
+    O_FBANK,
+    O_WIND,
+    O_BCW,
+    O_VR,
+    O_BANK,
+    O_PHI,
+    O_FZ1,
+    O_FZ2,
+    O_FZ3,
+    O_FZ4,
+    O_AF,
+    O_AR,
+    O_FYF,
+    O_FYR,
+    O_TBOOST,
+    O_MZT,
+) = range(38)
 N_OUT = 38
 OUTPUT_NAMES = (
-    "vx", "vy", "r", "beta", "X", "y", "psi", "ay_meas", "ay", "delta_sw", "omega_sw", "delta_f",
-    "T_column", "T_assist", "T_overlay", "T_align", "T_driver", "Fw", "Mw", "Mw_ref", "Fy_wind",
-    "Mz_wind", "F_bank", "wind_speed", "beta_cw", "v_rel", "bank", "roll", "Fz_fl", "Fz_fr", "Fz_rl",
-    "Fz_rr", "alpha_f", "alpha_r", "Fy_front", "Fy_rear", "T_boost", "Mz_tires",
+    "vx",
+    "vy",
+    "r",
+    "beta",
+    "X",
+    "y",
+    "psi",
+    "ay_meas",
+    "ay",
+    "delta_sw",
+    "omega_sw",
+    "delta_f",
+    "T_column",
+    "T_assist",
+    "T_overlay",
+    "T_align",
+    "T_driver",
+    "Fw",
+    "Mw",
+    "Mw_ref",
+    "Fy_wind",
+    "Mz_wind",
+    "F_bank",
+    "wind_speed",
+    "beta_cw",
+    "v_rel",
+    "bank",
+    "roll",
+    "Fz_fl",
+    "Fz_fr",
+    "Fz_rl",
+    "Fz_rr",
+    "alpha_f",
+    "alpha_r",
+    "Fy_front",
+    "Fy_rear",
+    "T_boost",
+    "Mz_tires",
 )
 
 
 @numba.njit(cache=True)
-def derivatives(x: np.ndarray, p: np.ndarray, tc: np.ndarray, ap: np.ndarray, dp: np.ndarray,
-                bt: np.ndarray, ba: np.ndarray, bv: np.ndarray, bs: np.ndarray,
-                d: np.ndarray, ov_req: float, dx: np.ndarray, out: np.ndarray, want_out: bool) -> None:
+def derivatives(
+    x: np.ndarray,
+    p: np.ndarray,
+    tc: np.ndarray,
+    ap: np.ndarray,
+    dp: np.ndarray,
+    bt: np.ndarray,
+    ba: np.ndarray,
+    bv: np.ndarray,
+    bs: np.ndarray,
+    d: np.ndarray,
+    ov_req: float,
+    dx: np.ndarray,
+    out: np.ndarray,
+    want_out: bool,
+) -> None:
     """dx = f(x, inputs); fills ``out`` (O_* layout) when ``want_out``."""
     m = p[P_M]
     lf = p[P_LF]
@@ -172,8 +302,18 @@ def derivatives(x: np.ndarray, p: np.ndarray, tc: np.ndarray, ap: np.ndarray, dp
     fyb2 = fx2 * sd + fy2 * cd
     sfx = fxb1 + fxb2 + fx3 + fx4
     sfy = fyb1 + fyb2 + fy3 + fy4
-    mz_t = (lf * (fyb1 + fyb2) - lr * (fy3 + fy4) - yl * fxb1 - yr * fxb2 - yl_r * fx3 - yr_r * fx4
-            + mz1 + mz2 + mz3 + mz4)
+    mz_t = (
+        lf * (fyb1 + fyb2)
+        - lr * (fy3 + fy4)
+        - yl * fxb1
+        - yr * fxb2
+        - yl_r * fx3
+        - yr_r * fx4
+        + mz1
+        + mz2
+        + mz3
+        + mz4
+    )
 
     # --- body
     dx[X_X] = vx * cpsi - vy * spsi
@@ -185,8 +325,12 @@ def derivatives(x: np.ndarray, p: np.ndarray, tc: np.ndarray, ap: np.ndarray, dp
     ms = p[P_MS]
     hs = p[P_H] - p[P_HRA]
     dx[X_PHI] = phid
-    dx[X_PHID] = (ms * hs * a_t + ms * G * hs * math.sin(phi) - (p[P_KPF] + p[P_KPR]) * phi
-                  - (p[P_CPF] + p[P_CPR]) * phid) / p[P_IXX]
+    dx[X_PHID] = (
+        ms * hs * a_t
+        + ms * G * hs * math.sin(phi)
+        - (p[P_KPF] + p[P_KPR]) * phi
+        - (p[P_CPF] + p[P_CPR]) * phid
+    ) / p[P_IXX]
     dx[X_AT] = (sfy / m - a_t) / p[P_TAUAT]
 
     # --- steering system (eq. 10 at the column) and MDPS
@@ -206,8 +350,9 @@ def derivatives(x: np.ndarray, p: np.ndarray, tc: np.ndarray, ap: np.ndarray, dp
     dx[X_THSW] = x[X_WSW]
     dx[X_WSW] = (t_drv - t_col - p[P_CSW] * x[X_WSW]) / p[P_JSW]
     dx[X_THP] = x[X_WP]
-    dx[X_WP] = (t_col + t_ast - t_align / n_ratio - p[P_CP] * x[X_WP]
-                - coulomb(x[X_WP], p[P_TCOUL], p[P_WEPS])) / p[P_JP]
+    dx[X_WP] = (
+        t_col + t_ast - t_align / n_ratio - p[P_CP] * x[X_WP] - coulomb(x[X_WP], p[P_TCOUL], p[P_WEPS])
+    ) / p[P_JP]
 
     if want_out:
         fw = fay + fby
@@ -253,10 +398,25 @@ def derivatives(x: np.ndarray, p: np.ndarray, tc: np.ndarray, ap: np.ndarray, dp
 
 
 @numba.njit(cache=True)
-def integrate(x: np.ndarray, p: np.ndarray, tc: np.ndarray, ap: np.ndarray, dp: np.ndarray,
-              bt: np.ndarray, ba: np.ndarray, bv: np.ndarray, bs: np.ndarray,
-              drive: np.ndarray, k0: int, k1: int, h: float, ov_req: float, use_ov_req: bool,
-              out: np.ndarray, out_k0: int) -> None:
+def integrate(
+    x: np.ndarray,
+    p: np.ndarray,
+    tc: np.ndarray,
+    ap: np.ndarray,
+    dp: np.ndarray,
+    bt: np.ndarray,
+    ba: np.ndarray,
+    bv: np.ndarray,
+    bs: np.ndarray,
+    drive: np.ndarray,
+    k0: int,
+    k1: int,
+    h: float,
+    ov_req: float,
+    use_ov_req: bool,
+    out: np.ndarray,
+    out_k0: int,
+) -> None:
     """RK4 from sub-step k0 to k1 (exclusive) in place on ``x``.
 
     Row ``out[out_k0 + k - k0]`` receives the outputs at the state of sub-step k (before the
@@ -302,8 +462,13 @@ class PlantModel:
     ratio: float
 
 
-def build_plant(vehicle: Vehicle, sp: SimParams, payload: Payload, driver_mode: int = DRIVER_LANE,
-                rng: np.random.Generator | None = None) -> PlantModel:
+def build_plant(
+    vehicle: Vehicle,
+    sp: SimParams,
+    payload: Payload,
+    driver_mode: int = DRIVER_LANE,
+    rng: np.random.Generator | None = None,
+) -> PlantModel:
     """Pack the vehicle (with payload), tire, aero, steering and driver data for the kernels."""
     body = loaded_body(vehicle, sp, payload)
     c, s = sp.chassis, sp.steering
@@ -340,8 +505,13 @@ def build_plant(vehicle: Vehicle, sp: SimParams, payload: Payload, driver_mode: 
     p[P_OVTAU] = s.overlay_time
     p[P_DXREF] = body.dx_ref
     return PlantModel(
-        p=p, tc=pack_tire(sp.tire), ap=pack_aero(sp.aero), dp=pack_driver(sp.driver, driver_mode, rng, body.lf + body.lr, vehicle.steering.ratio),
-        boost=boost_tables(s), body=body, ratio=vehicle.steering.ratio,
+        p=p,
+        tc=pack_tire(sp.tire),
+        ap=pack_aero(sp.aero),
+        dp=pack_driver(sp.driver, driver_mode, rng, body.lf + body.lr, vehicle.steering.ratio),
+        boost=boost_tables(s),
+        body=body,
+        ratio=vehicle.steering.ratio,
     )
 
 
@@ -352,8 +522,31 @@ def initial_state(speed: float) -> np.ndarray:
     return x
 
 
-def run_span(model: PlantModel, x: np.ndarray, drive: np.ndarray, k0: int, k1: int, h: float,
-             out: np.ndarray, out_k0: int = 0, ov_req: float | None = None) -> None:
+def run_span(
+    model: PlantModel,
+    x: np.ndarray,
+    drive: np.ndarray,
+    k0: int,
+    k1: int,
+    h: float,
+    out: np.ndarray,
+    out_k0: int = 0,
+    ov_req: float | None = None,
+) -> None:
     """Integrate sub-steps k0..k1-1 (see :func:`integrate`); ``ov_req`` overrides the scripted overlay."""
-    integrate(x, model.p, model.tc, model.ap, model.dp, *model.boost, drive, k0, k1, h,
-              0.0 if ov_req is None else float(ov_req), ov_req is not None, out, out_k0)
+    integrate(
+        x,
+        model.p,
+        model.tc,
+        model.ap,
+        model.dp,
+        *model.boost,
+        drive,
+        k0,
+        k1,
+        h,
+        0.0 if ov_req is None else float(ov_req),
+        ov_req is not None,
+        out,
+        out_k0,
+    )

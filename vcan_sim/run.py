@@ -94,10 +94,18 @@ class Simulation:
         keep_truth: collect the truth (default True).
     """
 
-    def __init__(self, scenario: Scenario | str, vehicle: Vehicle | str | None = None,
-                 profile: Profile | str = "lde", seed: int = 0, duration: float | None = None,
-                 t0_ns: int | None = None, speed_kmh: float | None = None,
-                 sim_params: SimParams | None = None, keep_truth: bool = True) -> None:
+    def __init__(
+        self,
+        scenario: Scenario | str,
+        vehicle: Vehicle | str | None = None,
+        profile: Profile | str = "lde",
+        seed: int = 0,
+        duration: float | None = None,
+        t0_ns: int | None = None,
+        speed_kmh: float | None = None,
+        sim_params: SimParams | None = None,
+        keep_truth: bool = True,
+    ) -> None:
         sc = get_scenario(scenario) if isinstance(scenario, str) else scenario
         if speed_kmh is not None:
             if not 10.0 <= speed_kmh <= 250.0:
@@ -116,16 +124,22 @@ class Simulation:
         if sc.driver not in _DRIVER_MODES:
             raise ConfigError(f"scenario {sc.name}: unknown driver {sc.driver!r}")
         rngs = rng_streams(self.seed)
-        self.model = P.build_plant(self.vehicle, self.sp, payload_by_name(sc.payload),
-                                   _DRIVER_MODES[sc.driver], rngs[STREAM_DRIVER_GAINS])
+        self.model = P.build_plant(
+            self.vehicle,
+            self.sp,
+            payload_by_name(sc.payload),
+            _DRIVER_MODES[sc.driver],
+            rngs[STREAM_DRIVER_GAINS],
+        )
         n_steps = int(np.ceil(dur * 1e9 / STEP_NS))
         self.n_steps = n_steps
         self.n_sub = n_steps * SUBSTEPS
         t = np.arange(self.n_sub + 1) * H
         self.disturbance = disturbance_profile(sc, t, rngs[STREAM_WIND])
         self.drive = self._drive_matrix(self.disturbance, t, rngs[STREAM_DRIVER_NOISE])
-        self.streams: list[MessageStream] = build_streams(self.profile, n_steps * STEP_NS, H_NS,
-                                                          self.sp.sensors, rngs[STREAM_SENSORS])
+        self.streams: list[MessageStream] = build_streams(
+            self.profile, n_steps * STEP_NS, H_NS, self.sp.sensors, rngs[STREAM_SENSORS]
+        )
         self.delay = delay_substeps(self.sp.sensors, H)
         ring = SUBSTEPS * _CHUNK_STEPS + 4 * max(self.delay, 1) + 64
         self.out = np.zeros((ring, P.N_OUT))
@@ -173,8 +187,10 @@ class Simulation:
             P.run_span(self.model, self.x, self.drive, k, stop, H, self.out, k % r, ov_req)
             k = stop
         self.k = k1
-        parts = [emit_range(self.profile, s, k0, k1, self.out, self.delay, self.sp.sensors, self.t0_ns)
-                 for s in self.streams]
+        parts = [
+            emit_range(self.profile, s, k0, k1, self.out, self.delay, self.sp.sensors, self.t0_ns)
+            for s in self.streams
+        ]
         frames = FrameBatch.concat([p for p in parts if p is not None] or [FrameBatch.empty()], sort=True)
         if self.keep_truth:
             first = -(-k0 // SUBSTEPS) * SUBSTEPS
@@ -212,12 +228,26 @@ class Simulation:
 
     def result(self) -> SimResult:
         truth, t = self.truth()
-        return SimResult(frames=self.frames(), truth=truth, truth_t_ns=t, scenario=self.scenario,
-                         seed=self.seed, t0_ns=self.t0_ns, profile=self.profile.name, body=self.model.body)
+        return SimResult(
+            frames=self.frames(),
+            truth=truth,
+            truth_t_ns=t,
+            scenario=self.scenario,
+            seed=self.seed,
+            t0_ns=self.t0_ns,
+            profile=self.profile.name,
+            body=self.model.body,
+        )
 
 
-def simulate(scenario: Scenario | str, vehicle: Vehicle | str | None = None, profile: Profile | str = "lde",
-             seed: int = 0, duration: float | None = None, **kw) -> SimResult:
+def simulate(
+    scenario: Scenario | str,
+    vehicle: Vehicle | str | None = None,
+    profile: Profile | str = "lde",
+    seed: int = 0,
+    duration: float | None = None,
+    **kw,
+) -> SimResult:
     """Fast path: run ``scenario`` open loop to the end; frames + truth (see :class:`Simulation`)."""
     sim = Simulation(scenario, vehicle, profile, seed, duration, **kw)
     sim.run()

@@ -168,7 +168,7 @@ def gust_profile(t: np.ndarray, g: Gusts, rng: np.random.Generator) -> np.ndarra
     amps = g.amplitude * rng.uniform(0.5, 1.0, g.count)
     if g.two_sided:
         amps *= rng.choice([-1.0, 1.0], g.count)
-    for ts, a in zip(starts, amps):
+    for ts, a in zip(starts, amps, strict=True):
         u = (t - ts) / g.length
         inside = (u >= 0.0) & (u <= 1.0)
         out[inside] += 0.5 * a * (1.0 - np.cos(2.0 * math.pi * u[inside]))
@@ -201,58 +201,146 @@ def disturbance_profile(sc: Scenario, t: np.ndarray, rng_wind: np.random.Generat
 _HEAVY_BANK = (Step(14.0, 2.0, 3.0), Step(24.0, 3.0, -3.0), Step(33.0, 2.0, 0.0))
 _LIGHT_BANK = (Step(14.0, 2.0, 1.0), Step(24.0, 3.0, -1.0), Step(33.0, 2.0, 0.0))
 _PAYLOAD_DRIVE = dict(
-    duration=40.0, speed_kmh=100.0,
-    wind_speed=(Step(3.0, 1.5, 8.0), Step(20.0, 1.5, 0.0)), turbulence=0.1,
+    duration=40.0,
+    speed_kmh=100.0,
+    wind_speed=(Step(3.0, 1.5, 8.0), Step(20.0, 1.5, 0.0)),
+    turbulence=0.1,
     bank_deg=(Step(24.0, 2.0, 2.0), Step(32.0, 2.0, -2.0), Step(37.0, 1.0, 0.0)),
 )
 
 _LIST = [
-    Scenario("heavy_load", "paper heavy load: 15 m/s crosswind from the right (gusty), bank -3..3 deg, 100 km/h",
-             duration=40.0, speed_kmh=100.0,
-             wind_speed=(Step(3.0, 1.5, 15.0), Step(28.0, 2.0, 0.0)), turbulence=0.08,
-             bank_deg=_HEAVY_BANK),
-    Scenario("light_load", "paper light load: 2 m/s crosswind from the right, bank -1..1 deg, 100 km/h",
-             duration=40.0, speed_kmh=100.0,
-             wind_speed=(Step(3.0, 1.5, 2.0), Step(28.0, 2.0, 0.0)), turbulence=0.08,
-             bank_deg=_LIGHT_BANK),
-    Scenario("steady_wind", "steady 10 m/s crosswind from the right after a 2 s ramp, 120 km/h",
-             duration=30.0, speed_kmh=120.0, wind_speed=(Step(3.0, 2.0, 10.0),)),
-    Scenario("wind_step", "12 m/s crosswind step (0.3 s rise) at 5 s, off at 20 s, 100 km/h",
-             duration=30.0, speed_kmh=100.0, wind_speed=(Step(5.0, 0.3, 12.0), Step(20.0, 0.3, 0.0))),
-    Scenario("gusty_wind", "8 m/s mean crosswind, 25 % turbulence and 6 discrete gusts up to 6 m/s, 130 km/h",
-             duration=60.0, speed_kmh=130.0, wind_speed=(Step(2.0, 3.0, 8.0),), turbulence=0.25,
-             gusts=Gusts(count=6, amplitude=6.0, length=2.0, t_start=8.0)),
-    Scenario("wind_left", "10 m/s crosswind from the left (blowing right), 90 km/h",
-             duration=30.0, speed_kmh=90.0, wind_speed=(Step(3.0, 1.0, 10.0),), wind_direction_deg=-90.0),
-    Scenario("oblique_wind", "14 m/s wind from 45 deg ahead-right, 110 km/h",
-             duration=30.0, speed_kmh=110.0, wind_speed=(Step(3.0, 2.0, 14.0),), wind_direction_deg=135.0,
-             turbulence=0.1),
-    Scenario("bank_transition", "bank 0 -> +3 -> -3 -> 0 deg with 2-3 s transitions, no wind, 90 km/h",
-             duration=40.0, speed_kmh=90.0, bank_deg=(Step(5.0, 2.0, 3.0), Step(15.0, 3.0, -3.0),
-                                                       Step(28.0, 2.0, 0.0))),
-    Scenario("payload_full", "full load (+450 kg: 4 occupants + trunk), 8 m/s wind then bank +-2 deg, 100 km/h",
-             payload="full", **_PAYLOAD_DRIVE),
-    Scenario("payload_trunk", "+150 kg in the trunk (CG moves back), 8 m/s wind then bank +-2 deg, 100 km/h",
-             payload="trunk", **_PAYLOAD_DRIVE),
-    Scenario("payload_four", "+225 kg (3 passengers), 8 m/s wind then bank +-2 deg, 100 km/h",
-             payload="four_occupants", **_PAYLOAD_DRIVE),
-    Scenario("payload_left", "+160 kg on the rear left seat (lateral CG offset), 8 m/s wind then bank, 100 km/h",
-             payload="left_side", **_PAYLOAD_DRIVE),
-    Scenario("lane_change", "no disturbance: 3.5 m lane change to the left at 8 s and back at 20 s, 100 km/h",
-             duration=30.0, speed_kmh=100.0, lane=(Step(8.0, 4.0, 3.5), Step(20.0, 4.0, 0.0))),
-    Scenario("straight", "no disturbance, straight lane keeping, 100 km/h",
-             duration=30.0, speed_kmh=100.0),
-    Scenario("speed_sweep", "speed 60 -> 160 km/h with a 6 m/s crosswind and bank +-1.5 deg",
-             duration=60.0, speed_kmh=60.0, speed_steps=(Step(5.0, 45.0, 160.0),),
-             wind_speed=(Step(2.0, 2.0, 6.0),), turbulence=0.15,
-             bank_deg=(Step(20.0, 2.0, 1.5), Step(38.0, 3.0, -1.5), Step(52.0, 2.0, 0.0))),
-    Scenario("heavy_load_60", "paper heavy load at 60 km/h", duration=40.0, speed_kmh=60.0,
-             wind_speed=(Step(3.0, 1.5, 15.0), Step(28.0, 2.0, 0.0)), turbulence=0.08, bank_deg=_HEAVY_BANK),
-    Scenario("heavy_load_140", "paper heavy load at 140 km/h (wind 12 m/s so that the wheel stays within 15 deg)",
-             duration=40.0, speed_kmh=140.0,
-             wind_speed=(Step(3.0, 1.5, 12.0), Step(28.0, 2.0, 0.0)), turbulence=0.08, bank_deg=_HEAVY_BANK),
-    Scenario("overlay_step", "no disturbance, a scripted 2 Nm overlay torque from 5 s to 15 s: the driver's reaction",
-             duration=25.0, speed_kmh=100.0, overlay=(Step(5.0, 0.4, 2.0), Step(15.0, 0.4, 0.0))),
+    Scenario(
+        "heavy_load",
+        "paper heavy load: 15 m/s crosswind from the right (gusty), bank -3..3 deg, 100 km/h",
+        duration=40.0,
+        speed_kmh=100.0,
+        wind_speed=(Step(3.0, 1.5, 15.0), Step(28.0, 2.0, 0.0)),
+        turbulence=0.08,
+        bank_deg=_HEAVY_BANK,
+    ),
+    Scenario(
+        "light_load",
+        "paper light load: 2 m/s crosswind from the right, bank -1..1 deg, 100 km/h",
+        duration=40.0,
+        speed_kmh=100.0,
+        wind_speed=(Step(3.0, 1.5, 2.0), Step(28.0, 2.0, 0.0)),
+        turbulence=0.08,
+        bank_deg=_LIGHT_BANK,
+    ),
+    Scenario(
+        "steady_wind",
+        "steady 10 m/s crosswind from the right after a 2 s ramp, 120 km/h",
+        duration=30.0,
+        speed_kmh=120.0,
+        wind_speed=(Step(3.0, 2.0, 10.0),),
+    ),
+    Scenario(
+        "wind_step",
+        "12 m/s crosswind step (0.3 s rise) at 5 s, off at 20 s, 100 km/h",
+        duration=30.0,
+        speed_kmh=100.0,
+        wind_speed=(Step(5.0, 0.3, 12.0), Step(20.0, 0.3, 0.0)),
+    ),
+    Scenario(
+        "gusty_wind",
+        "8 m/s mean crosswind, 25 % turbulence and 6 discrete gusts up to 6 m/s, 130 km/h",
+        duration=60.0,
+        speed_kmh=130.0,
+        wind_speed=(Step(2.0, 3.0, 8.0),),
+        turbulence=0.25,
+        gusts=Gusts(count=6, amplitude=6.0, length=2.0, t_start=8.0),
+    ),
+    Scenario(
+        "wind_left",
+        "10 m/s crosswind from the left (blowing right), 90 km/h",
+        duration=30.0,
+        speed_kmh=90.0,
+        wind_speed=(Step(3.0, 1.0, 10.0),),
+        wind_direction_deg=-90.0,
+    ),
+    Scenario(
+        "oblique_wind",
+        "14 m/s wind from 45 deg ahead-right, 110 km/h",
+        duration=30.0,
+        speed_kmh=110.0,
+        wind_speed=(Step(3.0, 2.0, 14.0),),
+        wind_direction_deg=135.0,
+        turbulence=0.1,
+    ),
+    Scenario(
+        "bank_transition",
+        "bank 0 -> +3 -> -3 -> 0 deg with 2-3 s transitions, no wind, 90 km/h",
+        duration=40.0,
+        speed_kmh=90.0,
+        bank_deg=(Step(5.0, 2.0, 3.0), Step(15.0, 3.0, -3.0), Step(28.0, 2.0, 0.0)),
+    ),
+    Scenario(
+        "payload_full",
+        "full load (+450 kg: 4 occupants + trunk), 8 m/s wind then bank +-2 deg, 100 km/h",
+        payload="full",
+        **_PAYLOAD_DRIVE,
+    ),
+    Scenario(
+        "payload_trunk",
+        "+150 kg in the trunk (CG moves back), 8 m/s wind then bank +-2 deg, 100 km/h",
+        payload="trunk",
+        **_PAYLOAD_DRIVE,
+    ),
+    Scenario(
+        "payload_four",
+        "+225 kg (3 passengers), 8 m/s wind then bank +-2 deg, 100 km/h",
+        payload="four_occupants",
+        **_PAYLOAD_DRIVE,
+    ),
+    Scenario(
+        "payload_left",
+        "+160 kg on the rear left seat (lateral CG offset), 8 m/s wind then bank, 100 km/h",
+        payload="left_side",
+        **_PAYLOAD_DRIVE,
+    ),
+    Scenario(
+        "lane_change",
+        "no disturbance: 3.5 m lane change to the left at 8 s and back at 20 s, 100 km/h",
+        duration=30.0,
+        speed_kmh=100.0,
+        lane=(Step(8.0, 4.0, 3.5), Step(20.0, 4.0, 0.0)),
+    ),
+    Scenario("straight", "no disturbance, straight lane keeping, 100 km/h", duration=30.0, speed_kmh=100.0),
+    Scenario(
+        "speed_sweep",
+        "speed 60 -> 160 km/h with a 6 m/s crosswind and bank +-1.5 deg",
+        duration=60.0,
+        speed_kmh=60.0,
+        speed_steps=(Step(5.0, 45.0, 160.0),),
+        wind_speed=(Step(2.0, 2.0, 6.0),),
+        turbulence=0.15,
+        bank_deg=(Step(20.0, 2.0, 1.5), Step(38.0, 3.0, -1.5), Step(52.0, 2.0, 0.0)),
+    ),
+    Scenario(
+        "heavy_load_60",
+        "paper heavy load at 60 km/h",
+        duration=40.0,
+        speed_kmh=60.0,
+        wind_speed=(Step(3.0, 1.5, 15.0), Step(28.0, 2.0, 0.0)),
+        turbulence=0.08,
+        bank_deg=_HEAVY_BANK,
+    ),
+    Scenario(
+        "heavy_load_140",
+        "paper heavy load at 140 km/h (wind 12 m/s so that the wheel stays within 15 deg)",
+        duration=40.0,
+        speed_kmh=140.0,
+        wind_speed=(Step(3.0, 1.5, 12.0), Step(28.0, 2.0, 0.0)),
+        turbulence=0.08,
+        bank_deg=_HEAVY_BANK,
+    ),
+    Scenario(
+        "overlay_step",
+        "no disturbance, a scripted 2 Nm overlay torque from 5 s to 15 s: the driver's reaction",
+        duration=25.0,
+        speed_kmh=100.0,
+        overlay=(Step(5.0, 0.4, 2.0), Step(15.0, 0.4, 0.0)),
+    ),
 ]
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in _LIST}
@@ -263,7 +351,9 @@ def get_scenario(name: str) -> Scenario:
     try:
         return SCENARIOS[name]
     except KeyError:
-        raise ConfigError(f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)}; see lde sim --list)") from None
+        raise ConfigError(
+            f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)}; see lde sim --list)"
+        ) from None
 
 
 def scenario_list() -> list[tuple[str, str]]:

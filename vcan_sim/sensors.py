@@ -49,8 +49,14 @@ class SensorNoise:
         return cls({name: rng.standard_normal(n) * getattr(sp, SENSOR_MAP[name][2]) for name in inputs})
 
 
-def measure(inputs: tuple[str, ...], rows: np.ndarray, rows_delayed: np.ndarray, noise: SensorNoise,
-            sl: slice, sp: SensorParams) -> dict[str, np.ndarray]:
+def measure(
+    inputs: tuple[str, ...],
+    rows: np.ndarray,
+    rows_delayed: np.ndarray,
+    noise: SensorNoise,
+    sl: slice,
+    sp: SensorParams,
+) -> dict[str, np.ndarray]:
     """SI measurements of ``inputs`` for frames ``sl`` of a message.
 
     ``rows`` / ``rows_delayed``: plant output rows at the frames' samples and ``d`` sub-steps before.

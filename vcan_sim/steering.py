@@ -48,8 +48,12 @@ def coulomb(w: float, tc: float, w_eps: float) -> float:
 
 def boost_tables(s: SteeringSystemParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(torque, assist, speed, scale) breakpoint arrays for :func:`boost`."""
-    return (np.asarray(s.boost_torque, np.float64), np.asarray(s.boost_assist, np.float64),
-            np.asarray(s.boost_speed, np.float64), np.asarray(s.boost_scale, np.float64))
+    return (
+        np.asarray(s.boost_torque, np.float64),
+        np.asarray(s.boost_assist, np.float64),
+        np.asarray(s.boost_speed, np.float64),
+        np.asarray(s.boost_scale, np.float64),
+    )
 
 
 def boost_gain(s: SteeringSystemParams, t_col: float, vx: float, dt: float = 1e-4) -> float:

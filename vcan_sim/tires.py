@@ -38,8 +38,23 @@ N_TIRE = 15
 def pack_tire(c: TireCoeffs) -> np.ndarray:
     """The coefficient vector used by the kernels (order of the T_* indices)."""
     return np.array(
-        [c.fz0, c.pCy1, c.pDy1, c.pDy2, c.pEy1, c.pEy2, c.pKy1, c.pKy2,
-         c.t0, c.qDz2, c.qBz1, c.qBz2, c.Ct, c.Et, c.mech_trail],
+        [
+            c.fz0,
+            c.pCy1,
+            c.pDy1,
+            c.pDy2,
+            c.pEy1,
+            c.pEy2,
+            c.pKy1,
+            c.pKy2,
+            c.t0,
+            c.qDz2,
+            c.qBz1,
+            c.qBz2,
+            c.Ct,
+            c.Et,
+            c.mech_trail,
+        ],
         dtype=np.float64,
     )
 

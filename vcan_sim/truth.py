@@ -80,16 +80,21 @@ def concat_truth(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
-def write_truth_csv(path: str | Path, truth: Mapping[str, np.ndarray], t_ns: np.ndarray | None = None,
-                    digits: int = 12) -> None:
+def write_truth_csv(
+    path: str | Path, truth: Mapping[str, np.ndarray], t_ns: np.ndarray | None = None, digits: int = 12
+) -> None:
     """CSV with a header. ``t`` is printed exactly from ``t_ns`` when given (9 decimals, the log's
     time base), the other columns with ``digits`` significant digits."""
     names = list(truth)
     other = [k for k in names if k != "t" or t_ns is None]
     body = io.StringIO()
     if other:
-        np.savetxt(body, np.column_stack([np.asarray(truth[k], np.float64) for k in other]),
-                   fmt=f"%.{digits}g", delimiter=",")
+        np.savetxt(
+            body,
+            np.column_stack([np.asarray(truth[k], np.float64) for k in other]),
+            fmt=f"%.{digits}g",
+            delimiter=",",
+        )
     rows = body.getvalue().splitlines()
     if t_ns is not None and "t" in names:
         t_txt = [f"{v // 1_000_000_000}.{v % 1_000_000_000:09d}" for v in np.asarray(t_ns, np.int64).tolist()]

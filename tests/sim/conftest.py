@@ -11,7 +11,9 @@ from vcan_sim.run import SimResult, simulate
 _CACHE: dict[tuple, SimResult] = {}
 
 
-def run_cached(scenario: str, seed: int = 0, duration: float | None = None, profile: str = "lde") -> SimResult:
+def run_cached(
+    scenario: str, seed: int = 0, duration: float | None = None, profile: str = "lde"
+) -> SimResult:
     key = (scenario, seed, duration, profile)
     if key not in _CACHE:
         _CACHE[key] = simulate(scenario, seed=seed, duration=duration, profile=profile)

@@ -37,8 +37,9 @@ def test_overlay_receiver_e2e_and_ramp_out():
     # a corrupted CRC is rejected and counted, the value is not taken
     bad = bytearray(enc.encode({"OverlayTorque": -3.0, "Active": 1}))
     bad[0] ^= 0xFF
-    st = rx.on_message(can.Message(arbitration_id=prof.spec("LDE_Overlay").frame_id, data=bad,
-                                   is_extended_id=False), t_now)
+    st = rx.on_message(
+        can.Message(arbitration_id=prof.spec("LDE_Overlay").frame_id, data=bad, is_extended_id=False), t_now
+    )
     assert st == E2EStatus.WRONGCRC and rx.stats.rejected == 1
     # Active = 0 requests zero
     rx2 = OverlayReceiver(prof)
@@ -77,7 +78,10 @@ def test_closed_loop_overlay_relieves_the_driver():
 def test_pump_on_virtual_bus_fast_and_closed_loop():
     chan = "vcan_sim_test_pump"
     prof = load_profile("lde")
-    with can.Bus(interface="virtual", channel=chan) as sim_bus, can.Bus(interface="virtual", channel=chan) as lde:
+    with (
+        can.Bus(interface="virtual", channel=chan) as sim_bus,
+        can.Bus(interface="virtual", channel=chan) as lde,
+    ):
         sim = Simulation("straight", seed=1, duration=0.5)
         received: list[can.Message] = []
         stop = threading.Event()
@@ -120,12 +124,29 @@ def test_cli_list(capsys):
 
 def test_cli_files_read_back(tmp_path):
     log, csv, mcap = tmp_path / "o.log", tmp_path / "o.csv", tmp_path / "o.mcap"
-    rc = main(["sim", "--scenario", "wind_step", "--duration", "3", "--seed", "5", "--log", str(log),
-               "--truth", str(csv), "--mcap", str(mcap)])
+    rc = main(
+        [
+            "sim",
+            "--scenario",
+            "wind_step",
+            "--duration",
+            "3",
+            "--seed",
+            "5",
+            "--log",
+            str(log),
+            "--truth",
+            str(csv),
+            "--mcap",
+            str(mcap),
+        ]
+    )
     assert rc == 0
     ref = simulate("wind_step", seed=5, duration=3.0)
     data = read_log(log)
-    assert np.array_equal(data.frames.t_ns, ref.frames.t_ns) and np.array_equal(data.frames.data, ref.frames.data)
+    assert np.array_equal(data.frames.t_ns, ref.frames.t_ns) and np.array_equal(
+        data.frames.data, ref.frames.data
+    )
     truth = np.genfromtxt(csv, delimiter=",", names=True)
     assert {"t", "Fw", "Mw", "Mw_ref", "T_overlay"} <= set(truth.dtype.names)
     # t is in the log's own time base: the first truth row is the first MDPS frame

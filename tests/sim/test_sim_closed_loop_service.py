@@ -14,12 +14,15 @@ def _run(overlay: bool, duration: float = 9.0):
     service_mod = pytest.importorskip("lde.service")
     clock_mod = pytest.importorskip("lde.clock")
     ch = f"vcan_sim_lockstep_{overlay}"
-    with can.Bus(interface="virtual", channel=ch, preserve_timestamps=True) as sim_bus, \
-            can.Bus(interface="virtual", channel=ch, preserve_timestamps=True) as lde_bus:
+    with (
+        can.Bus(interface="virtual", channel=ch, preserve_timestamps=True) as sim_bus,
+        can.Bus(interface="virtual", channel=ch, preserve_timestamps=True) as lde_bus,
+    ):
         sim = Simulation("wind_step", seed=0, duration=duration)
         clock = clock_mod.SimulatedClock(sim.t0_ns)
-        svc = service_mod.Service(lde_bus, "lde", None, clock, backend="float", overlay_enabled=overlay,
-                                  log_period_s=0)
+        svc = service_mod.Service(
+            lde_bus, "lde", None, clock, backend="float", overlay_enabled=overlay, log_period_s=0
+        )
 
         def step(t_k: int) -> None:
             clock.sleep_until(t_k)

@@ -11,8 +11,10 @@ from lde.profiles import load_profile
 from lde.units import DEG, KMH, STEP_NS
 from vcan_sim.run import Simulation, default_t0_ns, simulate
 
-PERIODS = {"lde": {"MDPS_Sensors": 3_900_000, "ESC_Motion": 10_000_000},
-           "hyundai": {"MDPS12": 10_000_000, "SAS11": 10_000_000, "ESP12": 20_000_000, "WHL_SPD11": 20_000_000}}
+PERIODS = {
+    "lde": {"MDPS_Sensors": 3_900_000, "ESC_Motion": 10_000_000},
+    "hyundai": {"MDPS12": 10_000_000, "SAS11": 10_000_000, "ESP12": 20_000_000, "WHL_SPD11": 20_000_000},
+}
 
 
 def _decode(profile, name, frames):
@@ -63,10 +65,12 @@ def test_decoded_signals_match_truth_and_mdps_delay(sim_run):
 def test_mdps_torques_delayed_by_3_9_ms_without_noise(vehicle, sim_params):
     import dataclasses
 
-    quiet = dataclasses.replace(sim_params.sensors, column_torque_noise=0.0, assist_torque_noise=0.0,
-                                steering_angle_noise=0.0)
-    sim = Simulation("wind_step", vehicle, seed=0, duration=8.0,
-                     sim_params=dataclasses.replace(sim_params, sensors=quiet))
+    quiet = dataclasses.replace(
+        sim_params.sensors, column_torque_noise=0.0, assist_torque_noise=0.0, steering_angle_noise=0.0
+    )
+    sim = Simulation(
+        "wind_step", vehicle, seed=0, duration=8.0, sim_params=dataclasses.replace(sim_params, sensors=quiet)
+    )
     sim.run()
     res = sim.result()
     _, cols = _decode(load_profile("lde"), "MDPS_Sensors", res.frames)
@@ -86,7 +90,7 @@ def test_same_seed_same_bytes_other_seed_other_bytes():
     for k in a.truth:
         assert np.array_equal(a.truth[k], b.truth[k])
     assert c.t0_ns != a.t0_ns
-    assert not np.array_equal(a.frames.data[100:], c.frames.data[100:len(a.frames)])
+    assert not np.array_equal(a.frames.data[100:], c.frames.data[100 : len(a.frames)])
 
 
 @pytest.mark.parametrize("profile_name", ["lde", "hyundai"])

@@ -14,8 +14,9 @@ def test_eq17_18_recover_the_mass_weighted_cg(vehicle, sim_params):
     b = vehicle.body
     for name, pl in PAYLOADS.items():
         body = loaded_body(vehicle, sim_params, pl)
-        masses = [(b.mass, b.lf, 0.0)] + [(m, sim_params.seats[s].x_behind_front_axle, sim_params.seats[s].y_left)
-                                         for s, m in pl.items]
+        masses = [(b.mass, b.lf, 0.0)] + [
+            (m, sim_params.seats[s].x_behind_front_axle, sim_params.seats[s].y_left) for s, m in pl.items
+        ]
         mt = sum(m for m, _, _ in masses)
         assert body.mass == pytest.approx(mt), name
         assert body.lf == pytest.approx(sum(m * x for m, x, _ in masses) / mt), name
@@ -40,15 +41,27 @@ def test_bad_payload_and_sim_table(vehicle, sim_params):
         loaded_body(vehicle, sim_params, Payload((("glovebox", 10.0),)))
     with pytest.raises(ConfigError):
         loaded_body(vehicle, sim_params, Payload((("trunk", -5.0),)))
-    raw = {"name": "x", "vehicle": {"mass_kg": 1466.0, "yaw_inertia_kgm2": 2744.0, "lf_m": 1.071, "lr_m": 1.724,
-                                   "track_front_m": 1.587, "track_rear_m": 1.587},
-           "steering": {"ratio": 15.0}, "tires": {"cf_N_per_rad": 6e4, "cr_N_per_rad": 6e4,
-                                                 "align_rate_Nm_per_rad": 7000.0}}
+    raw = {
+        "name": "x",
+        "vehicle": {
+            "mass_kg": 1466.0,
+            "yaw_inertia_kgm2": 2744.0,
+            "lf_m": 1.071,
+            "lr_m": 1.724,
+            "track_front_m": 1.587,
+            "track_rear_m": 1.587,
+        },
+        "steering": {"ratio": 15.0},
+        "tires": {"cf_N_per_rad": 6e4, "cr_N_per_rad": 6e4, "align_rate_Nm_per_rad": 7000.0},
+    }
     assert sim_params_from_vehicle(vehicle_from_dict(raw)).tire == sim_params.tire  # defaults without [sim]
     with pytest.raises(ConfigError, match="cg_hieght_m"):
         sim_params_from_vehicle(vehicle_from_dict({**raw, "sim": {"cg_hieght_m": 0.5}}))
     with pytest.raises(ConfigError, match="aero"):
         sim_params_from_vehicle(vehicle_from_dict({**raw, "sim": {"aero": {"frontal_area_m2": "big"}}}))
-    sp = sim_params_from_vehicle(vehicle_from_dict({**raw, "sim": {"steering": {"torsion_stiffness_Nm_per_deg": 1.5},
-                                                                   "tire": {"pKy1": 15.0}}}))
+    sp = sim_params_from_vehicle(
+        vehicle_from_dict(
+            {**raw, "sim": {"steering": {"torsion_stiffness_Nm_per_deg": 1.5}, "tire": {"pKy1": 15.0}}}
+        )
+    )
     assert sp.tire.pKy1 == 15.0 and sp.steering.torsion_stiffness == pytest.approx(1.5 * 57.29577951308232)

@@ -68,8 +68,9 @@ def test_crosswind_force_matches_eq1(sim_params):
     assert beta == pytest.approx(math.atan2(w, vx))
     cy = a.cy1 * math.sin(beta) * abs(math.cos(beta)) + a.cy2 * math.sin(beta) ** 2
     assert fy == pytest.approx(0.5 * a.air_density * cy * vr**2 * a.frontal_area)  # eq. (1)
-    assert m_mid == pytest.approx(a.cn1 * math.sin(beta) * math.cos(beta) * a.air_density / 2 * 2.795
-                                  * a.frontal_area * vr**2)  # eq. (2)
+    assert m_mid == pytest.approx(
+        a.cn1 * math.sin(beta) * math.cos(beta) * a.air_density / 2 * 2.795 * a.frontal_area * vr**2
+    )  # eq. (2)
     assert fy > 0 and m_mid > 0 and fx < 0
 
 

@@ -15,8 +15,14 @@ from vcan_sim.scenarios import Scenario, Step
 
 
 def _turn(speed_kmh: float, sw_deg: float) -> Scenario:
-    return Scenario("turn", "steady turn", duration=20.0, speed_kmh=speed_kmh, driver="angle",
-                    steer_deg=(Step(1.0, 1.0, sw_deg),))
+    return Scenario(
+        "turn",
+        "steady turn",
+        duration=20.0,
+        speed_kmh=speed_kmh,
+        driver="angle",
+        steer_deg=(Step(1.0, 1.0, sw_deg),),
+    )
 
 
 @pytest.mark.parametrize(("speed", "sw"), [(60.0, 10.0), (100.0, 5.0), (100.0, 10.0)])
@@ -30,8 +36,9 @@ def test_small_angle_steady_cornering_matches_linear_bicycle(vehicle, light, spe
     assert abs(tr["ay"][last].mean()) < 2.0  # small angle: linear range
     assert tr["r"][last].std() < 0.01 * abs(r_sim)  # steady
     b = vehicle.body
-    beta, r = bicycle_steady_state(b.mass, b.lf, b.lr, eq.cf, eq.cr, tr["vx"][last].mean(),
-                                   tr["delta_f"][last].mean())
+    beta, r = bicycle_steady_state(
+        b.mass, b.lf, b.lr, eq.cf, eq.cr, tr["vx"][last].mean(), tr["delta_f"][last].mean()
+    )
     assert r_sim == pytest.approx(r, rel=0.02)
     assert beta_sim == pytest.approx(beta, rel=0.08, abs=2e-4)
 
@@ -63,7 +70,8 @@ def test_crosswind_force_in_simulation_is_eq1(heavy, sim_params):
     cy = a.cy1 * np.sin(beta) * np.abs(np.cos(beta)) + a.cy2 * np.sin(beta) * np.abs(np.sin(beta))
     # relative airflow from the ground speed and the wind (crosswind toward +Y; heading ~ 0)
     vr2 = (tr["vx"][m] * np.cos(tr["psi"][m]) - tr["vy"][m] * np.sin(tr["psi"][m])) ** 2 + (
-        tr["wind_speed"][m] - tr["vx"][m] * np.sin(tr["psi"][m]) - tr["vy"][m] * np.cos(tr["psi"][m])) ** 2
+        tr["wind_speed"][m] - tr["vx"][m] * np.sin(tr["psi"][m]) - tr["vy"][m] * np.cos(tr["psi"][m])
+    ) ** 2
     np.testing.assert_allclose(tr["Fy_wind"][m], 0.5 * a.air_density * cy * vr2 * a.frontal_area, rtol=1e-6)
 
 

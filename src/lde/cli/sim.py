@@ -41,17 +41,30 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of every random part (default 0)")
     p.add_argument("--duration", type=float, metavar="SEC", help="length [s] (default: the scenario's)")
     p.add_argument("--speed", type=float, metavar="KMH", help="run at this constant speed [km/h] instead")
-    p.add_argument("--t0", type=float, metavar="SEC",
-                   help="start of the simulated clock, epoch seconds (default 1700000000 + seed)")
+    p.add_argument(
+        "--t0",
+        type=float,
+        metavar="SEC",
+        help="start of the simulated clock, epoch seconds (default 1700000000 + seed)",
+    )
     p.add_argument("--log", metavar="OUT.log", help="write a candump -L log of the frames")
     p.add_argument("--log-channel", default="vcan0", help="channel name written in the candump log")
     p.add_argument("--truth", metavar="OUT.csv", help="write the ground truth CSV")
     p.add_argument("--mcap", metavar="OUT.mcap", help="write an MCAP recording (frames + /truth channel)")
     mode = p.add_mutually_exclusive_group()
-    mode.add_argument("--realtime", dest="realtime", action="store_true", default=None,
-                      help="live bus: send each frame at its time (default on a live bus)")
-    mode.add_argument("--fast", dest="realtime", action="store_false",
-                      help="live bus: as fast as possible with simulated timestamps")
+    mode.add_argument(
+        "--realtime",
+        dest="realtime",
+        action="store_true",
+        default=None,
+        help="live bus: send each frame at its time (default on a live bus)",
+    )
+    mode.add_argument(
+        "--fast",
+        dest="realtime",
+        action="store_false",
+        help="live bus: as fast as possible with simulated timestamps",
+    )
     p.add_argument("--open-loop", action="store_true", help="live bus: ignore LDE_Overlay frames")
     add_bus_arguments(p)
     p.set_defaults(func=run)
@@ -73,7 +86,10 @@ def _live_requested(args: argparse.Namespace) -> bool:
         return False
     import can
 
-    cfg = can.util.load_config()
+    try:
+        cfg = can.util.load_config()
+    except (can.CanError, ValueError):  # no (usable) python-can configuration
+        return False
     return bool(cfg.get("interface"))
 
 
@@ -86,8 +102,15 @@ def run(args: argparse.Namespace) -> int:
     from vcan_sim.run import Simulation
 
     t0_ns = None if args.t0 is None else int(round(args.t0 * 1e6)) * 1000
-    sim = Simulation(args.scenario, vehicle=args.vehicle, profile=args.profile, seed=args.seed,
-                     duration=args.duration, t0_ns=t0_ns, speed_kmh=args.speed)
+    sim = Simulation(
+        args.scenario,
+        vehicle=args.vehicle,
+        profile=args.profile,
+        seed=args.seed,
+        duration=args.duration,
+        t0_ns=t0_ns,
+        speed_kmh=args.speed,
+    )
     live = _live_requested(args)
     if not live and not (args.log or args.truth or args.mcap):
         raise ConfigError("nothing to do: give --log/--truth/--mcap, or a bus (--interface/--channel)")
@@ -108,17 +131,22 @@ def run(args: argparse.Namespace) -> int:
             bus.shutdown()
         if st is not None:
             used = receiver.stats.used if receiver else 0
-            print(f"lde sim: {args.scenario}: sent {st.sent} frames over {st.sim_s:.2f} s simulated in "
-                  f"{st.wall_s:.2f} s wall ({'real time' if realtime else 'fast'}); overlay frames used "
-                  f"{used}, send errors {st.send_errors}, max lateness {st.max_late_s * 1e3:.2f} ms",
-                  file=sys.stderr)
+            print(
+                f"lde sim: {args.scenario}: sent {st.sent} frames over {st.sim_s:.2f} s simulated in "
+                f"{st.wall_s:.2f} s wall ({'real time' if realtime else 'fast'}); overlay frames used "
+                f"{used}, send errors {st.send_errors}, max lateness {st.max_late_s * 1e3:.2f} ms",
+                file=sys.stderr,
+            )
     else:
         sim.run()
     res = sim.result()
     written = write_outputs(res, log=args.log, truth=args.truth, mcap=args.mcap, channel=args.log_channel)
     if not live:
         dest = f" -> {', '.join(map(str, written))}" if written else ""
-        print(f"lde sim: {args.scenario} (seed {args.seed}, profile {res.profile}): {len(res.frames)} frames, "
-              f"{len(res.truth_t_ns)} truth rows, {sim.duration:.2f} s simulated in "
-              f"{time.monotonic() - wall:.2f} s{dest}", file=sys.stderr)
+        print(
+            f"lde sim: {args.scenario} (seed {args.seed}, profile {res.profile}): {len(res.frames)} frames, "
+            f"{len(res.truth_t_ns)} truth rows, {sim.duration:.2f} s simulated in "
+            f"{time.monotonic() - wall:.2f} s{dest}",
+            file=sys.stderr,
+        )
     return 0
