@@ -154,6 +154,9 @@ def test_cli_files_read_back(tmp_path):
     np.testing.assert_allclose(truth["Fw"], ref.truth["Fw"])
     rec = read_mcap(mcap, json_topics="/truth")
     assert np.array_equal(rec.frames.data, ref.frames.data)
+    jt = rec.json["/truth"]
+    assert np.array_equal(jt["log_time"], ref.truth_t_ns)
+    np.testing.assert_allclose(jt["Mw"], ref.truth["Mw"])
 
 
 def test_cli_errors(capsys):
