@@ -324,8 +324,9 @@ class Service:
             self.send_errors += 1
             if self.send_errors == 1 or self.send_errors % 1000 == 0:
                 log.warning("CAN send failed (%d so far): %s", self.send_errors, exc)
+            return
         if self.recorder is not None:
-            self.recorder.tx(msg)
+            self.recorder.tx(msg)  # only frames the bus took
 
     # ------------------------------------------------------------------ the loop
     def request_stop(self) -> None:

@@ -45,6 +45,7 @@ SCENARIO = "light_load"  # 2 m/s crosswind from 3 s: the driver holds < 1 Nm, th
 SIM_S = 12.0
 SETTLE_S = 7.0  # compare the holding torque after the wind has built up and the overlay ramped in
 LDE = [sys.executable, "-m", "lde"]
+CANDUMP_RCVBUF = 16 << 20  # bytes
 
 
 def _sim(tmp: Path, name: str, *extra: str) -> subprocess.CompletedProcess[str]:
@@ -81,9 +82,25 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
     dump = tmp / "dump.log"
     rec_path = tmp / "service.mcap"
     with dump.open("w") as fh:
-        candump = subprocess.Popen(["candump", "-L", CHANNEL], stdout=fh)
+        # a large socket buffer: UML may starve candump for a while, and a dropped frame would look
+        # like a counter gap of the service
+        candump = subprocess.Popen(["candump", "-L", "-r", str(CANDUMP_RCVBUF), CHANNEL], stdout=fh)
         service = subprocess.Popen(
-            [*LDE, "run", "-i", "socketcan", "-c", CHANNEL, "--backend", "fixed", "--record", str(rec_path)],
+            # --realtime: SCHED_FIFO inside the guest puts the service before the simulator and candump
+            # on UML's one CPU (it falls back with a warning where not permitted)
+            [
+                *LDE,
+                "run",
+                "-i",
+                "socketcan",
+                "-c",
+                CHANNEL,
+                "--backend",
+                "fixed",
+                "--realtime",
+                "--record",
+                str(rec_path),
+            ],
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
