@@ -15,7 +15,7 @@ import sys
 import threading
 from types import FrameType
 
-from ..errors import BusError
+from ..errors import BusError, ConfigError
 from ..service import StepResult
 
 log = logging.getLogger("lde.service")
@@ -113,7 +113,10 @@ def run(args: argparse.Namespace) -> int:
     elif args.cpu:
         import os
 
-        os.sched_setaffinity(0, set(args.cpu))
+        try:
+            os.sched_setaffinity(0, set(args.cpu))
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"--cpu {args.cpu}: cannot pin to these CPUs: {exc}") from exc
 
     bus = svc_mod.open_bus(**bus_kwargs(args))
     recorder = None
