@@ -277,6 +277,7 @@ def replay(
     backend: str | None = "float",
     *,
     step_times_ns: np.ndarray | None = None,
+    tx_frames: int | None = None,
 ) -> ReplayResult:
     """Replay ``frames`` (any order) through the estimator.
 
@@ -287,6 +288,7 @@ def replay(
         backend: ``"float"``, ``"fixed"`` or None (fixed if available, else float).
         step_times_ns: explicit step times (a recording's); default the grid from the first
             accepted MDPS frame to the last frame.
+        tx_frames: the log's count of frames lde sent, when the reader did not return them all.
     """
     name, run_batch, _note = resolve_backend(backend)
     timings: dict[str, float] = {}
@@ -312,7 +314,7 @@ def replay(
         beta=np.asarray(est.beta, np.float64),
         yaw_rate=np.asarray(est.yaw_rate, np.float64),
         grid=grid,
-        frames=_frame_counts(decoded, n_tx),
+        frames=_frame_counts(decoded, n_tx if tx_frames is None else tx_frames),
         backend=name,
         overlay=have_overlay,
         recorded_steps=step_times_ns is not None,
@@ -345,10 +347,13 @@ def replay_log(
     An lde recording is replayed on its recorded step times unless ``use_recorded_steps`` is False.
     """
     t0 = time.perf_counter()
-    log = read_log(Path(path))
+    log = read_log(Path(path), skip_tx=True)
     steps = recorded_step_times(log) if use_recorded_steps else None
+    n_tx = None
+    if log.mcap is not None and "/can/tx" in log.mcap.topics:
+        n_tx = log.mcap.topics["/can/tx"].count
     t1 = time.perf_counter()
-    res = replay(log.frames, profile, vehicle, backend, step_times_ns=steps)
+    res = replay(log.frames, profile, vehicle, backend, step_times_ns=steps, tx_frames=n_tx)
     res.timings = {"read": t1 - t0, **res.timings}
     return log, res
 

@@ -445,11 +445,10 @@ class McapWriter:
         base = np.cumsum([0] + [p.size for p in pays[:-1]])
         off = np.concatenate([b.off + base[i] for i, b in enumerate(blocks)])
         pay = np.concatenate(pays) if len(pays) > 1 else pays[0]
-        # one chunk stream ("lane") for the CAN channels and one per JSON channel: a reader that
-        # wants the CAN frames decompresses no JSON, and the JSON log times are in the message indexes
-        lane = np.where((chan == self.rx_channel) | (chan == self.tx_channel), 0, chan)
-        for lane_id in np.unique(lane).tolist():
-            idx = np.flatnonzero(lane == lane_id)
+        # one chunk stream ("lane") per channel: a reader decompresses only the channels it wants
+        # (replay: /can/rx), the others' log times and counts are in the message indexes
+        for lane_id in np.unique(chan).tolist():
+            idx = np.flatnonzero(chan == lane_id)
             order = idx[np.argsort(t[idx], kind="stable")]
             self._write_lane(order, chan, seq, t, pay, off, length)
         t_lo, t_hi = int(t.min()), int(t.max())
@@ -720,6 +719,7 @@ def read_mcap(
     require_can: bool = True,
     force_library: bool = False,
     validate_crcs: bool = True,
+    skip_tx: bool = False,
 ) -> McapData:
     """Read an lde MCAP file (layout in the module doc).
 
@@ -728,6 +728,9 @@ def read_mcap(
         require_can: raise :class:`LogFormatError` if the file has no CAN channel.
         force_library: use the ``mcap`` library's per-message reader (the reference path).
         validate_crcs: check each chunk's CRC-32 (a corrupt chunk then always raises).
+        skip_tx: do not decompress chunks that hold only ``/can/tx`` (lde's own sent frames, which a
+            replay does not use): ``frames`` then holds the received frames (and any tx frame that
+            shares a chunk with them); ``topics["/can/tx"].count`` still counts them all.
 
     Raises:
         LogFormatError: not an MCAP file, corrupt, or (with ``require_can``) no CAN channel.
@@ -751,9 +754,9 @@ def read_mcap(
             summary = None
         try:
             if summary is not None and summary.chunk_indexes:
-                data = _read_fast(raw, summary, validate_crcs, json_topics)
+                data = _read_fast(raw, summary, validate_crcs, json_topics, skip_tx)
             elif not force_library and (scan := _scan_top_level(raw)) is not None:
-                data = _read_fast(raw, scan, validate_crcs, json_topics)
+                data = _read_fast(raw, scan, validate_crcs, json_topics, skip_tx)
                 data.truncated = scan.truncated
             else:
                 fh.seek(0)
@@ -782,21 +785,27 @@ def _wanted_json_ids(
     return {cid for cid, ch in summary_channels.items() if ch.topic in wanted}
 
 
-def _index_times(raw: bytes, ci) -> tuple[list[np.ndarray], list[np.ndarray]] | None:
-    """(channels, log times) of a chunk from its message index records; None if it has none."""
+def _index_times(
+    raw, ci, kind: np.ndarray
+) -> tuple[list[np.ndarray], list[np.ndarray], dict[int, int]] | None:
+    """From a chunk's message index records: (channels, log times) of its non-CAN messages and the
+    message count per CAN channel; None if it has no (valid) message index."""
     if not ci.message_index_offsets:
         return None
-    chans, times = [], []
+    chans, times, can_counts = [], [], {}
     for ch, o in ci.message_index_offsets.items():
         if o + 15 > len(raw) or raw[o] != OP_MESSAGE_INDEX:
             return None
         (n_bytes,) = struct.unpack_from("<I", raw, o + 11)
         if o + 15 + n_bytes > len(raw) or n_bytes % 16:
             return None
+        if kind[ch] == 1:
+            can_counts[ch] = n_bytes // 16
+            continue
         pairs = np.frombuffer(raw, "<u8", count=n_bytes // 8, offset=o + 15).reshape(-1, 2)
         times.append(pairs[:, 0].astype(np.int64))
         chans.append(np.full(pairs.shape[0], ch, np.uint16))
-    return chans, times
+    return chans, times, can_counts
 
 
 @dataclass
@@ -874,7 +883,13 @@ def _chunk_header(raw, o: int) -> tuple[str, int, int, int, int]:
     return comp, usize, ucrc, start, dlen
 
 
-def _read_fast(raw, summary, validate_crcs: bool, json_topics: Iterable[str] | str | None = None) -> McapData:
+def _read_fast(
+    raw,
+    summary,
+    validate_crcs: bool,
+    json_topics: Iterable[str] | str | None = None,
+    skip_tx: bool = False,
+) -> McapData:
     kind = np.zeros(65536, np.int8)
     cmap = np.full(65536, -1, np.int64)  # channel id -> compact index into the counts; -1 undeclared
     topics: dict[str, TopicInfo] = {}
@@ -898,17 +913,22 @@ def _read_fast(raw, summary, validate_crcs: bool, json_topics: Iterable[str] | s
     # times and counts come from their message index records
     json_ids = _wanted_json_ids(summary.channels, json_topics)
     needed = {int(c) for c in np.flatnonzero(kind == 1)} | json_ids
+    if skip_tx:
+        needed -= {cid_ for cid_, ch in summary.channels.items() if ch.topic == TOPIC_TX}
     skip_chans: list[np.ndarray] = []
     skip_times: list[np.ndarray] = []
+    skip_can = np.zeros(65536, np.int64)
     keep = []
     for ci in chunks:
         chans = set(ci.message_index_offsets)
-        idx = None if (not chans or chans & needed) else _index_times(raw, ci)
+        idx = None if (not chans or chans & needed) else _index_times(raw, ci, kind)
         if idx is None:
             keep.append(ci)
         else:
             skip_chans += idx[0]
             skip_times += idx[1]
+            for ch, k in idx[2].items():
+                skip_can[ch] += k
     n_skipped = len(chunks) - len(keep)
     chunks = keep
     heads = [_chunk_header(raw, ci.chunk_start_offset) for ci in chunks]
@@ -981,6 +1001,7 @@ def _read_fast(raw, summary, validate_crcs: bool, json_topics: Iterable[str] | s
     o_off, o_len = compact(o_off, oth_sl), compact(o_len, oth_sl)
     ch_counts = np.zeros(65536, np.int64)
     ch_counts[chan_ids] = counts.sum(axis=0)[: len(chan_ids)]
+    ch_counts += skip_can
     if skip_chans:
         sc = np.concatenate(skip_chans)
         ch_counts += np.bincount(sc, minlength=65536)
