@@ -154,6 +154,8 @@ def test_csv_contract(sample_replay, tmp_path: Path):
     np.testing.assert_allclose([float(r[1]) for r in body], res.fw, atol=5e-4)
     np.testing.assert_allclose([float(r[2]) for r in body], res.mw, atol=5e-4)
     assert [int(r[5]) for r in body] == res.status.tolist()
+    cols = res.columns()
+    assert cols["Fw"] is res.fw and cols["T_overlay"] is res.t_overlay and len(cols["t_ns"]) == len(res)
 
 
 def test_cli_end_to_end(tmp_path: Path, capsys):

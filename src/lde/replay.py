@@ -173,6 +173,23 @@ class ReplayResult:
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
 
+    def columns(self) -> dict[str, np.ndarray]:
+        """The per-step columns by their CSV / recording names (``t_ns``, ``Fw``, ``Mw``,
+        ``T_align``, ``T_overlay``, ``status``, ``overlay_state``, ``overlay_active``, ``beta``,
+        ``yaw_rate``)."""
+        return {
+            "t_ns": self.t_ns,
+            "Fw": self.fw,
+            "Mw": self.mw,
+            "T_align": self.t_align,
+            "T_overlay": self.t_overlay,
+            "status": self.status,
+            "overlay_state": self.overlay_state,
+            "overlay_active": self.overlay_active,
+            "beta": self.beta,
+            "yaw_rate": self.yaw_rate,
+        }
+
     @property
     def duration_s(self) -> float:
         return float(self.t_ns[-1] - self.t_ns[0]) * 1e-9 if len(self) else 0.0
