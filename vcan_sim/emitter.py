@@ -24,7 +24,7 @@ from lde.frames import FrameBatch, ns_to_seconds
 from lde.profiles import Profile
 
 from .config import SensorParams
-from .sensors import SensorNoise, measure
+from .sensors import PINION_ANGLE_MESSAGES, SensorNoise, measure
 
 log = logging.getLogger(__name__)
 
@@ -109,7 +109,9 @@ def emit_range(
     r = out_ring.shape[0]
     rows = out_ring[idx % r]
     rows_d = out_ring[np.maximum(idx - delay, 0) % r]
-    si = measure(stream.inputs, rows, rows_d, stream.noise, slice(a, b), sp)
+    si = measure(
+        stream.inputs, rows, rows_d, stream.noise, slice(a, b), sp, stream.name in PINION_ANGLE_MESSAGES
+    )
     for name in stream.unsigned:
         si[name] = np.abs(si[name])
     cols = si_to_dbc(profile, stream.name, si)

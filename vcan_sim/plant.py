@@ -166,8 +166,10 @@ N_DRIVE = 8
     O_FYR,
     O_TBOOST,
     O_MZT,
-) = range(38)
-N_OUT = 38
+    O_THP,
+    O_WP,
+) = range(40)
+N_OUT = 40
 OUTPUT_NAMES = (
     "vx",
     "vy",
@@ -207,6 +209,8 @@ OUTPUT_NAMES = (
     "Fy_rear",
     "T_boost",
     "Mz_tires",
+    "theta_p",
+    "omega_p",
 )
 
 
@@ -395,6 +399,8 @@ def derivatives(
         out[O_FYR] = fy3 + fy4
         out[O_TBOOST] = t_boost
         out[O_MZT] = mz_t
+        out[O_THP] = x[X_THP]
+        out[O_WP] = x[X_WP]
 
 
 @numba.njit(cache=True)

@@ -5,11 +5,18 @@ plant's output rows at the frame's sample (the last sub-step at or before the fr
 
     column_torque  = T_column(k - d) + b + n      torsion-bar torque, delayed by the MDPS
     assist_torque  = T_assist(k - d) + b + n      total motor torque (boost + overlay), delayed
-    steering_angle = delta_sw(k) + b + n          steering-wheel angle
-    steering_rate  = omega_sw(k) + n
+    steering_angle = th(k) + b + n                steering angle (steering-wheel scale, see below)
+    steering_rate  = w(k) + n
     yaw_rate       = r(k) + b + n
     lat_accel      = a_y,meas(k) + b + n          body accelerometer (tire + aero force / m + g sin roll)
     speed          = vx(k) + n
+
+Where the angle is sensed matters: the torsion bar twists by T_column / k_tb (about 1.5 deg at
+3 Nm), so the steering-wheel angle differs from N delta_f. A column MDPS senses its angle at the
+motor, below the torsion bar: messages in :data:`PINION_ANGLE_MESSAGES` (the ``lde`` profile's
+MDPS_Sensors) carry the pinion angle th_p (= N delta_f) and rate; a steering-angle sensor at the top
+of the column (the ``hyundai`` profile's SAS11) carries the steering-wheel angle th_sw and rate,
+twist included.
 
 ``d`` = round(mdps_delay / h) sub-steps (the paper's 3.9 ms computation delay), ``b`` the
 configured bias, ``n`` white Gaussian noise (seeded, drawn once per frame for the whole run so that
@@ -24,7 +31,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import SensorParams
-from .plant import O_AY, O_DSW, O_R, O_TAST, O_TCOL, O_VX, O_WSW
+from .plant import O_AY, O_DSW, O_R, O_TAST, O_TCOL, O_THP, O_VX, O_WP, O_WSW
+
+#: messages whose steering angle is sensed below the torsion bar (the MDPS motor's position)
+PINION_ANGLE_MESSAGES = frozenset({"MDPS_Sensors"})
 
 #: input -> (output column, delayed by the MDPS, noise attribute, bias attribute or None)
 SENSOR_MAP: dict[str, tuple[int, bool, str, str | None]] = {
@@ -56,18 +66,25 @@ def measure(
     noise: SensorNoise,
     sl: slice,
     sp: SensorParams,
+    pinion_angle: bool = False,
 ) -> dict[str, np.ndarray]:
     """SI measurements of ``inputs`` for frames ``sl`` of a message.
 
-    ``rows`` / ``rows_delayed``: plant output rows at the frames' samples and ``d`` sub-steps before.
+    ``rows`` / ``rows_delayed``: plant output rows at the frames' samples and ``d`` sub-steps before;
+    ``pinion_angle``: the angle and rate are sensed below the torsion bar (see the module doc).
     """
     out: dict[str, np.ndarray] = {}
     for name in inputs:
         col, delayed, _, bias_attr = SENSOR_MAP[name]
+        if pinion_angle and col in _PINION:
+            col = _PINION[col]
         src = rows_delayed if delayed else rows
         bias = getattr(sp, bias_attr) if bias_attr else 0.0
         out[name] = src[:, col] + bias + noise.values[name][sl]
     return out
+
+
+_PINION = {O_DSW: O_THP, O_WSW: O_WP}
 
 
 def delay_substeps(sp: SensorParams, h: float) -> int:

@@ -55,7 +55,8 @@ def test_decoded_signals_match_truth_and_mdps_delay(sim_run):
     # torques are one MDPS period (3.9 ms) late (noise 5 mNm)
     np.testing.assert_allclose(cols["ColumnTorque"][1:], tr["T_column"][:-1], atol=0.03)
     np.testing.assert_allclose(cols["AssistTorque"][1:], tr["T_assist"][:-1], atol=0.03)
-    np.testing.assert_allclose(cols["SteeringAngle"] * DEG, tr["delta_sw"], atol=0.15 * DEG)
+    # the MDPS senses its angle at the motor, below the torsion bar: N delta_f, not the wheel angle
+    np.testing.assert_allclose(cols["SteeringAngle"] * DEG, tr["theta_p"], atol=0.15 * DEG)
     esc, ecols = _decode(prof, "ESC_Motion", res.frames)
     k = np.searchsorted(t_tr, esc.t_ns, side="right") - 1  # sample and hold of the 3.9 ms truth
     np.testing.assert_allclose(ecols["YawRate"] * DEG, tr["r"][k], atol=0.3 * DEG)
@@ -79,7 +80,22 @@ def test_mdps_torques_delayed_by_3_9_ms_without_noise(vehicle, sim_params):
     assert np.abs(cols["ColumnTorque"][1:] - tr["T_column"][:-1]).max() <= 0.5 * lsb + 1e-9
     assert np.abs(cols["AssistTorque"][1:] - tr["T_assist"][:-1]).max() <= 0.5 * lsb + 1e-9
     assert np.abs(cols["ColumnTorque"][1:] - tr["T_column"][1:]).max() > 20 * lsb  # not the current value
-    assert np.abs(cols["SteeringAngle"] * DEG - tr["delta_sw"]).max() <= 0.05 * DEG + 1e-9  # angle: no delay
+    assert np.abs(cols["SteeringAngle"] * DEG - tr["theta_p"]).max() <= 0.05 * DEG + 1e-9  # angle: no delay
+
+
+def test_angle_sensor_location(sim_run, sim_params, vehicle):
+    """lde's MDPS angle is the pinion's (N delta_f); hyundai's SAS is the steering wheel's (twist included)."""
+    lde_res = sim_run("heavy_load", duration=12.0)
+    hy_res = sim_run("heavy_load", duration=12.0, profile="hyundai")
+    tr = lde_res.truth
+    twist = tr["delta_sw"] - tr["theta_p"]
+    np.testing.assert_allclose(twist, tr["T_column"] / sim_params.steering.torsion_stiffness, atol=2e-4)
+    np.testing.assert_allclose(tr["theta_p"], vehicle.steering.ratio * tr["delta_f"], rtol=1e-12)
+    assert np.abs(twist).max() > 1.0 * DEG  # the holding torque twists the bar by more than a degree
+    prof = load_profile("hyundai")
+    sel, cols = _decode(prof, "SAS11", hy_res.frames)
+    k = np.searchsorted(hy_res.truth_t_ns, sel.t_ns, side="right") - 1
+    np.testing.assert_allclose(cols["SAS_Angle"] * DEG, hy_res.truth["delta_sw"][k], atol=0.15 * DEG)
 
 
 def test_same_seed_same_bytes_other_seed_other_bytes():
