@@ -17,6 +17,8 @@ import sys
 import pytest
 
 VCAN = "vcan0"
+#: tests/test_uml.py looks for this phrase to tell a missing vcan0 from a test's own skip
+UML_HINT = "the vcan tests run inside user-mode Linux via tests/test_uml.py"
 _channel_ids = itertools.count()
 
 
@@ -29,17 +31,11 @@ def real_vcan_reason(channel: str = VCAN) -> str | None:
     try:
         s = socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW)
     except OSError as exc:
-        return (
-            f"no SocketCAN in this kernel ({exc.strerror}); the vcan tests run inside user-mode "
-            "Linux via tests/test_uml.py"
-        )
+        return f"no SocketCAN in this kernel ({exc.strerror}); {UML_HINT}"
     try:
         s.bind((channel,))
     except OSError as exc:
-        return (
-            f"no usable {channel} ({exc.strerror}); the vcan tests run inside user-mode Linux via "
-            "tests/test_uml.py"
-        )
+        return f"no usable {channel} ({exc.strerror}); {UML_HINT}"
     finally:
         s.close()
     return None

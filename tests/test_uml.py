@@ -12,6 +12,7 @@ import os
 import re
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import pytest
@@ -20,6 +21,8 @@ TESTS = Path(__file__).resolve().parent
 ROOT = TESTS.parent
 RUNNER = TESTS / "uml" / "run_in_uml.sh"
 EXIT_SKIP = 77
+#: the phrase of tests/conftest.py's skip reason when no real vcan0 exists
+VCAN_SKIP_PHRASE = "run inside user-mode Linux via tests/test_uml.py"
 _VCAN_MARK = re.compile(r"pytest\.mark\.vcan|mark\s*=\s*pytest\.mark\.vcan")
 
 
@@ -82,4 +85,9 @@ def test_vcan_tests_pass_inside_uml(uml):
     assert r.returncode == 0, f"vcan tests inside UML failed (exit {r.returncode})"
     summary = r.stdout.strip().splitlines()[-1] if r.stdout.strip() else ""
     assert re.search(r"\d+ passed", summary), summary
-    assert "skipped" not in summary, f"vcan tests were skipped inside UML: {summary}"
+    # inside UML vcan0 exists: a skip for a missing vcan0 means the setup is broken; a test's own
+    # skip (e.g. "UML too slow here") is allowed but shown as a warning on the host
+    skips = [ln for ln in r.stdout.splitlines() if ln.startswith("SKIPPED")]
+    assert not [ln for ln in skips if VCAN_SKIP_PHRASE in ln], f"vcan0 missing inside UML: {skips}"
+    for ln in skips:
+        warnings.warn(f"inside user-mode Linux: {ln}", UserWarning, stacklevel=1)
