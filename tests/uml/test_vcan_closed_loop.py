@@ -193,9 +193,8 @@ def test_closed_loop_relieves_the_driver(run: Run) -> None:
     off = np.mean(np.abs(_driver_torque(run.tmp / "open.csv")))
     print(
         f"closed loop: service pace {100 * pace:.0f} % of 256 steps/s, estimate VALID in {100 * valid:.0f} %"
-        " of"
-        f"the steps after {SETTLE_S} s, overlay frames used by the simulator {used}; mean |T_driver| after "
-        f"{SETTLE_S} s: closed loop {on:.3f} Nm, open loop {off:.3f} Nm"
+        f" of the steps after {SETTLE_S} s, overlay frames used by the simulator {used}; mean |T_driver|"
+        f" after {SETTLE_S} s: closed loop {on:.3f} Nm, open loop {off:.3f} Nm"
     )
     if pace < 0.9 or valid < 0.9:
         pytest.skip(
