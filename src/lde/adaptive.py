@@ -142,3 +142,97 @@ def estimate(grid: InputGrid, vehicle: Vehicle, comp: Compensation | None = None
         g.esc_ok,
         vehicle,
     )
+
+
+# --- augmented filter: lateral acceleration as a third measurement ---------------------------------
+#
+# The accelerometer measures specific force: tire and aerodynamic forces, not gravity. A crosswind
+# therefore shows in a_y at once, a bank does not (the tires balance it, a_y reads their force).
+# Splitting the disturbance force into Fa (aerodynamic, sensed) and Fb (bank, not sensed):
+#
+#   x = [beta, r, Fa, Fb, Mw]
+#   m vx (beta_dot + r) = 2 F_f + 2 F_r + Fa + Fb            Iz r_dot = 2 lf F_f - 2 lr F_r + Mw
+#   z = [r, T_align, a_y]:  T_align = 2K alpha_f,   a_y = (s (2 F_f + 2 F_r) + Fa) / m
+#
+# with s the accelerometer's roll-tilt scale (the body rolls with the tire force; lde.calibrate).
+# Output Fw = Fa + Fb. Euler discretisation and Qd = W dt as in lde.model.
+
+#: a_y measurement standard deviation used by the augmented filter [m/s^2] (sensor noise plus model
+#: error of the linear tires and the quasi-static roll)
+AY_STD = 0.08
+#: the sensed (aerodynamic) force may change this much faster than the vehicle file's q_fw: the
+#: accelerometer observes it directly, so a faster random walk costs little noise
+Q_FA_FACTOR = 1.0
+
+
+def augmented_estimate(
+    grid: InputGrid,
+    vehicle: Vehicle,
+    comp: Compensation | None = None,
+    accel_scale: float = 1.0,
+    ay_std: float = AY_STD,
+    q_fa_factor: float = Q_FA_FACTOR,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The 5-state filter above over (compensated) grid inputs: (t_ns, Fw [N], Mw [Nm], valid)."""
+    from .units import STEP_S
+
+    g = compensate(grid, vehicle, comp or Compensation())
+    b, t, e = vehicle.body, vehicle.tires, vehicle.estimator
+    m, iz, lf, lr, cf, cr, k, n_ratio = (
+        b.mass, b.yaw_inertia, b.lf, b.lr, t.cf, t.cr, t.align_rate, vehicle.steering.ratio,
+    )  # fmt: skip
+    dt = STEP_S
+    Qd = np.diag([e.q_beta, e.q_yaw, q_fa_factor * e.q_fw, e.q_fw, e.q_mw]) * dt
+    R = np.diag([e.r_yaw, e.r_align, ay_std**2])
+    P0 = np.diag([e.p0_beta, e.p0_yaw, e.p0_fw, e.p0_fw, e.p0_mw]) ** 2
+    nst = len(g)
+    fw_out = np.full(nst, np.nan)
+    mw_out = np.full(nst, np.nan)
+    valid = np.zeros(nst, dtype=bool)
+    x = np.zeros(5)
+    P = P0.copy()
+    run_start = -1
+    I5 = np.eye(5)
+    for i in range(nst):
+        vx = g.speed[i]
+        ok = bool(g.mdps_ok[i] and g.esc_ok[i]) and np.isfinite(vx) and vx > e.min_speed
+        ay = g.lat_accel[i]
+        if not ok or not np.isfinite(ay):
+            fw_out[i], mw_out[i] = x[2] + x[3], x[4]
+            run_start = -1
+            P = P0.copy()
+            continue
+        if run_start < 0:
+            run_start = i
+        d_f = g.steering_angle[i] / n_ratio
+        # measurement rows (alpha_f = d_f - beta - lf r/vx; tire force sum 2Ff + 2Fr)
+        H = np.zeros((3, 5))
+        H[0, 1] = 1.0
+        H[1, 0] = -2.0 * k
+        H[1, 1] = -2.0 * k * lf / vx
+        H[2, 0] = -2.0 * accel_scale * (cf + cr) / m
+        H[2, 1] = -2.0 * accel_scale * (lf * cf - lr * cr) / (m * vx)
+        H[2, 2] = 1.0 / m
+        D = np.array([0.0, 2.0 * k * d_f, 2.0 * accel_scale * cf * d_f / m])
+        z = np.array([g.yaw_rate[i], n_ratio * (g.column_torque[i] + g.assist_torque[i]), ay])
+        # update: K = P H' (H P H' + R)^-1 ; x += K (z - H x - D) ; Joseph form for P
+        S = H @ P @ H.T + R
+        Kg = np.linalg.solve(S, H @ P).T
+        x = x + Kg @ (z - H @ x - D)
+        A_ = I5 - Kg @ H
+        P = A_ @ P @ A_.T + Kg @ R @ Kg.T
+        fw_out[i], mw_out[i] = x[2] + x[3], x[4]
+        valid[i] = (i - run_start) * dt >= e.converge_time
+        # propagate: Phi = I + A dt
+        A = np.zeros((5, 5))
+        A[0, 0] = -2.0 * (cf + cr) / (m * vx)
+        A[0, 1] = -1.0 - 2.0 * (lf * cf - lr * cr) / (m * vx * vx)
+        A[0, 2] = A[0, 3] = 1.0 / (m * vx)
+        A[1, 0] = -2.0 * (lf * cf - lr * cr) / iz
+        A[1, 1] = -2.0 * (lf * lf * cf + lr * lr * cr) / (iz * vx)
+        A[1, 4] = 1.0 / iz
+        Bu = np.array([2.0 * cf / (m * vx), 2.0 * lf * cf / iz, 0.0, 0.0, 0.0]) * d_f
+        Phi = I5 + A * dt
+        x = Phi @ x + Bu * dt
+        P = Phi @ P @ Phi.T + Qd
+    return g.t_ns, fw_out, mw_out, valid

@@ -230,6 +230,8 @@ def simulate_and_estimate(
         opts = dict(spec.est_options)
         cal_scenario = opts.pop("calibrate", None)
         cal_tires = bool(opts.pop("calibrate_tires", 1))
+        use_ay = bool(opts.pop("lat_accel", 0))
+        ay_kw = {"q_fa_factor": float(opts.pop("q_fa_factor"))} if "q_fa_factor" in opts else {}
         if opts.pop("payload_known", 0):
             # scheduled on the measured load: mass, Iz and CG from the wheel loads (eqs. 17-18)
             b = sim.body
@@ -247,8 +249,18 @@ def simulate_and_estimate(
             if cal_tires:
                 vehicle = _with_tires(vehicle, cal.cf, cal.cr, cal.align_rate)
         grid = adaptive.grid_from_frames(sim.frames, profile)
-        est = adaptive.estimate(grid, vehicle, comp)
-        t_ns, fw, mw, status = est.t_ns, est.fw, est.mw, est.status
+        if use_ay:
+            t_ns, fw, mw, ok = adaptive.augmented_estimate(
+                grid,
+                vehicle,
+                comp,
+                accel_scale=cal.accel_scale if cal_scenario else 1.0,
+                **ay_kw,
+            )
+            status = np.where(ok, int(Status.VALID), 0)
+        else:
+            est = adaptive.estimate(grid, vehicle, comp)
+            t_ns, fw, mw, status = est.t_ns, est.fw, est.mw, est.status
     else:
         raise ConfigError(f"unknown estimator {spec.estimator!r} (replay or adaptive)")
     valid = (np.asarray(status) & int(Status.VALID)) != 0
@@ -651,26 +663,35 @@ def ladder_specs(
     seeds: Sequence[int] = (0, 1),
     scenarios: Sequence[str] = TARGET_SCENARIOS,
     duration: float | None = None,
+    winner_calibrated: str | None = None,
 ) -> list[RunSpec]:
-    """What each step buys, measured: the same scenarios under successive estimator versions."""
+    """What each step buys, measured: the same scenarios under successive estimator versions.
+
+    ``winner``: the Table 1 set chosen for the step as is; ``winner_calibrated``: the set chosen
+    for the calibrated estimator (its mass sets the force scale of the calibration), default
+    ``winner``.
+    """
+    wc = winner_calibrated or winner
+    cal = (("calibrate", "lane_change"),)
     steps: list[tuple[str, dict[str, Any]]] = [
         ("0 reference", dict(est_vehicle="reference")),
-        (f"1 {winner} (Table 1 winner)", dict(est_vehicle=winner)),
+        (f"1 {Path(winner).stem} (Table 1 winner)", dict(est_vehicle=winner)),
         ("2 + Fig. 12 tires", dict(est_vehicle=tire_vehicle)),
-        (
-            "3 tires from lde calibrate (step as is)",
-            dict(est_vehicle=winner, est_options=(("calibrate", "lane_change"),)),
-        ),
+        (f"3 {Path(wc).stem} + tires from lde calibrate", dict(est_vehicle=wc, est_options=cal)),
         (
             "4 + learned compensation (friction, torsion, offsets)",
-            dict(est_vehicle=winner, estimator="adaptive", est_options=(("calibrate", "lane_change"),)),
+            dict(est_vehicle=wc, estimator="adaptive", est_options=cal),
         ),
         (
             "5 + load-scheduled m, Iz, CG",
+            dict(est_vehicle=wc, estimator="adaptive", est_options=cal + (("payload_known", 1),)),
+        ),
+        (
+            "6 + lateral acceleration (wind vs bank)",
             dict(
-                est_vehicle=winner,
+                est_vehicle=wc,
                 estimator="adaptive",
-                est_options=(("calibrate", "lane_change"), ("payload_known", 1)),
+                est_options=cal + (("payload_known", 1), ("lat_accel", 1)),
             ),
         ),
     ]
@@ -697,15 +718,17 @@ def fault_specs(
     seeds: Sequence[int] = (0, 1),
     scenarios: Sequence[str] = ("light_load", "lane_change"),
     duration: float | None = None,
+    winner_calibrated: str | None = None,
 ) -> list[RunSpec]:
     """Friction and sensor offsets in the simulator, without and with the learned compensation."""
+    wc = winner_calibrated or winner
     specs = []
     for case, sim_opts in FAULT_CASES:
         for est_label, kw in (
             ("uncompensated", dict(est_vehicle=tire_vehicle)),
             (
                 "learned",
-                dict(est_vehicle=winner, estimator="adaptive", est_options=(("calibrate", "lane_change"),)),
+                dict(est_vehicle=wc, estimator="adaptive", est_options=(("calibrate", "lane_change"),)),
             ),
         ):
             for sc in scenarios:

@@ -12,7 +12,8 @@ Presets (``--preset``):
   simulator under heavy and light load), + calibration from an undisturbed drive (friction, torsion
   bar, accelerometer tilt, offsets; ``lde.adaptive``), + mass/inertia/CG scheduled on the load.
 - ``faults`` — steering friction and sensor offsets in the simulator, uncompensated and learned.
-- ``all`` — paper, then Fig. 12, ladder and faults with the paper's winner; ``summary_all.md``.
+- ``all`` — Fig. 12, then three Table 1 sweeps (shipped tires; Fig. 12 tires; calibrated and
+  compensated estimator), the ladder and the faults with their winners; ``summary_all.md``.
 
 Runs go to a ``LocalCluster(n_workers=--workers, threads_per_worker=1)`` by default or to an existing
 scheduler with ``--scheduler tcp://HOST:8786``; ``--workers 0`` runs in this process.
@@ -144,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
     )
     winner = args.winner
+    winner_cal = args.winner
     sweep_kw = dict(
         scenarios=args.scenarios,
         payloads=args.payloads,
@@ -163,13 +165,18 @@ def run(args: argparse.Namespace) -> int:
             ctx, "paper_fig12", tuple(tire_files.values()), sweep_kw, "Table 1 sets with the Fig. 12 tires"
         )
         winner = winner or Path(best).stem.removesuffix("_fig12")
+        cal_kw = dict(sweep_kw, estimator="adaptive", est_options=(("calibrate", "lane_change"),))
+        winner_cal = _sweep(
+            ctx, "paper_calibrated", cands, cal_kw, "Table 1 sets, estimator calibrated and compensated"
+        )
     if args.preset in ("ladder", "faults", "all"):
         winner = winner or "est3"
         tire_vehicle = _fig12(ctx, (winner,))[winner] if args.preset != "all" else tire_files[winner]
         for preset, make in (("ladder", study.ladder_specs), ("faults", study.fault_specs)):
             if args.preset not in (preset, "all"):
                 continue
-            specs = make(winner, tire_vehicle, seeds=ctx.seeds, duration=args.duration)
+            extra = {"winner_calibrated": winner_cal} if winner_cal else {}
+            specs = make(winner, tire_vehicle, seeds=ctx.seeds, duration=args.duration, **extra)
             results = _run(specs, preset, ctx)
             study.write_csv(results, ctx.out / f"{preset}_runs.csv")
             table = study.pivot_markdown(results)
@@ -182,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
             ]
             if preset == "ladder":
                 for prefix, name, title in (
-                    ("5", "ladder_final_traces.png", "final estimator (step 5)"),
+                    ("6", "ladder_final_traces.png", "final estimator (step 6)"),
                     ("0", "ladder_reference_traces.png", "reference vehicle file (step 0)"),
                 ):
                     tr = [r for r in results if r.spec.group.startswith(prefix) and r.trace is not None]
