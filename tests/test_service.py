@@ -300,3 +300,22 @@ def test_sigterm_ends_lde_run_cleanly(tmp_path) -> None:
     rec = read_recording(path)
     assert rec.complete  # summary and footer written: the recorder was closed
     assert len(rec.step_times_ns) > 10
+
+
+def test_bus_timestamps_in_another_time_base_are_restamped(rig) -> None:
+    """An interface stamping with device uptime: frames are stamped on receipt, inputs still fresh."""
+    svc, feeder, feed_bus, clock = rig
+    enc_m, enc_e = feeder.mdps, feeder.esc
+    vals_m = si_to_dbc(svc.profile, "MDPS_Sensors", {"column_torque": 0.5})
+    vals_e = si_to_dbc(svc.profile, "ESC_Motion", {"speed": 100 * KMH})
+    uptime0 = 12_345_000_000  # ns since the device booted
+    for k in range(60):
+        t_k = T0 + k * STEP_NS
+        feed_bus.send(enc_m.message(vals_m, uptime0 + k * STEP_NS))
+        if k % 3 == 0:
+            feed_bus.send(enc_e.message(vals_e, uptime0 + k * STEP_NS))
+        clock.sleep_until(t_k)
+        r = svc.step_once(t_k)
+    assert svc._restamp is True
+    assert r.frames_used >= 1
+    assert svc.receiver.sample(T0 + 59 * STEP_NS).mdps_ok

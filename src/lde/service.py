@@ -54,6 +54,8 @@ STATUS_DEADLINE_MISS = 0x80
 
 #: a step may be at most this late before grid points are skipped (one whole period)
 _SKIP_AFTER_NS = STEP_NS
+#: bus timestamps further than this from the service clock are not in its time base [ns]
+_RESTAMP_AFTER_NS = 1_000_000_000
 #: after a stop request, the overlay ramps out for at most this long before the service ends
 _MAX_RAMP_OUT_NS = 3_000_000_000
 
@@ -191,6 +193,7 @@ class Service:
         self.stats = TimingStats()
         self._pending: list[tuple[int, can.Message]] = []  # (t_rx_ns, msg), not yet used
         self._newest_input_ns = -1  # receive time of the newest frame used so far
+        self._restamp: bool | None = None  # stamp frames on receipt (decided at the first frame)
         self._stopping = False  # ramp-out requested (shutdown)
         self.steps = 0
         self.send_errors = 0  # frames the bus refused (full tx queue, bus-off), counted, not raised
@@ -233,9 +236,27 @@ class Service:
                 return
             if msg.is_error_frame or msg.is_remote_frame:
                 continue
-            pending.append((seconds_to_ns(msg.timestamp), msg))
+            t_rx = seconds_to_ns(msg.timestamp)
+            if self._restamp is None:
+                self._decide_restamp(t_rx)
+            if self._restamp:
+                t_rx = seconds_to_ns(self.now_ns() / 1e9)
+                msg.timestamp = t_rx / 1e9
+            pending.append((t_rx, msg))
             if rec is not None:
                 rec.rx(msg)
+
+    def _decide_restamp(self, t_rx: int) -> None:
+        """At the first frame: does the bus stamp frames in our time base? An interface whose
+        timestamps are not epoch time (device uptime, say) is off by more than :data:`_RESTAMP_AFTER_NS`;
+        its frames are then stamped with the service clock when drained (and recorded so)."""
+        off = t_rx - self.now_ns()
+        self._restamp = abs(off) > _RESTAMP_AFTER_NS
+        if self._restamp:
+            log.warning(
+                "bus timestamps are %.3f s off the service clock: stamping frames on receipt instead",
+                off / 1e9,
+            )
 
     def _feed_ready(self, t_k: int) -> int:
         """Feed the receiver with the pending frames received at or before ``t_k`` (time order)."""
