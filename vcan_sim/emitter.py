@@ -24,6 +24,7 @@ from lde.frames import FrameBatch, ns_to_seconds
 from lde.profiles import Profile
 
 from .config import SensorParams
+from .faults import Fault, apply_faults, hit_mask
 from .sensors import PINION_ANGLE_MESSAGES, SensorNoise, measure
 
 log = logging.getLogger(__name__)
@@ -50,12 +51,20 @@ class MessageStream:
     modulus: int = 15
     sent: int = 0
     encoder: MessageEncoder | None = None  # scalar path for the few frames of one live step
+    fault_hits: list[tuple[Fault, np.ndarray]] = field(default_factory=list)
+    checksum_fields: tuple[tuple[int, int], ...] = ()
+    last_data: np.ndarray | None = None  # data of the last frame sent (REPEAT faults)
 
 
 def build_streams(
-    profile: Profile, duration_ns: int, h_ns: int, sp: SensorParams, rng: np.random.Generator
+    profile: Profile,
+    duration_ns: int,
+    h_ns: int,
+    sp: SensorParams,
+    rng: np.random.Generator,
+    faults: tuple[Fault, ...] = (),
 ) -> list[MessageStream]:
-    """Schedules of the profile's input messages (anchor message first)."""
+    """Schedules of the profile's input messages (anchor message first), with their injected faults."""
     names = [profile.anchor_message] + [m for m in profile.messages if m != profile.anchor_message]
     streams = []
     for i, name in enumerate(names):
@@ -80,6 +89,8 @@ def build_streams(
                 unsigned=unsigned,
                 modulus=spec.scheme.modulus,
                 encoder=MessageEncoder(profile, name),
+                fault_hits=[(f, hit_mask(f, t)) for f in faults if name in f.messages(profile)],
+                checksum_fields=spec.scheme.checksum_fields,
             )
         )
     return streams
@@ -120,6 +131,9 @@ def emit_range(
         frames = _encode_scalar(stream, cols, t_abs, a)
     else:
         frames = encode_frames(profile, stream.name, t_abs, cols, counter_start=_counter(a, stream.modulus))
+    frames, stream.last_data = apply_faults(
+        frames, stream.fault_hits, a, stream.checksum_fields, stream.last_data
+    )
     stream.sent = b
     return frames
 

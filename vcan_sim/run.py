@@ -138,7 +138,7 @@ class Simulation:
         self.disturbance = disturbance_profile(sc, t, rngs[STREAM_WIND])
         self.drive = self._drive_matrix(self.disturbance, t, rngs[STREAM_DRIVER_NOISE])
         self.streams: list[MessageStream] = build_streams(
-            self.profile, n_steps * STEP_NS, H_NS, self.sp.sensors, rngs[STREAM_SENSORS]
+            self.profile, n_steps * STEP_NS, H_NS, self.sp.sensors, rngs[STREAM_SENSORS], sc.faults
         )
         self.delay = delay_substeps(self.sp.sensors, H)
         ring = SUBSTEPS * _CHUNK_STEPS + 4 * max(self.delay, 1) + 64

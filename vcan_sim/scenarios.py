@@ -27,6 +27,8 @@ import numpy as np
 from lde.errors import ConfigError
 from lde.units import DEG, KMH
 
+from .faults import Fault, FaultKind
+
 #: independent random streams, in this order, from SeedSequence(seed).spawn(N_STREAMS)
 STREAM_WIND, STREAM_DRIVER_GAINS, STREAM_DRIVER_NOISE, STREAM_SENSORS = range(4)
 N_STREAMS = 4
@@ -78,6 +80,7 @@ class Scenario:
         payload: name in :data:`vcan_sim.payload.PAYLOADS`.
         driver: "lane" (holds the lane), "hands_off", or "angle" (follows ``steer_deg``).
         steer_deg: steering-wheel angle steps [deg] for driver "angle".
+        faults: bus faults injected into the frames (:mod:`vcan_sim.faults`).
     """
 
     name: str
@@ -97,6 +100,7 @@ class Scenario:
     payload: str = "none"
     driver: str = "lane"
     steer_deg: tuple[Step, ...] = ()
+    faults: tuple[Fault, ...] = ()
 
     def with_speed(self, speed_kmh: float) -> Scenario:
         """The same drive at another constant speed."""
@@ -342,6 +346,23 @@ _LIST = [
         overlay=(Step(5.0, 0.4, 2.0), Step(15.0, 0.4, 0.0)),
     ),
 ]
+
+_LIST.append(
+    Scenario(
+        "bus_faults",
+        "10 m/s crosswind at 100 km/h with bus faults: MDPS frames lost, corrupted, repeated; ESC silent",
+        duration=30.0,
+        speed_kmh=100.0,
+        wind_speed=(Step(3.0, 1.5, 10.0),),
+        faults=(
+            Fault(FaultKind.DROP, "mdps", 8.0, 2.0, every=5),
+            Fault(FaultKind.CORRUPT, "mdps", 12.0, 0.05),
+            Fault(FaultKind.REPEAT, "mdps", 15.0, 0.02),
+            Fault(FaultKind.SILENCE, "esc", 18.0, 0.2),
+            Fault(FaultKind.DROP, "mdps", 22.0, 0.015),
+        ),
+    )
+)
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in _LIST}
 

@@ -84,7 +84,7 @@ def test_mdps_torques_delayed_by_3_9_ms_without_noise(vehicle, sim_params):
 
 
 def test_angle_sensor_location(sim_run, sim_params, vehicle):
-    """lde's MDPS angle is the pinion's (N delta_f); hyundai's SAS is the steering wheel's (twist included)."""
+    """lde's MDPS angle is the pinion's (N delta_f); hyundai's SAS is the wheel's (twist included)."""
     lde_res = sim_run("heavy_load", duration=12.0)
     hy_res = sim_run("heavy_load", duration=12.0, profile="hyundai")
     tr = lde_res.truth

@@ -21,6 +21,7 @@ import argparse
 import logging
 import sys
 import time
+from dataclasses import replace
 
 from ..errors import ConfigError
 from .run import add_bus_arguments, bus_kwargs
@@ -66,6 +67,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="live bus: as fast as possible with simulated timestamps",
     )
     p.add_argument("--open-loop", action="store_true", help="live bus: ignore LDE_Overlay frames")
+    p.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="KIND:TARGET:START:DURATION[:EVERY]",
+        help="inject a bus fault (repeatable): KIND drop|silence|corrupt|repeat, TARGET mdps|esc|MESSAGE, "
+        "START and DURATION in s from the start, every EVERY-th frame (default 1), e.g. drop:mdps:5:2:4",
+    )
     add_bus_arguments(p)
     p.set_defaults(func=run)
 
@@ -98,12 +107,17 @@ def run(args: argparse.Namespace) -> int:
         return _print_list()
     if not args.scenario:
         raise ConfigError("--scenario NAME is required (lde sim --list names them)")
+    from vcan_sim.faults import parse_fault
     from vcan_sim.output import write_outputs
     from vcan_sim.run import Simulation
+    from vcan_sim.scenarios import get_scenario
 
     t0_ns = None if args.t0 is None else int(round(args.t0 * 1e6)) * 1000
+    scenario = get_scenario(args.scenario)
+    if args.fault:
+        scenario = replace(scenario, faults=scenario.faults + tuple(parse_fault(f) for f in args.fault))
     sim = Simulation(
-        args.scenario,
+        scenario,
         vehicle=args.vehicle,
         profile=args.profile,
         seed=args.seed,
