@@ -112,8 +112,8 @@ def run_lockstep(
             st.sent += 1
         service_step(t_start + latency_ns)
         st.steps += 1
-        while (msg := bus.recv(0.0)) is not None:
-            t_rx = int(round(msg.timestamp * 1e9)) if msg.timestamp else t_start + latency_ns
-            if receiver.on_message(msg, t_rx) is not None:
+        while (back := bus.recv(0.0)) is not None:
+            t_rx = int(round(back.timestamp * 1e9)) if back.timestamp else t_start + latency_ns
+            if receiver.on_message(back, t_rx) is not None:
                 st.overlay_frames += 1
     return st

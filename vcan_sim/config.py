@@ -22,6 +22,7 @@ Signs: ISO 8855 (x forward, y left, z up).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -266,7 +267,9 @@ class SimParams:
 # ---------------------------------------------------------------------------------------------
 # TOML keys (with units) -> attribute and factor to SI. A factor of None marks a list.
 
-_CHASSIS_KEYS = {
+_KeyMap = Mapping[str, tuple[str, float | None]]
+
+_CHASSIS_KEYS: _KeyMap = {
     "cg_height_m": ("cg_height", 1.0),
     "roll_axis_height_m": ("roll_axis_height", 1.0),
     "roll_stiffness_front_Nm_per_rad": ("roll_stiffness_front", 1.0),
@@ -279,12 +282,9 @@ _CHASSIS_KEYS = {
     "speed_gain_per_s": ("speed_gain", 1.0),
     "load_filter_time_s": ("load_filter_time", 1.0),
 }
-_TIRE_KEYS = {f.name: (f.name, 1.0) for f in fields(TireCoeffs)}
-_TIRE_KEYS = {
-    ("fz0_N" if k == "fz0" else "t0_m" if k == "t0" else "mech_trail_m" if k == "mech_trail" else k): v
-    for k, v in _TIRE_KEYS.items()
-}
-_STEERING_KEYS = {
+_TIRE_UNITS = {"fz0": "fz0_N", "t0": "t0_m", "mech_trail": "mech_trail_m"}  # the rest are dimensionless
+_TIRE_KEYS: _KeyMap = {_TIRE_UNITS.get(f.name, f.name): (f.name, 1.0) for f in fields(TireCoeffs)}
+_STEERING_KEYS: _KeyMap = {
     "wheel_inertia_kgm2": ("wheel_inertia", 1.0),
     "rack_inertia_kgm2": ("rack_inertia", 1.0),
     "torsion_stiffness_Nm_per_deg": ("torsion_stiffness", 1.0 / DEG),
@@ -300,7 +300,7 @@ _STEERING_KEYS = {
     "overlay_max_Nm": ("overlay_max", 1.0),
     "overlay_time_s": ("overlay_time", 1.0),
 }
-_AERO_KEYS = {
+_AERO_KEYS: _KeyMap = {
     "frontal_area_m2": ("frontal_area", 1.0),
     "air_density_kg_per_m3": ("air_density", 1.0),
     "cy1": ("cy1", 1.0),
@@ -308,7 +308,7 @@ _AERO_KEYS = {
     "cn1": ("cn1", 1.0),
     "cx": ("cx", 1.0),
 }
-_DRIVER_KEYS = {
+_DRIVER_KEYS: _KeyMap = {
     "preview_time_s": ("preview_time", 1.0),
     "lateral_gain_per_s2": ("lateral_gain", 1.0),
     "integral_gain_per_s3": ("integral_gain", 1.0),
@@ -322,7 +322,7 @@ _DRIVER_KEYS = {
     "noise_time_s": ("noise_time", 1.0),
     "gain_spread": ("gain_spread", 1.0),
 }
-_SENSOR_KEYS = {
+_SENSOR_KEYS: _KeyMap = {
     "column_torque_noise_Nm": ("column_torque_noise", 1.0),
     "assist_torque_noise_Nm": ("assist_torque_noise", 1.0),
     "steering_angle_noise_deg": ("steering_angle_noise", DEG),
@@ -337,7 +337,7 @@ _SENSOR_KEYS = {
     "lat_accel_bias_m_per_s2": ("lat_accel_bias", 1.0),
     "mdps_delay_s": ("mdps_delay", 1.0),
 }
-_SUBTABLES: dict[str, tuple[type, dict[str, tuple[str, float | None]]]] = {
+_SUBTABLES: dict[str, tuple[type, _KeyMap]] = {
     "tire": (TireCoeffs, _TIRE_KEYS),
     "steering": (SteeringSystemParams, _STEERING_KEYS),
     "aero": (AeroParams, _AERO_KEYS),
@@ -352,7 +352,7 @@ def _num(src: str, where: str, key: str, value: Any) -> float:
     return float(value)
 
 
-def _build(cls: type, keymap: dict[str, tuple[str, float | None]], raw: Any, src: str, where: str) -> Any:
+def _build(cls: type, keymap: _KeyMap, raw: Any, src: str, where: str) -> Any:
     if not isinstance(raw, dict):
         raise ConfigError(f"{src}: [{where}] must be a table")
     unknown = sorted(set(raw) - set(keymap))

@@ -130,7 +130,8 @@ def emit_range(
     if b - a <= _SCALAR_MAX and stream.encoder is not None:
         frames = _encode_scalar(stream, cols, t_abs, a)
     else:
-        frames = encode_frames(profile, stream.name, t_abs, cols, counter_start=_counter(a, stream.modulus))
+        arrays = {k: np.asarray(v, dtype=np.float64) for k, v in cols.items()}
+        frames = encode_frames(profile, stream.name, t_abs, arrays, counter_start=_counter(a, stream.modulus))
     frames, stream.last_data = apply_faults(
         frames, stream.fault_hits, a, stream.checksum_fields, stream.last_data
     )
@@ -144,6 +145,7 @@ _SCALAR_MAX = 3  # up to this many frames: one MessageEncoder.encode each (cheap
 def _encode_scalar(stream: MessageStream, cols: dict, t_abs: np.ndarray, first: int) -> FrameBatch:
     """The same bytes as :func:`encode_frames`, frame by frame (the live step path)."""
     enc = stream.encoder
+    assert enc is not None  # emit_range only calls this with an encoder
     n = t_abs.shape[0]
     data = np.zeros((n, 8), np.uint8)
     for i in range(n):

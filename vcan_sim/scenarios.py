@@ -204,13 +204,21 @@ def disturbance_profile(sc: Scenario, t: np.ndarray, rng_wind: np.random.Generat
 
 _HEAVY_BANK = (Step(14.0, 2.0, 3.0), Step(24.0, 3.0, -3.0), Step(33.0, 2.0, 0.0))
 _LIGHT_BANK = (Step(14.0, 2.0, 1.0), Step(24.0, 3.0, -1.0), Step(33.0, 2.0, 0.0))
-_PAYLOAD_DRIVE = dict(
-    duration=40.0,
-    speed_kmh=100.0,
-    wind_speed=(Step(3.0, 1.5, 8.0), Step(20.0, 1.5, 0.0)),
-    turbulence=0.1,
-    bank_deg=(Step(24.0, 2.0, 2.0), Step(32.0, 2.0, -2.0), Step(37.0, 1.0, 0.0)),
-)
+
+
+def _payload_drive(name: str, description: str, payload: str) -> Scenario:
+    """The payload cases' common drive: 8 m/s crosswind, then bank +-2 deg, 100 km/h, 40 s."""
+    return Scenario(
+        name,
+        description,
+        duration=40.0,
+        speed_kmh=100.0,
+        wind_speed=(Step(3.0, 1.5, 8.0), Step(20.0, 1.5, 0.0)),
+        turbulence=0.1,
+        bank_deg=(Step(24.0, 2.0, 2.0), Step(32.0, 2.0, -2.0), Step(37.0, 1.0, 0.0)),
+        payload=payload,
+    )
+
 
 _LIST = [
     Scenario(
@@ -278,29 +286,23 @@ _LIST = [
         speed_kmh=90.0,
         bank_deg=(Step(5.0, 2.0, 3.0), Step(15.0, 3.0, -3.0), Step(28.0, 2.0, 0.0)),
     ),
-    Scenario(
+    _payload_drive(
         "payload_full",
         "full load (+450 kg: 4 occupants + trunk), 8 m/s wind then bank +-2 deg, 100 km/h",
-        payload="full",
-        **_PAYLOAD_DRIVE,
+        "full",
     ),
-    Scenario(
+    _payload_drive(
         "payload_trunk",
         "+150 kg in the trunk (CG moves back), 8 m/s wind then bank +-2 deg, 100 km/h",
-        payload="trunk",
-        **_PAYLOAD_DRIVE,
+        "trunk",
     ),
-    Scenario(
-        "payload_four",
-        "+225 kg (3 passengers), 8 m/s wind then bank +-2 deg, 100 km/h",
-        payload="four_occupants",
-        **_PAYLOAD_DRIVE,
+    _payload_drive(
+        "payload_four", "+225 kg (3 passengers), 8 m/s wind then bank +-2 deg, 100 km/h", "four_occupants"
     ),
-    Scenario(
+    _payload_drive(
         "payload_left",
         "+160 kg on the rear left seat (lateral CG offset), 8 m/s wind then bank, 100 km/h",
-        payload="left_side",
-        **_PAYLOAD_DRIVE,
+        "left_side",
     ),
     Scenario(
         "lane_change",
