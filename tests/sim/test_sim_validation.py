@@ -139,3 +139,14 @@ def test_driver_reacts_to_overlay_torque(sim_run):
     assert tr["T_overlay"][on].mean() == pytest.approx(2.0, abs=0.05)
     assert tr["T_driver"][on].mean() < -1.0  # counter-torque
     assert np.abs(tr["y"]).max() < 0.3
+
+
+def test_payload_moves_the_linear_equivalents(sim_run, light):
+    """Rear payload loads the rear tires: the identified rear stiffness rises, K stays in range."""
+    lo = identify(light.truth, light.body.lf, light.body.lr)
+    res = sim_run("payload_full")
+    full = identify(res.truth, res.body.lf, res.body.lr)
+    cf, cr, k = static_stiffness(payload="full")
+    assert full.cr > 1.1 * lo.cr
+    assert full.cr_tire == pytest.approx(cr, rel=0.02) and full.cf_tire == pytest.approx(cf, rel=0.02)
+    assert 6750.0 <= full.k <= 7640.0
