@@ -1,0 +1,25 @@
+"""vcan_sim: the nonlinear vehicle that puts realistic CAN traffic on the bus (docs/simulator.md).
+
+Entry points: :func:`vcan_sim.run.simulate` (fast path: frames + ground truth),
+:class:`vcan_sim.run.Simulation` (step by step, closed loop), :data:`vcan_sim.scenarios.SCENARIOS`,
+:func:`vcan_sim.identify.identify` (linear-equivalent C_f, C_r, K), and ``lde sim`` on the command line.
+The plant is deliberately independent of the estimator's linear model (no lde.model/kalman/step).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["simulate", "Simulation", "SimResult", "SCENARIOS"]
+
+
+def __getattr__(name: str) -> Any:  # lazy: importing the package does not compile the plant
+    if name in ("simulate", "Simulation", "SimResult"):
+        from . import run
+
+        return getattr(run, name)
+    if name == "SCENARIOS":
+        from .scenarios import SCENARIOS
+
+        return SCENARIOS
+    raise AttributeError(f"module 'vcan_sim' has no attribute {name!r}")
