@@ -223,3 +223,23 @@ def test_sample_log_is_reproducible(tmp_path: Path):
     np.testing.assert_array_equal(new.frames.data, old.frames.data)
     total = sum(p.stat().st_size for p in DATA.glob("sample_linear*"))
     assert total < 2_000_000
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".asc"])
+def test_python_can_formats_replay_like_candump(sample_replay, profile, vehicle, tmp_path: Path, suffix: str):
+    """The sample drive written by python-can's own writers replays to the same estimates."""
+    import can
+
+    log, res = sample_replay
+    path = tmp_path / f"sample{suffix}"
+    with can.Logger(str(path)) as writer:
+        for msg in log.frames.to_messages(channel=0):
+            writer.on_message_received(msg)
+    other_log, other = replay_log(path, profile, vehicle, "float")
+    assert other_log.format == suffix[1:]
+    assert len(other) == len(res)
+    np.testing.assert_array_equal(np.diff(other.t_ns), np.diff(res.t_ns))
+    if suffix == ".blf":  # BLF keeps absolute time; ASC is relative to its start
+        np.testing.assert_array_equal(other.t_ns, res.t_ns)
+    np.testing.assert_allclose(other.fw, res.fw, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(other.mw, res.mw, rtol=0, atol=1e-6)
