@@ -404,3 +404,29 @@ def test_format_rows_matches_python_formatting():
     # ns timestamps that are not whole microseconds print with 9 digits
     text9, _ = format_rows([time_column("t", np.array([T0 + 1]))], [""], "")
     assert text9.tobytes() == b"1700000000.000000001"
+
+
+def test_can_schema_decodes_with_the_ros2_cdr_decoder(tmp_path: Path):
+    """Foxglove-style decoding: the ros2msg schema + CDR payloads decode to the frames written."""
+    pytest.importorskip(
+        "mcap_ros2", reason="mcap-ros2-support (the reference ROS 2 CDR decoder) not installed"
+    )
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    frames = random_frames(300, seed=13, classic=True)
+    path = tmp_path / "ros.mcap"
+    with McapWriter(path) as w:
+        w.write_frames(frames)
+    got = []
+    with path.open("rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        for _s, _c, message, ros in reader.iter_decoded_messages():
+            got.append((message.log_time, ros.id, ros.is_extended, ros.is_rx, ros.dlc, bytes(ros.data)))
+    got.sort(key=lambda g: g[0])
+    assert [g[0] for g in got] == frames.t_ns.tolist()
+    assert [g[1] for g in got] == frames.can_id.tolist()
+    assert [g[2] for g in got] == frames.is_extended.tolist()
+    assert [g[3] for g in got] == frames.is_rx.tolist()
+    assert [g[4] for g in got] == frames.dlc.tolist()
+    assert [g[5] for g in got] == [frames.data[i].tobytes() for i in range(len(frames))]
