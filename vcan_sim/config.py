@@ -83,7 +83,10 @@ class TireCoeffs:
     On the steering axis the front tire adds the mechanical trail ``t_m`` (caster trail and the
     steering geometry's lever, lumped): T_align,i = (t + t_m) Fy (paper sign).
 
-    Attributes: ``fz0`` [N], ``t0`` and ``mech_trail`` [m]; the rest dimensionless.
+    Transient: the slip angle that makes the force lags the kinematic one by the relaxation length
+    sigma [m] (``relaxation_length``; first order, time constant sigma / vx; 0 = instantaneous).
+
+    Attributes: ``fz0`` [N], ``t0``, ``mech_trail`` and ``relaxation_length`` [m]; the rest dimensionless.
     The defaults give, for a 215/60R16 at the reference vehicle's static front load (~4.4 kN),
     a cornering stiffness of about 64 kN/rad and an aligning-torque slope on the steering axis of
     about 7.2 kNm/rad per tire (the paper measured 6750-7640 Nm/rad).
@@ -104,6 +107,7 @@ class TireCoeffs:
     Ct: float = 1.25
     Et: float = -1.0
     mech_trail: float = 0.065
+    relaxation_length: float = 0.45
 
 
 @dataclass(frozen=True)
@@ -282,7 +286,12 @@ _CHASSIS_KEYS: _KeyMap = {
     "speed_gain_per_s": ("speed_gain", 1.0),
     "load_filter_time_s": ("load_filter_time", 1.0),
 }
-_TIRE_UNITS = {"fz0": "fz0_N", "t0": "t0_m", "mech_trail": "mech_trail_m"}  # the rest are dimensionless
+_TIRE_UNITS = {
+    "fz0": "fz0_N",
+    "t0": "t0_m",
+    "mech_trail": "mech_trail_m",
+    "relaxation_length": "relaxation_length_m",
+}  # the rest are dimensionless
 _TIRE_KEYS: _KeyMap = {_TIRE_UNITS.get(f.name, f.name): (f.name, 1.0) for f in fields(TireCoeffs)}
 _STEERING_KEYS: _KeyMap = {
     "wheel_inertia_kgm2": ("wheel_inertia", 1.0),
@@ -419,6 +428,7 @@ def validate_sim(sp: SimParams, src: str = "<sim>") -> None:
         t.fz0 > 0 and t.pKy1 > 0 and t.pKy2 > 0 and t.pDy1 > 0 and t.pCy1 > 0, "tire coefficients must be > 0"
     )
     check(t.pEy1 <= 1.0 and t.Et <= 1.0, "Magic Formula E must be <= 1")
+    check(0.0 <= t.relaxation_length <= 3.0, "tire relaxation_length_m must lie in 0..3")
     check(
         s.wheel_inertia > 0 and s.rack_inertia > 0 and s.torsion_stiffness > 0,
         "steering inertias, stiffness > 0",

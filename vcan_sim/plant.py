@@ -25,7 +25,8 @@ right wheels gaining when the tires push left::
 
     dFz_f = (k_phi,f phi + c_phi,f phi') / t_f + (m lr / L) a_t h_ra / t_f     (rear alike)
 
-Slip angles (eq. 9 generalised per wheel) a_i = delta_i - atan2(vy + r x_i, vx - r y_i); tires by
+Slip angles (eq. 9 generalised per wheel) a_i = delta_i - atan2(vy + r x_i, vx - r y_i), lagged by
+the tire's relaxation length sigma (a_eff' = vx / sigma (a_i - a_eff), four states); tires by
 the Magic Formula (:mod:`vcan_sim.tires`); steering by :mod:`vcan_sim.steering`; driver by
 :mod:`vcan_sim.driver`; crosswind by :mod:`vcan_sim.aero`. Bank: gravity along the road's lateral
 axis, F_bank = m g sin(bank), through the CG (no yaw moment). Aero drag acts through the CG line.
@@ -82,8 +83,12 @@ from .tires import pack_tire, tire_forces
     X_EINT,
     X_THD,
     X_HOLD,
-) = range(17)
-N_STATE = 17
+    X_A1,
+    X_A2,
+    X_A3,
+    X_A4,
+) = range(21)
+N_STATE = 21
 
 # ------------------------------------------------------------------ parameter vector
 (
@@ -117,8 +122,9 @@ N_STATE = 17
     P_OVMAX,
     P_OVTAU,
     P_DXREF,
-) = range(30)
-N_PARAM = 30
+    P_SIGMA,
+) = range(31)
+N_PARAM = 31
 
 # ------------------------------------------------------------------ per-sub-step inputs
 # air velocity in world axes [m/s], bank [rad], lane centre at t + preview [m], driver noise torque
@@ -286,6 +292,24 @@ def derivatives(
     a2 = delta - math.atan2(vy + r * lf, vx - r * yr)
     a3 = -math.atan2(vy - r * lr, vx - r * yl_r)
     a4 = -math.atan2(vy - r * lr, vx - r * yr_r)
+    # relaxation length: the slip that makes the force lags the kinematic slip,
+    # a_eff' = (vx / sigma) (a - a_eff); sigma = 0 turns it off
+    sigma = p[P_SIGMA]
+    if sigma > 0.0:
+        rate = max(vx, 1.0) / sigma
+        dx[X_A1] = rate * (a1 - x[X_A1])
+        dx[X_A2] = rate * (a2 - x[X_A2])
+        dx[X_A3] = rate * (a3 - x[X_A3])
+        dx[X_A4] = rate * (a4 - x[X_A4])
+        a1 = x[X_A1]
+        a2 = x[X_A2]
+        a3 = x[X_A3]
+        a4 = x[X_A4]
+    else:
+        dx[X_A1] = 0.0
+        dx[X_A2] = 0.0
+        dx[X_A3] = 0.0
+        dx[X_A4] = 0.0
     fy1, mz1, tax1 = tire_forces(a1, fz1, tc)
     fy2, mz2, tax2 = tire_forces(a2, fz2, tc)
     fy3, mz3, _ = tire_forces(a3, fz3, tc)
@@ -510,6 +534,7 @@ def build_plant(
     p[P_OVMAX] = s.overlay_max
     p[P_OVTAU] = s.overlay_time
     p[P_DXREF] = body.dx_ref
+    p[P_SIGMA] = sp.tire.relaxation_length
     return PlantModel(
         p=p,
         tc=pack_tire(sp.tire),
