@@ -216,6 +216,10 @@ class SensorParams:
         steering_rate_noise [rad/s], yaw_rate_noise [rad/s], lat_accel_noise [m/s^2],
         speed_noise [m/s]; *_bias the same units (added constant offsets; default 0);
         mdps_delay: computation delay of the MDPS torque signals [s] (paper: 3.9 ms).
+        mdps_angle_at_motor: the MDPS message's steering angle and rate are sensed at the motor,
+            below the torsion bar (pinion angle = N delta_f), as a column MDPS does; False: at the
+            steering wheel, above it (the torsion bar's twist T_column / k_tb included). A separate
+            steering-angle sensor message (hyundai SAS11) always reads the steering wheel.
     """
 
     column_torque_noise: float = 0.005
@@ -231,6 +235,7 @@ class SensorParams:
     yaw_rate_bias: float = 0.0
     lat_accel_bias: float = 0.0
     mdps_delay: float = 0.0039
+    mdps_angle_at_motor: bool = True
 
 
 @dataclass(frozen=True)
@@ -345,6 +350,7 @@ _SENSOR_KEYS: _KeyMap = {
     "yaw_rate_bias_deg_per_s": ("yaw_rate_bias", DEG),
     "lat_accel_bias_m_per_s2": ("lat_accel_bias", 1.0),
     "mdps_delay_s": ("mdps_delay", 1.0),
+    "mdps_angle_at_motor": ("mdps_angle_at_motor", None),
 }
 _SUBTABLES: dict[str, tuple[type, _KeyMap]] = {
     "tire": (TireCoeffs, _TIRE_KEYS),
@@ -373,7 +379,11 @@ def _build(cls: type, keymap: _KeyMap, raw: Any, src: str, where: str) -> Any:
     for key, value in raw.items():
         attr, factor = keymap[key]
         default = next(f.default for f in fields(cls) if f.name == attr)
-        if isinstance(default, tuple):
+        if isinstance(default, bool):
+            if not isinstance(value, bool):
+                raise ConfigError(f"{src}: [{where}] {key} must be true or false, got {value!r}")
+            kw[attr] = value
+        elif isinstance(default, tuple):
             if not isinstance(value, list) or not value:
                 raise ConfigError(f"{src}: [{where}] {key} must be a non-empty list of numbers")
             scale = 1.0 if factor is None else factor

@@ -121,7 +121,13 @@ def emit_range(
     rows = out_ring[idx % r]
     rows_d = out_ring[np.maximum(idx - delay, 0) % r]
     si = measure(
-        stream.inputs, rows, rows_d, stream.noise, slice(a, b), sp, stream.name in PINION_ANGLE_MESSAGES
+        stream.inputs,
+        rows,
+        rows_d,
+        stream.noise,
+        slice(a, b),
+        sp,
+        sp.mdps_angle_at_motor and stream.name in PINION_ANGLE_MESSAGES,
     )
     for name in stream.unsigned:
         si[name] = np.abs(si[name])

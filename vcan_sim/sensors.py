@@ -14,9 +14,9 @@ plant's output rows at the frame's sample (the last sub-step at or before the fr
 Where the angle is sensed matters: the torsion bar twists by T_column / k_tb (about 1.5 deg at
 3 Nm), so the steering-wheel angle differs from N delta_f. A column MDPS senses its angle at the
 motor, below the torsion bar: messages in :data:`PINION_ANGLE_MESSAGES` (the ``lde`` profile's
-MDPS_Sensors) carry the pinion angle th_p (= N delta_f) and rate; a steering-angle sensor at the top
-of the column (the ``hyundai`` profile's SAS11) carries the steering-wheel angle th_sw and rate,
-twist included.
+MDPS_Sensors) carry the pinion angle th_p (= N delta_f) and rate (unless ``[sim.sensors]
+mdps_angle_at_motor = false``); a steering-angle sensor at the top of the column (the ``hyundai``
+profile's SAS11) carries the steering-wheel angle th_sw and rate, twist included.
 
 ``d`` = round(mdps_delay / h) sub-steps (the paper's 3.9 ms computation delay), ``b`` the
 configured bias, ``n`` white Gaussian noise (seeded, drawn once per frame for the whole run so that

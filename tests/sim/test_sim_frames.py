@@ -7,6 +7,7 @@ import pytest
 
 from lde.codec import MessageCodec
 from lde.e2e import check_batch, p01_check, read_counter_batch
+from lde.errors import ConfigError
 from lde.profiles import load_profile
 from lde.units import DEG, KMH, STEP_NS
 from vcan_sim.run import Simulation, default_t0_ns, simulate
@@ -134,3 +135,48 @@ def test_sensor_bias_and_noise_are_applied(vehicle, sim_params):
     res = sim.result()
     _, cols = _decode(load_profile("lde"), "ESC_Motion", res.frames)
     assert np.mean(cols["YawRate"]) == pytest.approx(0.5, abs=0.02)
+
+
+def test_mdps_angle_at_the_wheel_option(vehicle, sim_params):
+    import dataclasses
+
+    from lde.params import vehicle_from_dict
+
+    sens = dataclasses.replace(sim_params.sensors, mdps_angle_at_motor=False, steering_angle_noise=0.0)
+    sim = Simulation(
+        "wind_step", vehicle, seed=0, duration=8.0, sim_params=dataclasses.replace(sim_params, sensors=sens)
+    )
+    sim.run()
+    res = sim.result()
+    _, cols = _decode(load_profile("lde"), "MDPS_Sensors", res.frames)
+    assert np.abs(cols["SteeringAngle"] * DEG - res.truth["delta_sw"]).max() <= 0.05 * DEG + 1e-9
+    # the TOML key
+    from vcan_sim.config import sim_params_from_vehicle
+
+    v = vehicle_from_dict({**_raw_vehicle(vehicle), "sim": {"sensors": {"mdps_angle_at_motor": False}}})
+    assert sim_params_from_vehicle(v).sensors.mdps_angle_at_motor is False
+    with pytest.raises(ConfigError, match="true or false"):
+        sim_params_from_vehicle(
+            vehicle_from_dict({**_raw_vehicle(vehicle), "sim": {"sensors": {"mdps_angle_at_motor": 1}}})
+        )
+
+
+def _raw_vehicle(v):
+    b = v.body
+    return {
+        "name": "x",
+        "vehicle": {
+            "mass_kg": b.mass,
+            "yaw_inertia_kgm2": b.yaw_inertia,
+            "lf_m": b.lf,
+            "lr_m": b.lr,
+            "track_front_m": b.track_front,
+            "track_rear_m": b.track_rear,
+        },
+        "steering": {"ratio": v.steering.ratio},
+        "tires": {
+            "cf_N_per_rad": v.tires.cf,
+            "cr_N_per_rad": v.tires.cr,
+            "align_rate_Nm_per_rad": v.tires.align_rate,
+        },
+    }
