@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from lde.errors import ConfigError
+from lde.errors import ConfigError, LdeError
 from lde.frames import FrameBatch
 from lde.params import Vehicle, load_vehicle
 from lde.profiles import Profile, load_profile
@@ -51,6 +51,10 @@ EPOCH_NS = 1_700_000_000 * 1_000_000_000
 _CHUNK_STEPS = 4096  # estimator steps per fast-path chunk (16 s)
 
 _DRIVER_MODES = {"lane": DRIVER_LANE, "angle": DRIVER_ANGLE, "hands_off": DRIVER_HANDS_OFF}
+
+
+class SimulationError(LdeError, RuntimeError):
+    """The simulation cannot go on (the plant diverged: unphysical parameters)."""
 
 
 def default_t0_ns(seed: int) -> int:
@@ -187,6 +191,11 @@ class Simulation:
             P.run_span(self.model, self.x, self.drive, k, stop, H, self.out, k % r, ov_req)
             k = stop
         self.k = k1
+        if not np.all(np.isfinite(self.x)):
+            raise SimulationError(
+                f"{self.scenario.name}: the plant diverged before t = {(k1 * H_NS) * 1e-9:.3f} s "
+                "(check the vehicle's [sim] parameters)"
+            )
         parts = [
             emit_range(self.profile, s, k0, k1, self.out, self.delay, self.sp.sensors, self.t0_ns)
             for s in self.streams

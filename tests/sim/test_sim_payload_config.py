@@ -65,3 +65,16 @@ def test_bad_payload_and_sim_table(vehicle, sim_params):
         )
     )
     assert sp.tire.pKy1 == 15.0 and sp.steering.torsion_stiffness == pytest.approx(1.5 * 57.29577951308232)
+
+
+def test_diverging_plant_is_a_clear_error(vehicle, sim_params):
+    import dataclasses
+
+    from vcan_sim.run import Simulation, SimulationError
+
+    bad = dataclasses.replace(
+        sim_params, steering=dataclasses.replace(sim_params.steering, wheel_inertia=1e-6)
+    )
+    sim = Simulation("straight", vehicle, sim_params=bad, duration=1.0)
+    with pytest.raises(SimulationError, match="diverged"):
+        sim.run()
