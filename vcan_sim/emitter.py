@@ -25,6 +25,7 @@ from lde.profiles import Profile
 
 from .config import SensorParams
 from .faults import Fault, apply_faults, hit_mask
+from .plant import O_VW1, O_VW2, O_VW3, O_VW4
 from .sensors import PINION_ANGLE_MESSAGES, SensorNoise, measure
 
 log = logging.getLogger(__name__)
@@ -132,6 +133,8 @@ def emit_range(
     for name in stream.unsigned:
         si[name] = np.abs(si[name])
     cols = si_to_dbc(profile, stream.name, si)
+    if "speed" in stream.inputs:
+        _wheel_speeds(profile, cols, rows, stream.noise.values["speed"][a:b])
     t_abs = t0_ns + stream.t_rel_ns[a:b]
     if b - a <= _SCALAR_MAX and stream.encoder is not None:
         frames = _encode_scalar(stream, cols, t_abs, a)
@@ -143,6 +146,22 @@ def emit_range(
     )
     stream.sent = b
     return frames
+
+
+#: wheel-speed signal suffix -> plant output (FL, FR, RL, RR)
+_WHEELS = {"_FL": O_VW1, "_FR": O_VW2, "_RL": O_VW3, "_RR": O_VW4}
+
+
+def _wheel_speeds(profile: Profile, cols: dict, rows: np.ndarray, noise: np.ndarray) -> None:
+    """A speed input carried by four wheel-speed signals (hyundai WHL_SPD11) gets each wheel's own
+    speed (outer wheels faster in a turn; their mean is the vehicle speed), same noise on all four."""
+    im = profile.inputs["speed"]
+    if len(im.signals) != 4:
+        return
+    for sig in im.signals:
+        col = next((o for suffix, o in _WHEELS.items() if sig.upper().endswith(suffix)), None)
+        if col is not None:
+            cols[sig] = im.to_dbc(np.abs(rows[:, col] + noise))
 
 
 _SCALAR_MAX = 3  # up to this many frames: one MessageEncoder.encode each (cheaper than a batch)

@@ -174,8 +174,12 @@ N_DRIVE = 8
     O_MZT,
     O_THP,
     O_WP,
-) = range(40)
-N_OUT = 40
+    O_VW1,
+    O_VW2,
+    O_VW3,
+    O_VW4,
+) = range(44)
+N_OUT = 44
 OUTPUT_NAMES = (
     "vx",
     "vy",
@@ -217,6 +221,10 @@ OUTPUT_NAMES = (
     "Mz_tires",
     "theta_p",
     "omega_p",
+    "v_wheel_fl",
+    "v_wheel_fr",
+    "v_wheel_rl",
+    "v_wheel_rr",
 )
 
 
@@ -425,6 +433,11 @@ def derivatives(
         out[O_MZT] = mz_t
         out[O_THP] = x[X_THP]
         out[O_WP] = x[X_WP]
+        # wheel speeds over ground in each wheel's plane (what wheel-speed sensors see)
+        out[O_VW1] = (vx - r * yl) * cd + (vy + r * lf) * sd
+        out[O_VW2] = (vx - r * yr) * cd + (vy + r * lf) * sd
+        out[O_VW3] = vx - r * yl_r
+        out[O_VW4] = vx - r * yr_r
 
 
 @numba.njit(cache=True)

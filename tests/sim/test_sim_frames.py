@@ -180,3 +180,21 @@ def _raw_vehicle(v):
             "align_rate_Nm_per_rad": v.tires.align_rate,
         },
     }
+
+
+def test_hyundai_wheel_speeds_per_wheel():
+    """WHL_SPD11 carries each wheel's speed: in a left turn the right (outer) wheels are faster."""
+    from vcan_sim.scenarios import Scenario, Step
+
+    turn = Scenario(
+        "turn", "left turn", duration=6.0, speed_kmh=60.0, driver="angle", steer_deg=(Step(0.5, 0.5, 40.0),)
+    )
+    res = simulate(turn, seed=0, profile="hyundai")
+    prof = load_profile("hyundai")
+    sel, cols = _decode(prof, "WHL_SPD11", res.frames)
+    late = slice(-50, None)
+    assert (cols["WHL_SPD_FR"][late] - cols["WHL_SPD_FL"][late]).mean() > 0.5  # km/h
+    assert (cols["WHL_SPD_RR"][late] - cols["WHL_SPD_RL"][late]).mean() > 0.5
+    mean = (cols["WHL_SPD_FL"] + cols["WHL_SPD_FR"] + cols["WHL_SPD_RL"] + cols["WHL_SPD_RR"])[late] / 4 * KMH
+    k = np.searchsorted(res.truth_t_ns, sel.t_ns[late], side="right") - 1
+    np.testing.assert_allclose(mean, res.truth["vx"][k], atol=0.1)
