@@ -20,7 +20,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--scenario", default=None, help="simulator scenario (default heavy_load; lde sim --list)")
     p.add_argument("--seed", type=int, default=1, help="seed of wind, driver and sensor noise")
-    p.add_argument("--duration", type=float, metavar="SEC", help="simulated seconds (default: the scenario's)")
+    p.add_argument("--duration", type=float, metavar="SEC", help="simulated seconds (default: scenario)")
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
     p.add_argument("--backend", choices=("fixed", "float"), default="fixed", help="estimator backend")
     p.add_argument("--mcap", default="lde_demo.mcap", metavar="FILE", help="recording of the overlay run")
