@@ -165,10 +165,12 @@ def test_cli_errors(capsys):
     assert main(["sim", "--scenario", "straight", "--duration", "-1", "--log", "x.log"]) == 2
 
 
-def test_replay_reads_sim_logs(tmp_path):
+@pytest.mark.parametrize("fmt", ["log", "mcap"])
+def test_replay_reads_sim_logs(tmp_path, fmt):
     pytest.importorskip("lde.replay")
-    log, out = tmp_path / "s.log", tmp_path / "r.csv"
-    assert main(["sim", "--scenario", "light_load", "--duration", "4", "--log", str(log)]) == 0
+    log, out = tmp_path / f"s.{fmt}", tmp_path / "r.csv"
+    assert main(["sim", "--scenario", "light_load", "--duration", "4", f"--{fmt}", str(log)]) == 0
     assert main(["replay", str(log), "--csv", str(out), "--backend", "float", "-q"]) == 0
     rows = np.genfromtxt(out, delimiter=",", names=True)
     assert rows.size > 900 and np.all(np.isfinite(rows["Fw"]))
+    assert rows["t"][0] == pytest.approx(1_700_000_000.0, abs=0.1)  # the log's own time base
