@@ -10,7 +10,8 @@ topic               encoding                     content
 ``/can/tx``         :mod:`lde.logio` CAN schema  every frame the service sent (send time)
 ``/lde/estimate``   JSON (``lde.Estimate``)      one per step (log time = the step time t_k, exact):
                                                  ``Fw`` N, ``Mw`` Nm, ``T_align`` Nm, ``T_overlay`` Nm,
-                                                 ``overlay_state``, ``overlay_active``, ``status``
+                                                 ``overlay_state``, ``overlay_active``,
+                                                 ``overlay_enable``, ``status``
                                                  and its bits as 0/1 fields
 ``/lde/inputs``     JSON (``lde.Inputs``)        one per step: the sampled inputs in SI
 ``/lde/diag``       JSON (``lde.Diag``)          one per step: ``period_error_us``, ``step_time_us``,
@@ -110,6 +111,7 @@ ESTIMATE_PROPS = _props(
         "T_overlay": "number",
         "overlay_state": "integer",
         "overlay_active": "integer",
+        "overlay_enable": "integer",
         "status": "integer",
         **{b: "integer" for b in STATUS_BITS},
     },
@@ -120,6 +122,7 @@ ESTIMATE_PROPS = _props(
         "T_overlay": "overlay torque request sent [Nm] at the column, left positive",
         "overlay_state": "0 off, 1 ramp-in, 2 active, 3 ramp-out, 4 fault",
         "overlay_active": "the Active bit sent",
+        "overlay_enable": "0: overlay switched off (--no-overlay) or ramping out at shutdown",
         "status": "LDE_Estimate.Status bit map",
         **{b: f"Status bit{i}" for i, b in enumerate(STATUS_BITS)},
     },
@@ -170,6 +173,7 @@ def _estimate_record(res: Any) -> dict[str, Any]:
         "T_overlay": res.t_overlay,
         "overlay_state": res.overlay_state,
         "overlay_active": int(res.overlay_active),
+        "overlay_enable": int(getattr(res, "overlay_enable", True)),
         "status": res.status,
     }
     for i, name in enumerate(STATUS_BITS):

@@ -75,6 +75,8 @@ class StepResult:
         status: ``LDE_Estimate.Status`` bit map sent (incl. bit7 DEADLINE_MISS).
         frames_used: input frames fed to the receiver in this step.
         timing: this step's timing (None in lockstep mode without timing).
+        overlay_enable: the limiter's ``enable`` input (False: overlay switched off or shutting
+            down); a replay needs it to reproduce a shutdown ramp-out.
     """
 
     t_ns: int
@@ -87,6 +89,7 @@ class StepResult:
     status: int
     frames_used: int
     timing: StepTiming | None
+    overlay_enable: bool = True
 
 
 def _finite(x: float) -> float:
@@ -289,7 +292,8 @@ class Service:
         n_used = self._feed_ready(t_k)
         inputs = self.receiver.sample(t_k)
         est = self.estimator.step(t_k, inputs)
-        ov = self.limiter.step(t_k, est, inputs, enable=self.overlay_enabled and not self._stopping)
+        enable = self.overlay_enabled and not self._stopping
+        ov = self.limiter.step(t_k, est, inputs, enable=enable)
 
         period_error = t_start - t_k
         miss = period_error > DEADLINE_MISS_NS
@@ -327,6 +331,7 @@ class Service:
             status=status,
             frames_used=n_used,
             timing=timing,
+            overlay_enable=enable,
         )
         self.last = res
         if self.recorder is not None:
