@@ -39,3 +39,32 @@ def test_fixed_and_float_replays_agree_on_scenario(setup, name):
     assert dmw.max() <= MW_BOUND_NM, f"{name}: max |dMw| {dmw.max():.3f} Nm at step {dmw.argmax()}"
     assert not np.any(fx.status & SHADOW_DEVIATION)
     np.testing.assert_array_equal(fx.status, fl.status)
+
+
+def test_default_backend_is_fixed():
+    from lde.replay import resolve_backend
+
+    name, fn, _ = resolve_backend(None)
+    assert name == "fixed"
+    import firmware_model
+
+    assert fn is firmware_model.run_batch
+
+
+def test_cli_replay_fixed_and_float_agree(tmp_path):
+    """The issue's 'done when': ``lde replay LOG --backend fixed`` and ``--backend float`` on a
+    simulated candump log give CSVs within 5 N / 2 Nm of each other at every step."""
+    from lde.cli import main
+
+    log, truth = tmp_path / "ws.log", tmp_path / "ws.csv"
+    assert main(["sim", "--scenario", "wind_step", "--log", str(log), "--truth", str(truth)]) == 0
+    out = {}
+    for backend in ("fixed", "float"):
+        csv = tmp_path / f"{backend}.csv"
+        assert main(["replay", str(log), "--backend", backend, "--csv", str(csv)]) == 0
+        out[backend] = np.genfromtxt(csv, delimiter=",", names=True)
+    a, b = out["fixed"], out["float"]
+    assert len(a) == len(b) > 1000
+    np.testing.assert_array_equal(a["t"], b["t"])
+    assert np.max(np.abs(a["Fw"] - b["Fw"])) <= FW_BOUND_N
+    assert np.max(np.abs(a["Mw"] - b["Mw"])) <= MW_BOUND_NM
