@@ -443,6 +443,7 @@ def candidate_specs(
     group: str = "candidates",
     trace_candidate: str | None = None,
     backend: str = "float",
+    profile: str = "lde",
 ) -> list[RunSpec]:
     """The paper's study: every candidate set on every (scenario, payload, seed) load case.
 
@@ -462,6 +463,7 @@ def candidate_specs(
                             duration=duration,
                             estimator=estimator,
                             backend=backend,
+                            profile=profile,
                             sim_options=sim_options,
                             est_options=est_options,
                             group=group,
@@ -493,6 +495,7 @@ def evaluation_specs(
     est_options: tuple[tuple[str, OptionValue], ...] = (),
     trace: bool = False,
     group: str = "evaluate",
+    profile: str = "lde",
 ) -> list[RunSpec]:
     """One run per (scenario, payload) with one estimator vehicle (``lde evaluate``)."""
     return [
@@ -509,6 +512,7 @@ def evaluation_specs(
             est_options=est_options,
             group=group,
             trace=trace,
+            profile=profile,
         )
         for sc in scenarios
         for pl in payloads
@@ -526,6 +530,7 @@ def preset_specs(
     backend: str = "float",
     sim_options: tuple[tuple[str, OptionValue], ...] = (),
     est_options: tuple[tuple[str, OptionValue], ...] = (),
+    profile: str = "lde",
 ) -> list[RunSpec]:
     """The specs of a named study (``lde study --preset``); None arguments take the preset's values.
 
@@ -546,6 +551,7 @@ def preset_specs(
             est_options=est_options,
             trace_candidate=next((c for c in cands if Path(c).stem.startswith("est3")), cands[0]),
             backend=backend,
+            profile=profile,
         )
     if preset == "smoke":
         cands = tuple(candidates or ("est1", "est3"))
@@ -560,6 +566,7 @@ def preset_specs(
             est_options=est_options,
             trace_candidate=cands[-1],
             backend=backend,
+            profile=profile,
         )
     raise ConfigError(f"unknown study preset {preset!r} (known: paper, smoke)")
 

@@ -59,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
         duration=args.duration,
         estimator=args.estimator,
         backend=args.backend,
+        profile=args.profile,
         sim_options=parse_options(args.sim_option, "--sim-option"),
         est_options=parse_options(args.est_option, "--est-option"),
         trace=args.plot is not None,

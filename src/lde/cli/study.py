@@ -58,6 +58,7 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
         help="replay: the product pipeline (lde.replay); adaptive: the prototype extensions (lde.adaptive)",
     )
     g.add_argument("--backend", choices=("float", "fixed"), default="float", help="replay backend")
+    g.add_argument("--profile", default="lde", help="CAN profile of the simulated bus: lde or hyundai")
     g.add_argument(
         "--sim-option",
         action="append",
@@ -152,6 +153,7 @@ def run(args: argparse.Namespace) -> int:
         duration=args.duration,
         estimator=args.estimator,
         backend=args.backend,
+        profile=args.profile,
         sim_options=parse_options(args.sim_option, "--sim-option"),
         est_options=parse_options(args.est_option, "--est-option"),
     )
