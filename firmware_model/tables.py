@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -66,7 +66,7 @@ class FixedTables:
     converge_ns: int
     dt_ns: int
     inputs_sha256: str
-    raw: Any = None  # the source dict (for the steady-state table and documentation)
+    raw: Any = field(default=None, compare=False, repr=False)  # the source dict (ss table, docs)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> FixedTables:
