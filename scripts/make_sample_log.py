@@ -20,6 +20,14 @@ Model, state x = [beta, r] (side slip [rad], yaw rate [rad/s]), ISO 8855 (left p
 
 The column torque is split with a constant boost: T_assist = BOOST * T_column.
 
+The plant's parameters (paper Table 2; N = 15; Cf = 62000, Cr = 56000 N/rad per tire, K = 7200
+Nm/rad: the reference vehicle's values when the sample was made) are fixed here, independent of
+later changes to the shipped vehicle files, and written next to the log as
+``sample_linear_vehicle.toml`` (estimator tuning and overlay limits from ``reference``), so that a
+replay with ``--vehicle tests/data/sample_linear_vehicle.toml`` runs the estimator on the plant's
+own parameters: what remains is the estimator's own error (Euler vs exact discretisation, noise,
+quantisation, multi-rate sampling).
+
 Usage: ``python scripts/make_sample_log.py [--out-dir tests/data] [--seed 1] [--duration 20]``.
 """
 
@@ -149,6 +157,32 @@ def encode_frames(truth: dict[str, np.ndarray], rng: np.random.Generator) -> Fra
     return FrameBatch.concat(batches)
 
 
+#: the plant: a vehicle TOML (lde.params schema) written with the sample and loaded to simulate
+PLANT_TOML = """\
+# Plant of the linear-model sample drive (written by scripts/make_sample_log.py; do not edit).
+# Replay tests/data/sample_linear.log with --vehicle tests/data/sample_linear_vehicle.toml.
+# Body, steering and tires are the simulated plant's; tuning and overlay limits: the reference.
+extends = "reference"
+name = "sample_linear"
+description = "linear-model sample plant: paper Table 2 body, N = 15, Cf 62000, Cr 56000, K 7200"
+
+[vehicle]
+mass_kg = 1466.0
+yaw_inertia_kgm2 = 2744.0
+lf_m = 1.071
+lr_m = 1.724
+track_front_m = 1.587
+track_rear_m = 1.587
+
+[steering]
+ratio = 15.0
+
+[tires]
+cf_N_per_rad = 62000.0
+cr_N_per_rad = 56000.0
+align_rate_Nm_per_rad = 7200.0
+"""
+
 TRUTH_COLUMNS = ("t", "Fw", "Mw", "beta", "yaw_rate", "T_align", "steering_angle", "speed")
 
 
@@ -175,15 +209,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out-dir", type=Path, default=Path(__file__).resolve().parents[1] / "tests" / "data")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--duration", type=float, default=20.0, help="seconds")
-    ap.add_argument("--vehicle", default="reference", help="vehicle name or TOML file (plant parameters)")
     ap.add_argument("--name", default="sample_linear")
     args = ap.parse_args(argv)
-    vehicle = load_vehicle(args.vehicle)
+    out = args.out_dir
+    out.mkdir(parents=True, exist_ok=True)
+    vehicle_path = out / f"{args.name}_vehicle.toml"
+    vehicle_path.write_text(PLANT_TOML)
+    vehicle = load_vehicle(vehicle_path)
     rng = np.random.default_rng(args.seed)
     truth = simulate(vehicle, args.duration, args.seed)
     frames = encode_frames(truth, rng)
-    out = args.out_dir
-    out.mkdir(parents=True, exist_ok=True)
     write_candump(out / f"{args.name}.log", frames, channel="vcan0")
     write_truth_csv(out / f"{args.name}_truth.csv", truth)
     with McapWriter(out / f"{args.name}.mcap") as w:

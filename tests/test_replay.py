@@ -21,6 +21,8 @@ DATA = Path(__file__).parent / "data"
 SAMPLE = DATA / "sample_linear.log"
 SAMPLE_MCAP = DATA / "sample_linear.mcap"
 TRUTH = DATA / "sample_linear_truth.csv"
+#: the sample's plant parameters (the estimator runs on them; robust to changes of the reference vehicle)
+SAMPLE_VEHICLE = DATA / "sample_linear_vehicle.toml"
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -31,7 +33,7 @@ def profile():
 
 @pytest.fixture(scope="module")
 def vehicle():
-    return load_vehicle("reference")
+    return load_vehicle(SAMPLE_VEHICLE)
 
 
 @pytest.fixture(scope="module")
@@ -81,6 +83,22 @@ def test_acceptance_linear_log_converges_to_truth(backend, profile, vehicle):
     quiet = (t_rel >= 2.0) & (t_rel < 5.0)
     assert abs(res.fw[quiet].mean()) < 0.05 * 800.0
     assert abs(res.mw[quiet].mean()) < 0.1 * 300.0
+
+
+def test_receiver_diag_counts_frames_per_step(profile, vehicle):
+    """frames_used sums to the frames used up to the last step; a corrupted frame is counted once."""
+    log = read_log(SAMPLE)
+    frames = log.frames
+    bad = frames.data.copy()
+    k = int(np.flatnonzero(frames.can_id == 0x2A0)[500])
+    bad[k, 0] ^= 0xFF  # wrong CRC
+    corrupted = type(frames)(frames.t_ns, frames.can_id, frames.is_extended, frames.dlc, bad, frames.is_rx)
+    res = replay(corrupted, profile, vehicle, "float")
+    d = res.diag
+    assert d["frames_used"].sum() == res.frames.used - int(np.count_nonzero(frames.t_ns > res.t_ns[-1]))
+    j = np.searchsorted(res.t_ns, frames.t_ns[k])
+    assert d["e2e_rejects"][j - 1] == 0 and d["e2e_rejects"][j] == 1 and d["e2e_rejects"][-1] == 1
+    assert res.frames.rejected_by_cause()["wrong_crc"] == 1
 
 
 def test_sample_log_frames_are_all_used(sample_replay):
@@ -161,7 +179,10 @@ def test_csv_contract(sample_replay, tmp_path: Path):
 def test_cli_end_to_end(tmp_path: Path, capsys):
     out = tmp_path / "o.csv"
     rec = tmp_path / "o.mcap"
-    rc = main(["replay", str(SAMPLE), "--backend", "float", "--csv", str(out), "--mcap", str(rec)])
+    rc = main(
+        ["replay", str(SAMPLE), "--vehicle", str(SAMPLE_VEHICLE), "--backend", "float"]
+        + ["--csv", str(out), "--mcap", str(rec)]
+    )
     assert rc == 0
     err = capsys.readouterr().err
     assert "steps" in err and "frames used" in err
@@ -174,7 +195,18 @@ def test_cli_end_to_end(tmp_path: Path, capsys):
     assert t[0] > 1.7e9 and np.allclose(np.diff(t), 0.0039, atol=2e-6)
     # the recording replays to the identical CSV
     out2 = tmp_path / "o2.csv"
-    assert main(["replay", str(rec), "--backend", "float", "--csv", str(out2), "-q"]) == 0
+    args = [
+        "replay",
+        str(rec),
+        "--vehicle",
+        str(SAMPLE_VEHICLE),
+        "--backend",
+        "float",
+        "--csv",
+        str(out2),
+        "-q",
+    ]
+    assert main(args) == 0
     assert out2.read_bytes() == out.read_bytes()
 
 
@@ -218,6 +250,7 @@ def test_sample_log_is_reproducible(tmp_path: Path):
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "sample_linear.log").read_bytes() == SAMPLE.read_bytes()
     assert (tmp_path / "sample_linear_truth.csv").read_bytes() == TRUTH.read_bytes()
+    assert (tmp_path / "sample_linear_vehicle.toml").read_bytes() == SAMPLE_VEHICLE.read_bytes()
     new = read_log(tmp_path / "sample_linear.mcap")
     old = read_log(SAMPLE_MCAP)
     np.testing.assert_array_equal(new.frames.data, old.frames.data)

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from .e2e import E2EStatus
 from .errors import ConfigError, LogFormatError
 from .frames import FrameBatch
 from .grid import InputGrid, build_grid
@@ -46,6 +47,7 @@ __all__ = [
     "replay_log",
     "recorded_step_times",
     "resolve_backend",
+    "receiver_diag",
     "write_csv",
     "write_recording",
     "CSV_COLUMNS",
@@ -151,6 +153,8 @@ class ReplayResult:
         backend: ``"float"`` or ``"fixed"``; overlay: False when T_overlay is zeros (no lde.overlay).
         recorded_steps: True when the step times came from a recording.
         timings: seconds spent per stage (decode, grid, filter, overlay).
+        diag: per-step receiver diagnostics (:func:`receiver_diag`): ``frames_used`` (input frames
+            accepted since the previous step), ``e2e_rejects`` (frames rejected since the start).
     """
 
     t_ns: np.ndarray
@@ -169,6 +173,7 @@ class ReplayResult:
     overlay: bool
     recorded_steps: bool = False
     timings: dict[str, float] = field(default_factory=dict)
+    diag: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -246,6 +251,25 @@ def _frame_counts(decoded: Decoded, n_tx: int) -> FrameCounts:
     return FrameCounts(total=decoded.n_frames + n_tx, tx=n_tx, ignored=decoded.n_ignored, messages=msgs)
 
 
+_REJECTED = (E2EStatus.REPEATED, E2EStatus.WRONGSEQUENCE, E2EStatus.WRONGCRC)
+
+
+def receiver_diag(decoded: Decoded, t_ns: np.ndarray) -> dict[str, np.ndarray]:
+    """Per step k (time t_k): ``frames_used`` = input frames accepted in (t_{k-1}, t_k] (all up to
+    t_0 for the first step) and ``e2e_rejects`` = frames rejected (E2E repeated / wrong sequence /
+    wrong CRC, or a wrong length) with time <= t_k, like the live service's ``LDE_Diag``."""
+    t = np.asarray(t_ns, np.int64)
+    used = np.zeros(t.size, np.int64)
+    rejects = np.zeros(t.size, np.int64)
+    for m in decoded.messages.values():
+        acc_t = m.t_ns[m.accepted]
+        used += np.searchsorted(acc_t, t, side="right")
+        bad_t = np.sort(np.concatenate([m.t_ns[np.isin(m.status, _REJECTED)], m.malformed_t_ns]))
+        rejects += np.searchsorted(bad_t, t, side="right")
+    frames_used = np.diff(used, prepend=0)
+    return {"frames_used": frames_used, "e2e_rejects": rejects}
+
+
 def estimate(grid: InputGrid, vehicle: Vehicle, run_batch: Callable[..., Any]) -> Any:
     """The filter loop over the grid (a backend's ``run_batch``) -> its BatchResult."""
     return run_batch(
@@ -318,6 +342,7 @@ def replay(
     t3 = time.perf_counter()
     t_ov, ov_state, ov_active, have_overlay = _overlay(est, grid, vehicle)
     t4 = time.perf_counter()
+    diag = receiver_diag(decoded, grid.t_ns)
     timings.update(decode=t1 - t0, grid=t2 - t1, filter=t3 - t2, overlay=t4 - t3)
     return ReplayResult(
         t_ns=np.asarray(grid.t_ns, np.int64),
@@ -336,6 +361,7 @@ def replay(
         overlay=have_overlay,
         recorded_steps=step_times_ns is not None,
         timings=timings,
+        diag=diag,
     )
 
 
@@ -503,6 +529,7 @@ def write_recording(
         in_cols += [Column("mdps_ok", g.mdps_ok, 0), Column("esc_ok", g.esc_ok, 0)]
         _write_json_channel(w, INPUTS_TOPIC, "lde.Inputs", t, in_cols)
         diag_cols = [Column("t_ns", t, 0), Column("status", res.status, 0)]
+        diag_cols += [Column(k, v, 0) for k, v in res.diag.items()]
         _write_json_channel(w, DIAG_TOPIC, "lde.Diag", t, diag_cols)
 
 
