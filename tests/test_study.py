@@ -109,3 +109,20 @@ def test_ladder_and_fault_specs_cover_every_step():
     faults = study.fault_specs("est3", "/x/est3_fig12.toml", seeds=(0,))
     assert {s.group.split(" / ")[1] for s in faults} == {"uncompensated", "learned"}
     assert all(s.sim_options for s in faults)
+
+
+@pytest.mark.slow
+def test_smoke_preset_runs_the_real_chain_in_process():
+    """vcan_sim -> CAN frames -> decode -> grid -> step -> metrics, 4 short runs (no cluster)."""
+    pytest.importorskip("vcan_sim")
+    specs = study.preset_specs("smoke", seeds=(0,), duration=8.0)
+    assert len(specs) == 4
+    res = study.run_specs(specs, ClusterConfig(n_workers=0), progress=False)
+    assert all(r.ok for r in res), [r.error for r in res]
+    for r in res:
+        a = r.accuracy
+        assert a is not None and a.n > 1000
+        # the estimator follows the disturbance force (a broken chain gives ~100 % or NaN)
+        assert a.nrmse_fw < 0.25, (r.spec.label, a.nrmse_fw)
+    heavy = [r for r in res if r.spec.scenario == "heavy_load"]
+    assert all(r.accuracy.scale_fw > 1000.0 for r in heavy)  # the heavy case really is heavy
