@@ -102,9 +102,10 @@ def test_tire_vehicle_file_extends_the_candidate(tmp_path):
 
 
 def test_ladder_and_fault_specs_cover_every_step():
-    lad = study.ladder_specs("est3", "/x/est3_fig12.toml", seeds=(0, 1))
-    assert len(lad) == 7 * len(study.TARGET_SCENARIOS) * 2
-    assert len({s.group for s in lad}) == 7
+    lad = study.ladder_specs("est3", "/x/est3_fig12.toml", seeds=(0, 1), curvature=(90.0, 200.0, 120.0))
+    assert len(lad) == 8 * len(study.TARGET_SCENARIOS) * 2
+    assert len({s.group for s in lad}) == 8
+    assert any(dict(s.est_options).get("kappa_r") == 200.0 for s in lad)
     assert any(dict(s.est_options).get("payload_known") for s in lad)
     faults = study.fault_specs("est3", "/x/est3_fig12.toml", seeds=(0,))
     assert {s.group.split(" / ")[1] for s in faults} == {"uncompensated", "learned"}

@@ -172,15 +172,22 @@ def augmented_estimate(
     accel_scale: float = 1.0,
     ay_std: float = AY_STD,
     q_fa_factor: float = Q_FA_FACTOR,
+    curvature: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The 5-state filter above over (compensated) grid inputs: (t_ns, Fw [N], Mw [Nm], valid)."""
+    """The 5-state filter above over (compensated) grid inputs: (t_ns, Fw [N], Mw [Nm], valid).
+
+    ``curvature`` = (kappa_f, kappa_r, kappa_K) [1/rad^2] schedules the secant tire parameters on the
+    estimated slip angles: ``C(alpha) = C (1 - kappa alpha^2)`` (the tires' force and aligning torque
+    fall below linear at large slip; 0: linear tires).
+    """
     from .units import STEP_S
 
     g = compensate(grid, vehicle, comp or Compensation())
     b, t, e = vehicle.body, vehicle.tires, vehicle.estimator
-    m, iz, lf, lr, cf, cr, k, n_ratio = (
+    m, iz, lf, lr, cf0, cr0, k0, n_ratio = (
         b.mass, b.yaw_inertia, b.lf, b.lr, t.cf, t.cr, t.align_rate, vehicle.steering.ratio,
     )  # fmt: skip
+    lf0, lr0 = lf, lr
     dt = STEP_S
     Qd = np.diag([e.q_beta, e.q_yaw, q_fa_factor * e.q_fw, e.q_fw, e.q_mw]) * dt
     R = np.diag([e.r_yaw, e.r_align, ay_std**2])
@@ -205,6 +212,12 @@ def augmented_estimate(
         if run_start < 0:
             run_start = i
         d_f = g.steering_angle[i] / n_ratio
+        # secant tire parameters at the a-priori slip angles (eq. 9)
+        a_f = d_f - x[0] - lf0 * x[1] / vx
+        a_r = -x[0] + lr0 * x[1] / vx
+        cf = cf0 * max(0.5, 1.0 - curvature[0] * a_f * a_f)
+        cr = cr0 * max(0.5, 1.0 - curvature[1] * a_r * a_r)
+        k = k0 * max(0.5, 1.0 - curvature[2] * a_f * a_f)
         # measurement rows (alpha_f = d_f - beta - lf r/vx; tire force sum 2Ff + 2Fr)
         H = np.zeros((3, 5))
         H[0, 1] = 1.0

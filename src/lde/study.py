@@ -231,7 +231,11 @@ def simulate_and_estimate(
         cal_scenario = opts.pop("calibrate", None)
         cal_tires = bool(opts.pop("calibrate_tires", 1))
         use_ay = bool(opts.pop("lat_accel", 0))
-        ay_kw = {"q_fa_factor": float(opts.pop("q_fa_factor"))} if "q_fa_factor" in opts else {}
+        ay_kw: dict[str, Any] = {}
+        if "q_fa_factor" in opts:
+            ay_kw["q_fa_factor"] = float(opts.pop("q_fa_factor"))
+        if "kappa_f" in opts or "kappa_r" in opts or "kappa_k" in opts:
+            ay_kw["curvature"] = tuple(float(opts.pop(k, 0.0)) for k in ("kappa_f", "kappa_r", "kappa_k"))
         if opts.pop("payload_known", 0):
             # scheduled on the measured load: mass, Iz and CG from the wheel loads (eqs. 17-18)
             b = sim.body
@@ -600,6 +604,35 @@ def identify_tires(
     ]
 
 
+def identify_curvature(
+    scenario: str = "heavy_load", seeds: Sequence[int] = (0, 1)
+) -> tuple[float, float, float]:
+    """Tire curvature (kappa_f, kappa_r, kappa_K) [1/rad^2] fitted to a scenario's truth.
+
+    Least squares of ``F/2 = C alpha (1 - kappa alpha^2)`` (per tire, front and rear lateral force)
+    and ``T_align/2 = K alpha_f (1 - kappa_K alpha_f^2)``: how fast the secant stiffnesses fall with
+    slip (the heavy load reaches alpha_f ~ 0.02 rad).
+    """
+    from vcan_sim.run import simulate
+
+    runs = [simulate(scenario, seed=s) for s in seeds]
+    col = {
+        k: np.concatenate([r.truth[k] for r in runs])
+        for k in ("vx", "alpha_f", "alpha_r", "Fy_front", "Fy_rear", "T_align")
+    }
+    use = col["vx"] > 50.0 / 3.6
+    out = []
+    for alpha, y in (
+        (col["alpha_f"], col["Fy_front"] / 2.0),
+        (col["alpha_r"], col["Fy_rear"] / 2.0),
+        (col["alpha_f"], col["T_align"] / 2.0),
+    ):
+        a = alpha[use]
+        (c0, c3), *_ = np.linalg.lstsq(np.column_stack([a, -(a**3)]), y[use], rcond=None)
+        out.append(float(c3 / c0))
+    return out[0], out[1], out[2]
+
+
 def representative_tires(ids: Sequence[TireIdentification]) -> tuple[float, float, float]:
     """Mean (Cf, Cr, K) over the load levels: the representative values (the paper's conclusion)."""
     return (
@@ -671,12 +704,13 @@ def ladder_specs(
     scenarios: Sequence[str] = TARGET_SCENARIOS,
     duration: float | None = None,
     winner_calibrated: str | None = None,
+    curvature: tuple[float, float, float] | None = None,
 ) -> list[RunSpec]:
     """What each step buys, measured: the same scenarios under successive estimator versions.
 
     ``winner``: the Table 1 set chosen for the step as is; ``winner_calibrated``: the set chosen
     for the calibrated estimator (its mass sets the force scale of the calibration), default
-    ``winner``.
+    ``winner``; ``curvature``: (kappa_f, kappa_r, kappa_K) of :func:`identify_curvature` adds step 7.
     """
     wc = winner_calibrated or winner
     cal = (("calibrate", "lane_change"),)
@@ -702,6 +736,18 @@ def ladder_specs(
             ),
         ),
     ]
+    if curvature is not None:
+        kap = tuple(zip(("kappa_f", "kappa_r", "kappa_k"), (round(c, 1) for c in curvature), strict=True))
+        steps.append(
+            (
+                "7 + slip-scheduled secant tires",
+                dict(
+                    est_vehicle=wc,
+                    estimator="adaptive",
+                    est_options=cal + (("payload_known", 1), ("lat_accel", 1)) + kap,
+                ),
+            )
+        )
     return [
         RunSpec(scenario=sc, seed=seed, duration=duration, group=label, trace=(seed == seeds[0]), **kw)
         for label, kw in steps

@@ -177,7 +177,9 @@ def run(args: argparse.Namespace) -> int:
         for preset, make in (("ladder", study.ladder_specs), ("faults", study.fault_specs)):
             if args.preset not in (preset, "all"):
                 continue
-            extra = {"winner_calibrated": winner_cal} if winner_cal else {}
+            extra: dict = {"winner_calibrated": winner_cal} if winner_cal else {}
+            if preset == "ladder":
+                extra["curvature"] = ctx.curvature
             specs = make(winner, tire_vehicle, seeds=ctx.seeds, duration=args.duration, **extra)
             results = _run(specs, preset, ctx)
             study.write_csv(results, ctx.out / f"{preset}_runs.csv")
@@ -191,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
             ]
             if preset == "ladder":
                 for prefix, name, title in (
-                    ("6", "ladder_final_traces.png", "final estimator (step 6)"),
+                    ("7", "ladder_final_traces.png", "final estimator (step 7)"),
                     ("0", "ladder_reference_traces.png", "reference vehicle file (step 0)"),
                 ):
                     tr = [r for r in results if r.spec.group.startswith(prefix) and r.trace is not None]
@@ -211,6 +213,7 @@ class _Ctx:
     progress: bool
     report: list[str] = dataclasses.field(default_factory=list)
     failed: int = 0
+    curvature: tuple[float, float, float] | None = None
 
 
 def _sweep(ctx: _Ctx, preset: str, candidates, sweep_kw: dict, what: str) -> str:
@@ -254,6 +257,11 @@ def _fig12(ctx: _Ctx, candidates) -> dict[str, str]:
         f"{i.scenario}: Cf {i.cf:.0f} N/rad, Cr {i.cr:.0f} N/rad, K {i.k:.0f} Nm/rad" for i in ids
     )
     note += f"; representative (mean): Cf {cf:.0f}, Cr {cr:.0f}, K {k:.0f}"
+    ctx.curvature = study.identify_curvature("heavy_load", ctx.seeds)
+    note += (
+        "; curvature on heavy_load (secant C = C0 (1 - kappa alpha^2)): kappa_f {:.0f}, kappa_r {:.0f}, "
+        "kappa_K {:.0f} 1/rad^2".format(*ctx.curvature)
+    )
     print(note)
     ctx.report += ["## Fig. 12: linear-equivalent tires", "", note, ""]
     return {
