@@ -319,3 +319,43 @@ def test_bus_timestamps_in_another_time_base_are_restamped(rig) -> None:
     assert svc._restamp is True
     assert r.frames_used >= 1
     assert svc.receiver.sample(T0 + 59 * STEP_NS).mdps_ok
+
+
+def test_replay_of_a_run_stopped_by_a_signal_reproduces_the_ramp_out(tmp_path) -> None:
+    """The shutdown ramp-out is driven by the limiter's enable input, which no CAN frame carries: the
+    recording's sparse ``/lde/events`` channel gives it back to the replay, step for step."""
+    from lde.recording import Recorder
+    from lde.replay import replay_log
+
+    ch = f"lde-test-service-{next(_channels)}"
+    feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    profile, vehicle = load_profile("lde"), load_vehicle("reference")
+    clock = SimulatedClock(T0)
+    path = tmp_path / "stopped.mcap"
+    rec = Recorder(path)
+    try:
+        svc = Service(svc_bus, profile, vehicle, clock, backend="float", recorder=rec, log_period_s=0)
+        feeder = Feeder(feed_bus, profile)
+        live = _lockstep(svc, feeder, clock, 1500)
+        assert abs(live[-1].t_overlay) > 0.05
+        svc.request_stop()
+
+        def on_step(r) -> None:
+            live.append(r)
+            feeder.send_until(r.t_ns + STEP_NS)
+
+        svc.run(on_step=on_step)
+    finally:
+        rec.close()
+        feed_bus.shutdown()
+        svc_bus.shutdown()
+    assert live[-1].t_overlay == 0.0
+    _, res = replay_log(path, profile, vehicle, backend="float")
+    assert res.recorded_steps and len(res) == len(live)
+    np.testing.assert_array_equal(res.t_ns, [r.t_ns for r in live])
+    np.testing.assert_array_equal(res.fw, [r.fw for r in live])
+    np.testing.assert_array_equal(res.t_overlay, [r.t_overlay for r in live])
+    # without the events channel the replay would keep the overlay on: the check above can fail
+    ramp = [r.t_overlay for r in live[1500:]]
+    assert len(ramp) > 10 and abs(ramp[0]) > abs(ramp[-1])

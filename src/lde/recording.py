@@ -18,6 +18,11 @@ topic               encoding                     content
                                                  ``latency_us``, ``deadline_miss``,
                                                  ``deadline_misses``, ``skipped``, ``e2e_rejects``,
                                                  ``frames_used``
+``/lde/events``     JSON (``lde.Events``)        sparse: at the first step and whenever the overlay
+                                                 limiter's ``enable`` input changes (``--no-overlay``,
+                                                 shutdown ramp-out); log time = that step's t_k.
+                                                 Small, so a replay reads it cheaply to reproduce a
+                                                 run that ended by a signal exactly.
 ==================  ===========================  ==================================================
 
 Every message's log time is its own time in the bus time base (ns): receive time, send time, or
@@ -63,6 +68,7 @@ __all__ = [
     "ESTIMATE_TOPIC",
     "INPUTS_TOPIC",
     "DIAG_TOPIC",
+    "EVENTS_TOPIC",
     "CAN_RX_TOPIC",
     "CAN_TX_TOPIC",
 ]
@@ -74,6 +80,7 @@ CAN_TX_TOPIC = TOPIC_TX
 ESTIMATE_TOPIC = "/lde/estimate"
 INPUTS_TOPIC = "/lde/inputs"
 DIAG_TOPIC = "/lde/diag"
+EVENTS_TOPIC = "/lde/events"
 
 #: ``Status`` bits (docs/ARCHITECTURE.md) -> flat 0/1 fields of ``/lde/estimate``
 STATUS_BITS = (
@@ -162,6 +169,12 @@ DIAG_PROPS = _props(
         "e2e_rejects": "frames rejected by the E2E receiver since start",
         "frames_used": "input frames used in this step",
     },
+)
+
+
+EVENTS_PROPS = _props(
+    {"overlay_enable": "integer"},
+    {"overlay_enable": "the limiter's enable input from this step on (0: switched off or ramping out)"},
 )
 
 
@@ -257,6 +270,8 @@ class Recorder:
         self._ch_est = w.add_json_channel(ESTIMATE_TOPIC, ESTIMATE_PROPS, title="lde.Estimate")
         self._ch_in = w.add_json_channel(INPUTS_TOPIC, INPUTS_PROPS, title="lde.Inputs")
         self._ch_diag = w.add_json_channel(DIAG_TOPIC, DIAG_PROPS, title="lde.Diag")
+        self._ch_events = w.add_json_channel(EVENTS_TOPIC, EVENTS_PROPS, title="lde.Events")
+        self._last_enable: int | None = None
         self._ch_extra = {t: w.add_json_channel(t, props) for t, props in (extra_topics or {}).items()}
         _sync(w)
         self._q: deque[tuple[Any, ...]] = deque()
@@ -319,7 +334,11 @@ class Recorder:
                 else:
                     _, res, inputs, rejects, skipped = item
                     t = res.t_ns
-                    w.write_json(self._ch_est, t, _estimate_record(res))
+                    rec = _estimate_record(res)
+                    w.write_json(self._ch_est, t, rec)
+                    if rec["overlay_enable"] != self._last_enable:
+                        self._last_enable = rec["overlay_enable"]
+                        w.write_json(self._ch_events, t, {"overlay_enable": self._last_enable})
                     w.write_json(self._ch_in, t, _inputs_record(inputs))
                     if res.timing is not None:
                         w.write_json(self._ch_diag, t, _diag_record(res, skipped, rejects))

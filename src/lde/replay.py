@@ -57,6 +57,8 @@ __all__ = [
 ]
 
 ESTIMATE_TOPIC = "/lde/estimate"
+#: sparse channel of a recording: the overlay limiter's enable input whenever it changes
+EVENTS_TOPIC = "/lde/events"
 INPUTS_TOPIC = "/lde/inputs"
 DIAG_TOPIC = "/lde/diag"
 STATUS_BITS = (
@@ -285,9 +287,12 @@ def estimate(grid: InputGrid, vehicle: Vehicle, run_batch: Callable[..., Any]) -
     )
 
 
-def _overlay(est: Any, grid: InputGrid, vehicle: Vehicle) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+def _overlay(
+    est: Any, grid: InputGrid, vehicle: Vehicle, enable: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """T_overlay [Nm], limiter state, active per step from :func:`lde.overlay.run_batch_overlay` (the
-    live limiter's kernel), or zeros when :mod:`lde.overlay` is not there."""
+    live limiter's kernel), or zeros when :mod:`lde.overlay` is not there. ``enable``: the limiter's
+    enable input per step (a recording's, see :func:`recorded_overlay_enable`; default all on)."""
     n = len(grid)
     try:
         from .overlay import run_batch_overlay
@@ -302,6 +307,7 @@ def _overlay(est: Any, grid: InputGrid, vehicle: Vehicle) -> tuple[np.ndarray, n
         grid.steering_angle,
         grid.column_torque,
         vehicle,
+        enable=enable,
     )
     return (
         np.asarray(t_ov, np.float64),
@@ -319,6 +325,7 @@ def replay(
     *,
     step_times_ns: np.ndarray | None = None,
     tx_frames: int | None = None,
+    overlay_enable: np.ndarray | None = None,
 ) -> ReplayResult:
     """Replay ``frames`` (any order) through the estimator.
 
@@ -330,6 +337,8 @@ def replay(
         step_times_ns: explicit step times (a recording's); default the grid from the first
             accepted MDPS frame to the last frame.
         tx_frames: the log's count of frames lde sent, when the reader did not return them all.
+        overlay_enable: the overlay limiter's enable input per step (bool, one per step of
+            ``step_times_ns``; a recording's, so that a run ended by a signal replays exactly).
     """
     name, run_batch, _note = resolve_backend(backend)
     timings: dict[str, float] = {}
@@ -340,7 +349,9 @@ def replay(
     t2 = time.perf_counter()
     est = estimate(grid, vehicle, run_batch)
     t3 = time.perf_counter()
-    t_ov, ov_state, ov_active, have_overlay = _overlay(est, grid, vehicle)
+    if overlay_enable is not None and len(overlay_enable) != len(grid):
+        overlay_enable = None  # not this grid's steps (e.g. --no-recorded-steps): all on
+    t_ov, ov_state, ov_active, have_overlay = _overlay(est, grid, vehicle, overlay_enable)
     t4 = time.perf_counter()
     diag = receiver_diag(decoded, grid.t_ns)
     timings.update(decode=t1 - t0, grid=t2 - t1, filter=t3 - t2, overlay=t4 - t3)
@@ -377,6 +388,23 @@ def recorded_step_times(log: LogData) -> np.ndarray | None:
     return np.asarray(m.times[ESTIMATE_TOPIC], np.int64)
 
 
+def recorded_overlay_enable(log: LogData, step_times_ns: np.ndarray | None) -> np.ndarray | None:
+    """The overlay limiter's enable input at each recorded step, from the sparse ``/lde/events``
+    channel (sample-and-hold: an event at t_k applies from step t_k on); None when the log has none."""
+    m = log.mcap
+    if m is None or step_times_ns is None or EVENTS_TOPIC not in m.json:
+        return None
+    ev = m.json[EVENTS_TOPIC]
+    t_ev = np.asarray(ev.get("log_time", []), np.int64)
+    val = np.asarray(ev.get("overlay_enable", []))
+    if len(t_ev) == 0 or len(val) != len(t_ev):
+        return None
+    order = np.argsort(t_ev, kind="stable")
+    t_ev, val = t_ev[order], val[order]
+    idx = np.searchsorted(t_ev, step_times_ns, side="right") - 1
+    return np.where(idx >= 0, val[np.maximum(idx, 0)] != 0, True)
+
+
 def replay_log(
     path: str | Path,
     profile: Profile,
@@ -390,13 +418,16 @@ def replay_log(
     An lde recording is replayed on its recorded step times unless ``use_recorded_steps`` is False.
     """
     t0 = time.perf_counter()
-    log = read_log(Path(path), skip_tx=True)
+    log = read_log(Path(path), skip_tx=True, json_topics=[EVENTS_TOPIC], json_optional=True)
     steps = recorded_step_times(log) if use_recorded_steps else None
+    enable = recorded_overlay_enable(log, steps)
     n_tx = None
     if log.mcap is not None and "/can/tx" in log.mcap.topics:
         n_tx = log.mcap.topics["/can/tx"].count
     t1 = time.perf_counter()
-    res = replay(log.frames, profile, vehicle, backend, step_times_ns=steps, tx_frames=n_tx)
+    res = replay(
+        log.frames, profile, vehicle, backend, step_times_ns=steps, tx_frames=n_tx, overlay_enable=enable
+    )
     res.timings = {"read": t1 - t0, **res.timings}
     return log, res
 

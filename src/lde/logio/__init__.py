@@ -152,11 +152,12 @@ def read_log(
     fmt: str | None = None,
     json_topics: Iterable[str] | str | None = None,
     skip_tx: bool = False,
+    json_optional: bool = False,
 ) -> LogData:
     """Read a CAN log into a :class:`LogData` (format by :func:`detect_format` unless ``fmt``).
 
-    ``json_topics`` and ``skip_tx`` apply to MCAP files (see :func:`read_mcap`): with ``skip_tx``
-    the frames lde itself sent (``/can/tx``) are counted but need not be decoded.
+    ``json_topics``, ``json_optional`` and ``skip_tx`` apply to MCAP files (see :func:`read_mcap`):
+    with ``skip_tx`` the frames lde itself sent (``/can/tx``) are counted but need not be decoded.
 
     Raises:
         LogFormatError: unreadable, corrupt, empty or non-CAN file, or a file with no frames at all.
@@ -164,7 +165,7 @@ def read_log(
     p = Path(path)
     fmt = fmt or detect_format(p)
     if fmt == "mcap":
-        data = read_mcap(p, json_topics=json_topics, skip_tx=skip_tx)
+        data = read_mcap(p, json_topics=json_topics, skip_tx=skip_tx, json_optional=json_optional)
         stats = ReadStats(
             frames=len(data.frames),
             bad_messages=data.bad_can_messages,

@@ -723,11 +723,14 @@ def read_mcap(
     force_library: bool = False,
     validate_crcs: bool = True,
     skip_tx: bool = False,
+    json_optional: bool = False,
 ) -> McapData:
     """Read an lde MCAP file (layout in the module doc).
 
     Args:
         json_topics: JSON topics to return as columns (``"all"`` for every JSON channel).
+        json_optional: a topic of ``json_topics`` that the file does not have is left out of
+            ``json`` instead of raising (for channels only some recordings have).
         require_can: raise :class:`LogFormatError` if the file has no CAN channel.
         force_library: use the ``mcap`` library's per-message reader (the reference path).
         validate_crcs: check each chunk's CRC-32 (a corrupt chunk then always raises).
@@ -773,7 +776,7 @@ def read_mcap(
         raise LogFormatError(
             f"{p}: no CAN channel (schema {CAN_SCHEMA_NAME}) in this MCAP file; topics: {names}"
         )
-    _fill_json(data, json_topics)
+    _fill_json(data, json_topics, json_optional)
     return data
 
 
@@ -1112,7 +1115,7 @@ def _read_library(fh: IO[bytes]) -> McapData:
     return out
 
 
-def _fill_json(data: McapData, json_topics: Iterable[str] | str | None) -> None:
+def _fill_json(data: McapData, json_topics: Iterable[str] | str | None, optional: bool = False) -> None:
     bufs, o_chunk, o_chan, o_t, o_off, o_len = data._other  # type: ignore[attr-defined]
     del data._other  # type: ignore[attr-defined]
     if json_topics is None:
@@ -1123,6 +1126,8 @@ def _fill_json(data: McapData, json_topics: Iterable[str] | str | None) -> None:
         wanted = [json_topics] if isinstance(json_topics, str) else list(json_topics)
     for topic in wanted:
         ti = data.topics.get(topic)
+        if ti is None and optional:
+            continue
         if ti is None:
             raise LogFormatError(f"no topic {topic!r} in this MCAP file")
         if ti.message_encoding != "json":
