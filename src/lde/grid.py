@@ -8,6 +8,13 @@ Step times::
 
 or exactly the given ``step_times_ns`` (to replay a live recording on its recorded step times).
 
+A silence longer than :data:`MAX_GAP_NS` (60 s) without any frame of an input message splits the
+default grid into segments, each anchored again at its own first accepted anchor frame and ending
+at its last input frame (the last segment at ``t_end``). Shorter gaps are stepped through (the
+inputs go stale, then recover). A log that joins recordings from different time bases (one with
+relative timestamps, one in epoch seconds) thus replays each part instead of asking for 10^11
+steps across the jump. More than :data:`MAX_STEPS` steps in all is a :class:`LogFormatError`.
+
 At each step (same rules as :meth:`lde.signals.Receiver.sample`, see :mod:`lde.signals`)::
 
     j = searchsorted(t_accepted, t_k, side="right") - 1     # latest accepted sample <= t_k
@@ -24,11 +31,17 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from .errors import LogFormatError
 from .profiles import ESC_INPUTS, INPUT_NAMES, MDPS_INPUTS, Profile
 from .signals import Decoded, InputSample
 from .units import STEP_NS
 
-__all__ = ["InputGrid", "build_grid", "step_times"]
+__all__ = ["InputGrid", "build_grid", "step_times", "segmented_step_times", "MAX_GAP_NS", "MAX_STEPS"]
+
+#: a silence of the input messages longer than this starts a new grid segment [ns]
+MAX_GAP_NS = 60_000_000_000
+#: at most this many steps in one grid (about 108 h at 3.9 ms; guards against corrupt timestamps)
+MAX_STEPS = 100_000_000
 
 
 @dataclass
@@ -99,6 +112,57 @@ def step_times(t_start_ns: int, t_end_ns: int, step_ns: int = STEP_NS) -> np.nda
     return int(t_start_ns) + np.arange(n, dtype=np.int64) * step_ns
 
 
+def segmented_step_times(
+    anchor_t_ns: np.ndarray,
+    input_t_ns: np.ndarray,
+    t_end_ns: int | None,
+    max_gap_ns: int = MAX_GAP_NS,
+    step_ns: int = STEP_NS,
+) -> np.ndarray:
+    """Default step times: one grid per segment of input traffic (module docstring).
+
+    Args:
+        anchor_t_ns: sorted times of the accepted anchor (MDPS) frames [ns].
+        input_t_ns: sorted times of every input-message frame (any status) [ns].
+        t_end_ns: last possible step time of the last segment (the batch's last frame) [ns].
+        max_gap_ns: a silence longer than this splits the segments [ns].
+
+    Raises:
+        LogFormatError: more than :data:`MAX_STEPS` steps in all.
+    """
+    a = np.asarray(anchor_t_ns, dtype=np.int64)
+    f = np.asarray(input_t_ns, dtype=np.int64)
+    if a.size == 0 or t_end_ns is None:
+        return np.zeros(0, dtype=np.int64)
+    if f.size == 0:
+        f = a
+    # segment k spans [f[lo_k], f[hi_k]]; a new one starts after every gap > max_gap_ns
+    cut = np.flatnonzero(np.diff(f) > max_gap_ns) + 1
+    lo = np.concatenate([[0], cut])
+    hi = np.concatenate([cut - 1, [f.size - 1]])
+    parts: list[np.ndarray] = []
+    total = 0
+    for k in range(lo.size):
+        seg_start, seg_end = int(f[lo[k]]), int(f[hi[k]])
+        if k == lo.size - 1 and int(t_end_ns) - seg_end <= max_gap_ns:
+            seg_end = int(t_end_ns)  # the last segment runs to the batch's end (trailing other traffic)
+        seg_end = min(seg_end, int(t_end_ns))
+        i = int(np.searchsorted(a, seg_start, side="left"))
+        if i >= a.size or a[i] > seg_end:
+            continue  # no accepted anchor frame in this segment: no steps
+        n = (seg_end - int(a[i])) // step_ns + 1
+        total += n
+        if total > MAX_STEPS:
+            raise LogFormatError(
+                f"the log's input frames would need more than {MAX_STEPS} estimator steps "
+                f"({total * step_ns * 1e-9 / 3600:.0f} h at {step_ns * 1e-6:g} ms): corrupt timestamps?"
+            )
+        parts.append(step_times(int(a[i]), seg_end, step_ns))
+    if not parts:
+        return np.zeros(0, dtype=np.int64)
+    return np.concatenate(parts)
+
+
 def build_grid(
     decoded: Decoded,
     profile: Profile,
@@ -110,17 +174,25 @@ def build_grid(
 
     Args:
         decoded: :func:`lde.signals.decode_batch` output for ``profile``.
-        t_start_ns: first step time; default the first accepted frame of the anchor message.
+        t_start_ns: first step time; default the first accepted frame of the anchor message, with
+            a new segment after every silence longer than :data:`MAX_GAP_NS`.
         step_times_ns: explicit step times (int64, non-decreasing); overrides start/end.
         t_end_ns: last possible step time; default the last frame of the batch.
     """
     if step_times_ns is not None:
         t = np.ascontiguousarray(step_times_ns, dtype=np.int64).reshape(-1)
+    elif t_start_ns is None:
+        anchor = decoded.messages[profile.anchor_message]
+        msgs = decoded.messages.values()
+        every = np.concatenate(
+            [m.t_ns for m in msgs] + [m.malformed_t_ns for m in msgs] + [np.zeros(0, np.int64)]
+        )
+        t = segmented_step_times(
+            anchor.t_ns[anchor.accepted],
+            np.sort(every),
+            decoded.t_last_ns if t_end_ns is None else t_end_ns,
+        )
     else:
-        if t_start_ns is None:
-            anchor = decoded.messages[profile.anchor_message]
-            acc = np.flatnonzero(anchor.accepted)
-            t_start_ns = int(anchor.t_ns[acc[0]]) if acc.size else None
         if t_end_ns is None:
             t_end_ns = decoded.t_last_ns
         if t_start_ns is None or t_end_ns is None:
