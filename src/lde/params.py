@@ -238,7 +238,7 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 
 
 def _read_toml(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
-    if path in seen:
+    if path.resolve() in {q.resolve() for q in seen}:
         raise ConfigError(f"{path}: 'extends' cycle through {', '.join(map(str, seen))}")
     try:
         with path.open("rb") as fh:
@@ -254,16 +254,25 @@ def _read_toml(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
         return data
     if not isinstance(parent, str):
         raise ConfigError(f"{path}: 'extends' must be a string")
-    base_path = resolve_vehicle_path(parent, relative_to=path.parent)
+    try:
+        base_path = resolve_vehicle_path(parent, relative_to=path.parent)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: extends = {parent!r}: {exc}") from exc
     return _merge(_read_toml(base_path, seen + (path,)), data)
 
 
 def resolve_vehicle_path(name_or_path: str | Path, relative_to: Path | None = None) -> Path:
-    """A shipped vehicle name (``reference``, ``est3``) or a path to a TOML file."""
+    """A shipped vehicle name (``reference``, ``est3``) or a path to a TOML file.
+
+    A relative path is taken relative to ``relative_to`` (the directory of the file that
+    ``extends`` it) when that file exists there, else relative to the working directory.
+    """
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.parent != Path("."):
-        if not p.is_absolute() and relative_to is not None and not p.exists():
-            p = relative_to / p
+        if not p.is_absolute() and relative_to is not None:
+            beside = relative_to / p
+            if beside.exists() or not p.exists():
+                return beside
         return p
     shipped = VEHICLE_DIR / f"{p.name}.toml"
     if shipped.exists():
