@@ -48,6 +48,7 @@ H_NS = STEP_NS // SUBSTEPS  #: sub-step [ns] (0.975 ms)
 H = H_NS * 1e-9  #: sub-step [s]
 MAX_DURATION = 3600.0  #: [s]
 EPOCH_NS = 1_700_000_000 * 1_000_000_000
+MAX_T0_NS = 9_000_000_000 * 1_000_000_000  #: latest start [ns]: t0 + MAX_DURATION stays within int64
 _CHUNK_STEPS = 4096  # estimator steps per fast-path chunk (16 s)
 
 _DRIVER_MODES = {"lane": DRIVER_LANE, "angle": DRIVER_ANGLE, "hands_off": DRIVER_HANDS_OFF}
@@ -118,12 +119,19 @@ class Simulation:
         self.scenario = sc
         self.vehicle = vehicle if isinstance(vehicle, Vehicle) else load_vehicle(vehicle)
         self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
+        if isinstance(seed, bool) or int(seed) != seed or seed < 0:
+            raise ConfigError(f"seed {seed!r} must be a non-negative integer")
         self.seed = int(seed)
         dur = sc.duration if duration is None else float(duration)
         if not (0.0 < dur <= MAX_DURATION):
             raise ConfigError(f"duration {dur} s outside (0, {MAX_DURATION:.0f}]")
         self.duration = dur
         self.t0_ns = default_t0_ns(seed) if t0_ns is None else int(t0_ns)
+        if not 0 <= self.t0_ns <= MAX_T0_NS:
+            raise ConfigError(
+                f"start time t0 {self.t0_ns * 1e-9:.9g} s outside 0..{MAX_T0_NS // 1_000_000_000} s "
+                "(epoch seconds; timestamps are int64 ns)"
+            )
         self.sp = sim_params if sim_params is not None else sim_params_from_vehicle(self.vehicle)
         if sc.driver not in _DRIVER_MODES:
             raise ConfigError(f"scenario {sc.name}: unknown driver {sc.driver!r}")

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
 import time
 from dataclasses import replace
@@ -112,6 +113,8 @@ def run(args: argparse.Namespace) -> int:
     from vcan_sim.run import Simulation
     from vcan_sim.scenarios import get_scenario
 
+    if args.t0 is not None and not math.isfinite(args.t0):
+        raise ConfigError(f"--t0 {args.t0}: need finite epoch seconds")
     t0_ns = None if args.t0 is None else int(round(args.t0 * 1e6)) * 1000
     scenario = get_scenario(args.scenario)
     if args.fault:
