@@ -149,7 +149,11 @@ SIM_OPTIONS: dict[str, tuple[str, str, float]] = {
 #: scenario with the same simulated vehicle, payload and options (seed + 1000), then estimate with
 #: them; calibrate_tires = 0 to apply only the friction/offset compensation of that calibration;
 #: payload_known = 1: the estimator's mass, yaw inertia and CG are the loaded vehicle's (what a
-#: wheel-load or mass signal would give through eqs. 17-18) instead of the vehicle file's.
+#: wheel-load or mass signal would give through eqs. 17-18) instead of the vehicle file's;
+#: torsion = 0/1: torsion-bar term in the calibration (default: only when the profile's angle is the
+#: steering-wheel angle, i.e. not on `lde`, whose angle is the MDPS's pinion angle);
+#: lat_accel = 1: the 5-state filter with a_y (q_fa_factor scales its wind random walk);
+#: kappa_f, kappa_r, kappa_k: slip-scheduled secant tire parameters [1/rad^2].
 CALIBRATION_SEED_OFFSET = 1000
 
 
@@ -231,6 +235,8 @@ def simulate_and_estimate(
         cal_scenario = opts.pop("calibrate", None)
         cal_tires = bool(opts.pop("calibrate_tires", 1))
         use_ay = bool(opts.pop("lat_accel", 0))
+        # the `lde` profile's angle is the MDPS's motor-side (pinion) angle: no torsion-bar twist in it
+        use_torsion = bool(opts.pop("torsion", spec.profile != "lde"))
         ay_kw: dict[str, Any] = {}
         if "q_fa_factor" in opts:
             ay_kw["q_fa_factor"] = float(opts.pop("q_fa_factor"))
@@ -242,7 +248,7 @@ def simulate_and_estimate(
             vehicle = vehicle.with_body(mass=b.mass, yaw_inertia=b.yaw_inertia, lf=b.lf, lr=b.lr)
         comp = adaptive.Compensation.from_options(opts)
         if cal_scenario:
-            cal = _calibrate_on(spec, str(cal_scenario), vehicle, profile)
+            cal = _calibrate_on(spec, str(cal_scenario), vehicle, profile, identify_torsion=use_torsion)
             comp = adaptive.Compensation(
                 friction=cal.friction,
                 steer_offset=cal.steer_offset,

@@ -39,6 +39,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="vehicle file to write (calibrated.toml)",
     )
     p.add_argument("--name", default="calibrated", help="name inside the written vehicle file")
+    p.add_argument(
+        "--torsion",
+        choices=("auto", "yes", "no"),
+        default="auto",
+        help="identify the torsion-bar twist in the steering angle (auto: not on profile lde, whose "
+        "angle is the MDPS's pinion angle; yes on profiles that carry the steering-wheel angle)",
+    )
     p.set_defaults(func=run)
 
 
@@ -47,7 +54,8 @@ def run(args: argparse.Namespace) -> int:
     log = read_log(args.log)
     grid = grid_from_frames(log.frames, args.profile)
     drive = drive_from_grid(grid)
-    full = calibrate(drive, base)
+    torsion = args.torsion == "yes" or (args.torsion == "auto" and str(args.profile) != "lde")
+    full = calibrate(drive, base, identify_torsion=torsion)
     # the file is for the estimator step as it is: no torsion model, so fit effective values
     cal = calibrate(drive, base, identify_torsion=False)
     out = write_vehicle(cal, base, args.out, name=args.name, log=str(args.log), full=full)
