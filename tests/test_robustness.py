@@ -374,6 +374,8 @@ def test_bad_sim_options_are_one_line_errors(tmp_path, capsys):
             ["--scenario", "straight", "--duration", "0.5", "--mcap", str(tmp_path / "no" / "m.mcap")],
             "m.mcap",
         ),
+        (["--scenario", "straight", "--log", log, "--log-channel", "can 0"], "--log-channel"),
+        (["--scenario", "straight", "--log", log, "--truth", str(tmp_path)], "directory"),
         (["--scenario", "straight"], "nothing to do"),
         ([], "--scenario"),
     ]

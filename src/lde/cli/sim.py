@@ -23,6 +23,7 @@ import math
 import sys
 import time
 from dataclasses import replace
+from pathlib import Path
 
 from ..errors import ConfigError
 from .run import add_bus_arguments, bus_kwargs
@@ -103,6 +104,23 @@ def _live_requested(args: argparse.Namespace) -> bool:
     return bool(cfg.get("interface"))
 
 
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Fail before simulating (a live run may take minutes) on output paths that cannot be written."""
+    if args.log and (not args.log_channel or any(c.isspace() for c in args.log_channel)):
+        raise ConfigError(
+            f"--log-channel {args.log_channel!r}: need a channel name without blanks, e.g. vcan0"
+        )
+    for opt, value in (("--log", args.log), ("--truth", args.truth), ("--mcap", args.mcap)):
+        if not value:
+            continue
+        path = Path(value)
+        if path.is_dir():
+            raise ConfigError(f"{opt} {path}: is a directory")
+        parent = path.parent if str(path.parent) else Path(".")
+        if not parent.is_dir():
+            raise ConfigError(f"{opt} {path}: no such directory {parent}")
+
+
 def run(args: argparse.Namespace) -> int:
     if args.list:
         return _print_list()
@@ -131,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
     live = _live_requested(args)
     if not live and not (args.log or args.truth or args.mcap):
         raise ConfigError("nothing to do: give --log/--truth/--mcap, or a bus (--interface/--channel)")
+    _check_outputs(args)
     wall = time.monotonic()
     if live:
         from lde.service import open_bus
