@@ -181,6 +181,22 @@ def test_candump_odd_lines_are_counted_not_fatal(drive_log, tmp_path, profile, v
     np.testing.assert_array_equal(res.fw, ref.fw[:n])
 
 
+def test_candump_lines_out_of_order_duplicated_or_with_crlf_read_as_the_sorted_frames(drive_log, tmp_path):
+    lines = drive_log.read_text().splitlines()
+    rng = np.random.default_rng(8)
+    p = tmp_path / "messy.log"
+    messy = [lines[i] for i in rng.permutation(len(lines))] + lines[:50]
+    p.write_bytes("".join(line + "\r\n" for line in messy).encode())
+    got = read_log(p).frames
+    ref = read_log(drive_log).frames
+    assert len(got) == len(ref) + 50 and got.is_sorted()
+    keep = np.ones(len(got), bool)
+    _, first = np.unique(np.column_stack([got.t_ns, got.can_id]), axis=0, return_index=True)
+    keep[:] = False
+    keep[first] = True
+    np.testing.assert_array_equal(got.select(keep).t_ns, ref.t_ns)
+
+
 def test_out_of_order_and_duplicated_frames(drive, profile, vehicle):
     ref = replay(drive, profile, vehicle, "float")
     rng = np.random.default_rng(3)
