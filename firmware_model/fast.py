@@ -15,6 +15,7 @@ Layouts (int64 arrays):
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -416,7 +417,7 @@ def step_si_kernel(tv, coef, x, P, aux, sat, ws, t_ns, speed, steering_angle, ya
     return step_kernel(tv, coef, x, P, aux, sat, ws, t_ns, v, s, y, c, a, flags, mdps_ok, esc_ok, out)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # nogil: the float shadow runs beside it in a second thread
 def batch_kernel(tv, coef, x, P, aux, sat, t_ns, speed, steering_angle, yaw_rate, column_torque,
                  assist_torque, mdps_ok, esc_ok, outs, status):  # pragma: no cover - compiled
     """Quantise and step every row; ``outs`` (n, N_OUT) int64 raw, ``status`` (n,) uint8."""
@@ -535,15 +536,38 @@ def run_batch(
     """
     tb = tables_for(vehicle, _dt_ns(dt))
     st = FastState.initial(tables_vector(tb)) if state is None else state
-    t, outs, status = run_batch_raw(tb, st, t_ns, speed, steering_angle, yaw_rate, column_torque,
-                                    assist_torque, mdps_ok, esc_ok)
-    beta, r, fw, mw, ta = _to_si(tb, outs)
-    res = BatchResult(t_ns=t.copy(), fw=fw, mw=mw, t_align=ta, beta=beta, yaw_rate=r, status=status)
+    shadow_thread = None
     if shadow:
         if st.shadow_state is None:
             st.shadow_state = EstimatorState.initial(params_vector(vehicle, dt))
-        flt = float_run_batch(t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok,
-                              esc_ok, vehicle, state=st.shadow_state, dt=dt)
+        # Both compiled loops release the GIL: the float shadow runs on the other core while the
+        # integer loop runs here, so the check costs memory, not (much) wall time. Its result is
+        # the same as run sequentially (independent states, deterministic kernels).
+        box: list[BatchResult] = []
+        errs: list[BaseException] = []
+
+        def _float() -> None:
+            try:
+                box.append(float_run_batch(t_ns, speed, steering_angle, yaw_rate, column_torque,
+                                           assist_torque, mdps_ok, esc_ok, vehicle,
+                                           state=st.shadow_state, dt=dt))
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the calling thread below
+                errs.append(exc)
+
+        shadow_thread = threading.Thread(target=_float, name="lde-float-shadow")
+        shadow_thread.start()
+    try:
+        t, outs, status = run_batch_raw(tb, st, t_ns, speed, steering_angle, yaw_rate, column_torque,
+                                        assist_torque, mdps_ok, esc_ok)
+    finally:
+        if shadow_thread is not None:
+            shadow_thread.join()
+    beta, r, fw, mw, ta = _to_si(tb, outs)
+    res = BatchResult(t_ns=t.copy(), fw=fw, mw=mw, t_align=ta, beta=beta, yaw_rate=r, status=status)
+    if shadow:
+        if errs:
+            raise errs[0]
+        flt = box[0]
         rep = shadow_check(res, flt)
         st.shadow_count += rep.count
         st.shadow_max_dfw = max(st.shadow_max_dfw, rep.max_dfw)

@@ -329,7 +329,7 @@ def step_kernel(
     return status
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # nogil: the fixed backend runs it as a shadow in a second thread
 def batch_kernel(
     p,
     x,
