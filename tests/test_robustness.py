@@ -305,6 +305,14 @@ def test_absurd_timestamp_does_not_allocate_a_huge_grid(drive, profile, vehicle)
     assert len(res) < 200
 
 
+def test_a_grid_beyond_max_steps_is_a_clear_error():
+    from lde.grid import MAX_STEPS, segmented_step_times
+
+    every = np.arange(MAX_STEPS // (MAX_GAP_NS // STEP_NS) + 2, dtype=np.int64) * MAX_GAP_NS
+    with pytest.raises(LogFormatError, match="estimator steps"):
+        segmented_step_times(every, every, int(every[-1]))
+
+
 def test_only_esc_frames_or_unknown_ids_give_an_empty_csv_with_a_note(drive, tmp_path, capsys):
     esc_only = tmp_path / "esc_only.log"
     write_candump(esc_only, drive.select(drive.can_id == ESC_ID))
