@@ -97,6 +97,11 @@ def sim(tmp_path_factory) -> tuple[Path, dict[str, subprocess.CompletedProcess]]
     assert runs[0].returncode == 0, runs[0].stderr
     out = {"sim": runs[0], "err_replay": runs[1]}
     out["list"] = lde_here("sim", "--list")
+    from lde.cli import main
+
+    with pytest.raises(SystemExit) as version_exit, contextlib.redirect_stdout(io.StringIO()) as version:
+        main(["--version"])
+    assert version_exit.value.code == 0 and version.getvalue().startswith("lde ")
     out["hyundai"] = lde_here(
         "sim", "--scenario", "steady_wind", "--profile", "hyundai", "--vehicle", "est3", "--duration", "3",
         "--seed", "1", "--t0", "1234567890.25", "--log", d / "h.log",

@@ -18,12 +18,22 @@ from ..errors import LdeError
 SUBCOMMANDS = ("demo", "run", "sim", "replay", "evaluate", "study", "calibrate")
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("lde")
+    except PackageNotFoundError:  # a source tree that was not installed
+        return "unknown"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="lde",
         description="Lateral disturbance estimator for MDPS cars: CAN service, replay, simulator, studies.",
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+    parser.add_argument("--version", action="version", version=f"lde {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in SUBCOMMANDS:
         try:
