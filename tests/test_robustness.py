@@ -360,11 +360,16 @@ def test_bad_vehicle_files_are_one_line_errors(drive_log, tmp_path, capsys):
         "syntax.toml": ('extends = "reference"\n[vehicle\n', "TOML"),
         "nan.toml": ('extends = "reference"\n[vehicle]\nmass_kg = nan\n', "finite"),
         "table.toml": ('extends = "reference"\nvehicle = 3\n', "table"),
+        "sim_gain.toml": ('extends = "reference"\n[sim]\nspeed_gain_per_s = -5.0\n', "speed_gain_per_s"),
     }
     for name, (text, _) in files.items():
         (tmp_path / name).write_text(text)
     for name, (_, word) in files.items():
-        rc, _, err = run_cli(capsys, "replay", "-q", str(drive_log), "--vehicle", str(tmp_path / name))
+        if name.startswith("sim_"):  # [sim] is the simulator's: lde sim checks it
+            sim = ("sim", "--scenario", "straight", "--duration", "0.2", "--log", str(tmp_path / "s.log"))
+            rc, _, err = run_cli(capsys, *sim, "--vehicle", str(tmp_path / name))
+        else:
+            rc, _, err = run_cli(capsys, "replay", "-q", str(drive_log), "--vehicle", str(tmp_path / name))
         assert_one_line_error(rc, err, word)
     for arg, word in (("nosuch", "nosuch"), (str(tmp_path / "none.toml"), "not found"), (str(tmp_path), "")):
         rc, _, err = run_cli(capsys, "replay", "-q", str(drive_log), "--vehicle", arg)

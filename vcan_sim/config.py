@@ -434,6 +434,8 @@ def validate_sim(sp: SimParams, src: str = "<sim>") -> None:
     check(c.roll_stiffness_front > 0 and c.roll_stiffness_rear > 0, "roll stiffnesses must be > 0")
     check(c.roll_inertia > 0 and 0.5 <= c.sprung_fraction <= 1.0, "roll inertia > 0, sprung fraction 0.5..1")
     check(c.load_filter_time > 0, "load_filter_time_s must be > 0")
+    check(0.0 <= c.rolling_resistance <= 0.1, "rolling_resistance must lie in 0..0.1")
+    check(0.0 < c.speed_gain <= 50.0, "speed_gain_per_s must lie in (0, 50] (unstable speed holder at <= 0)")
     check(
         t.fz0 > 0 and t.pKy1 > 0 and t.pKy2 > 0 and t.pDy1 > 0 and t.pCy1 > 0, "tire coefficients must be > 0"
     )
