@@ -108,7 +108,7 @@ def test_ladder_and_fault_specs_cover_every_step():
     assert any(dict(s.est_options).get("kappa_r") == 200.0 for s in lad)
     assert any(dict(s.est_options).get("payload_known") for s in lad)
     faults = study.fault_specs("est3", "/x/est3_fig12.toml", seeds=(0,))
-    assert {s.group.split(" / ")[1] for s in faults} == {"uncompensated", "learned"}
+    assert {s.group.split(" / ")[1] for s in faults} == {"not compensated", "learned"}
     assert all(s.sim_options for s in faults)
 
 

@@ -778,17 +778,18 @@ def fault_specs(
     scenarios: Sequence[str] = ("light_load", "lane_change"),
     duration: float | None = None,
     winner_calibrated: str | None = None,
+    curvature: tuple[float, float, float] | None = None,
 ) -> list[RunSpec]:
-    """Friction and sensor offsets in the simulator, without and with the learned compensation."""
-    wc = winner_calibrated or winner
+    """Friction and sensor offsets in the simulator, with the final estimator (load known, a_y,
+    secant tires) without and with the compensation learned on an undisturbed drive."""
+    base: tuple[tuple[str, OptionValue], ...] = (("payload_known", 1), ("lat_accel", 1))
+    if curvature is not None:
+        base += tuple(zip(("kappa_f", "kappa_r", "kappa_k"), (round(c, 1) for c in curvature), strict=True))
     specs = []
     for case, sim_opts in FAULT_CASES:
-        for est_label, kw in (
-            ("uncompensated", dict(est_vehicle=tire_vehicle)),
-            (
-                "learned",
-                dict(est_vehicle=wc, estimator="adaptive", est_options=(("calibrate", "lane_change"),)),
-            ),
+        for est_label, est_opts in (
+            ("not compensated", base),
+            ("learned", base + (("calibrate", "lane_change"),)),
         ):
             for sc in scenarios:
                 for seed in seeds:
@@ -799,7 +800,9 @@ def fault_specs(
                             duration=duration,
                             sim_options=sim_opts,
                             group=f"{case} / {est_label}",
-                            **kw,
+                            est_vehicle=tire_vehicle,
+                            estimator="adaptive",
+                            est_options=est_opts,
                         )
                     )
     return specs

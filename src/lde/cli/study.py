@@ -178,8 +178,7 @@ def run(args: argparse.Namespace) -> int:
             if args.preset not in (preset, "all"):
                 continue
             extra: dict = {"winner_calibrated": winner_cal} if winner_cal else {}
-            if preset == "ladder":
-                extra["curvature"] = ctx.curvature
+            extra["curvature"] = ctx.curvature
             specs = make(winner, tire_vehicle, seeds=ctx.seeds, duration=args.duration, **extra)
             results = _run(specs, preset, ctx)
             study.write_csv(results, ctx.out / f"{preset}_runs.csv")
