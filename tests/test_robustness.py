@@ -376,6 +376,17 @@ def test_bad_vehicle_files_are_one_line_errors(drive_log, tmp_path, capsys):
         assert_one_line_error(rc, err, word)
 
 
+def test_a_complete_vehicle_file_needs_no_name_and_no_optional_tables(tmp_path):
+    p = tmp_path / "my_car.toml"
+    p.write_text(
+        "[vehicle]\nmass_kg = 1600.0\nyaw_inertia_kgm2 = 2900.0\nlf_m = 1.15\nlr_m = 1.65\n"
+        "track_front_m = 1.6\ntrack_rear_m = 1.6\n[steering]\nratio = 14.5\n"
+        "[tires]\ncf_N_per_rad = 60000.0\ncr_N_per_rad = 55000.0\nalign_rate_Nm_per_rad = 7000.0\n"
+    )
+    v = load_vehicle(p)
+    assert v.name == "my_car" and v.body.mass == 1600.0 and v.overlay.max_torque > 0
+
+
 def test_extends_prefers_the_file_beside_the_child(tmp_path, monkeypatch):
     (tmp_path / "sub").mkdir()
     (tmp_path / "base.toml").write_text('extends = "reference"\nname = "cwd"\n')

@@ -318,8 +318,10 @@ def vehicle_from_dict(data: dict[str, Any], src: str = "<dict>") -> Vehicle:
     """Build and validate a :class:`Vehicle` from a parsed TOML mapping (keys with units)."""
     data = dict(data)
     name = data.pop("name", None)
+    if name is None and src.endswith(".toml"):
+        name = Path(src).stem  # a file without 'name' is named after itself
     if not isinstance(name, str) or not name:
-        raise ConfigError(f"{src}: top-level 'name' (a string) is required")
+        raise ConfigError(f"{src}: top-level 'name' (a non-empty string) is required")
     data.pop("description", None)
     sim = data.pop("sim", {})
     if not isinstance(sim, dict):
