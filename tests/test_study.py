@@ -127,3 +127,17 @@ def test_smoke_preset_runs_the_real_chain_in_process():
         assert a.nrmse_fw < 0.25, (r.spec.label, a.nrmse_fw)
     heavy = [r for r in res if r.spec.scenario == "heavy_load"]
     assert all(r.accuracy.scale_fw > 1000.0 for r in heavy)  # the heavy case really is heavy
+
+
+def test_existing_scheduler_by_address():
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as lc:
+        specs = study.candidate_specs(scenarios=("heavy",), candidates=("est1", "est2"), seeds=(0,))
+        res = study.run_specs(
+            specs,
+            ClusterConfig(scheduler=lc.scheduler_address),
+            engine=study.synthetic_engine,
+            progress=False,
+        )
+    assert [r.spec for r in res] == specs and all(r.ok for r in res)
