@@ -97,7 +97,12 @@ class OverlayLimits:
         min_speed: the overlay is active only above this speed [m/s].
         max_speed: ... and below this speed [m/s].
         max_steering_angle: ... and within |delta_sw| <= this [rad] (steering-wheel angle).
-        driver_override_torque: |T_column| above which the driver is taken to override [Nm].
+        driver_override_torque: the driver overrides when |T_column| lies this far outside the band
+            from 0 to the whole holding torque (see lde.overlay) [Nm].
+        hold_off: after the last overriding step, wait this long before re-engaging [s].
+        rearm_delay: all engage conditions must hold this long before (re-)engaging [s].
+        fault_persist: an input fault lasting this long enters FAULT [s].
+        fault_recover: FAULT is left after the input fault has been clear this long [s].
     """
 
     max_torque: float = 3.0
@@ -106,6 +111,10 @@ class OverlayLimits:
     max_speed: float = 180.0 * KMH
     max_steering_angle: float = 15.0 * DEG
     driver_override_torque: float = 3.0
+    hold_off: float = 1.0
+    rearm_delay: float = 0.2
+    fault_persist: float = 0.5
+    fault_recover: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -201,6 +210,10 @@ _SCHEMA: dict[str, tuple[type, dict[str, tuple[str, float | None]]]] = {
             "max_speed_kmh": ("max_speed", KMH),
             "max_steering_angle_deg": ("max_steering_angle", DEG),
             "driver_override_Nm": ("driver_override_torque", 1.0),
+            "hold_off_s": ("hold_off", 1.0),
+            "rearm_delay_s": ("rearm_delay", 1.0),
+            "fault_persist_s": ("fault_persist", 1.0),
+            "fault_recover_s": ("fault_recover", 1.0),
         },
     ),
     "estimator": (
@@ -374,6 +387,9 @@ def validate(v: Vehicle) -> None:
     _check(0.0 <= o.min_speed < o.max_speed, s, "overlay needs 0 <= min_speed_kmh < max_speed_kmh")
     _check(0.0 < o.max_steering_angle <= math.pi, s, "overlay max_steering_angle_deg must lie in (0, 180]")
     _check(o.driver_override_torque > 0.0, s, "overlay driver_override_Nm must be > 0")
+    for key, val in (("hold_off_s", o.hold_off), ("rearm_delay_s", o.rearm_delay),
+                     ("fault_persist_s", o.fault_persist), ("fault_recover_s", o.fault_recover)):
+        _check(0.0 <= val <= 60.0, s, f"overlay {key} must lie in 0..60 s, got {val}")
     for name in ("q_beta", "q_yaw", "q_fw", "q_mw", "r_yaw", "r_align"):
         _check(getattr(e, name) > 0.0, s, f"estimator {name} must be > 0")
     for name in ("p0_beta", "p0_yaw", "p0_fw", "p0_mw"):
