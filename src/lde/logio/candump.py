@@ -80,6 +80,9 @@ def _parse_line(buf, a, b, out_t, out_id, out_ext, out_dlc, out_data, out_rx, k)
         i += 1
     if nd == 0:
         return ST_MALFORMED
+    # int64 ns holds 9223372036.854775807 s at most: a larger time would wrap, so the line is bad
+    if sec > 9_223_372_035:
+        return ST_MALFORMED
     frac = np.int64(0)
     nf = 0
     if i < b and buf[i] == 46:  # '.'
