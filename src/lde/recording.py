@@ -59,6 +59,8 @@ from mcap.stream_reader import StreamReader
 from .errors import LogFormatError
 from .frames import FrameBatch, seconds_to_ns
 from .logio.mcapfile import CAN_PAYLOAD_SIZE, TOPIC_RX, TOPIC_TX, McapWriter
+from .profiles import INPUT_NAMES
+from .step import Status
 
 __all__ = [
     "Recorder",
@@ -82,27 +84,10 @@ INPUTS_TOPIC = "/lde/inputs"
 DIAG_TOPIC = "/lde/diag"
 EVENTS_TOPIC = "/lde/events"
 
-#: ``Status`` bits (docs/ARCHITECTURE.md) -> flat 0/1 fields of ``/lde/estimate``
-STATUS_BITS = (
-    "valid",
-    "degraded",
-    "mdps_fault",
-    "esc_fault",
-    "low_speed",
-    "not_converged",
-    "shadow_deviation",
-    "deadline_miss",
-)
+#: ``Status`` bits (docs/ARCHITECTURE.md) -> flat 0/1 fields of ``/lde/estimate``, bit 0 first
+STATUS_BITS: tuple[str, ...] = tuple(str(flag.name).lower() for flag in Status)
 #: estimator input names (SI) recorded on ``/lde/inputs``
-INPUT_FIELDS = (
-    "column_torque",
-    "assist_torque",
-    "steering_angle",
-    "steering_rate",
-    "yaw_rate",
-    "lat_accel",
-    "speed",
-)
+INPUT_FIELDS: tuple[str, ...] = INPUT_NAMES
 
 
 def _props(types: dict[str, str], doc: dict[str, str]) -> dict[str, dict[str, str]]:

@@ -36,6 +36,9 @@ from .logio import LogData, McapWriter, read_log
 from .logio.textfmt import Column, format_rows, time_column
 from .params import Vehicle
 from .profiles import Profile
+
+# the recording format's channels and field names are lde.recording's (one definition)
+from .recording import DIAG_TOPIC, ESTIMATE_TOPIC, EVENTS_TOPIC, INPUT_FIELDS, INPUTS_TOPIC, STATUS_BITS
 from .signals import Decoded, decode_batch
 
 __all__ = [
@@ -55,31 +58,6 @@ __all__ = [
     "INPUTS_TOPIC",
     "DIAG_TOPIC",
 ]
-
-ESTIMATE_TOPIC = "/lde/estimate"
-#: sparse channel of a recording: the overlay limiter's enable input whenever it changes
-EVENTS_TOPIC = "/lde/events"
-INPUTS_TOPIC = "/lde/inputs"
-DIAG_TOPIC = "/lde/diag"
-STATUS_BITS = (
-    "valid",
-    "degraded",
-    "mdps_fault",
-    "esc_fault",
-    "low_speed",
-    "not_converged",
-    "shadow_deviation",
-    "deadline_miss",
-)
-INPUT_FIELDS = (
-    "column_torque",
-    "assist_torque",
-    "steering_angle",
-    "steering_rate",
-    "yaw_rate",
-    "lat_accel",
-    "speed",
-)
 
 #: CSV columns: name, decimals, unit/meaning (the first four are the SPEC's contract)
 CSV_COLUMNS: tuple[tuple[str, int, str], ...] = (
