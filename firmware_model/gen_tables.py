@@ -74,6 +74,10 @@ STATE_NAMES = ("beta", "r", "Fw", "Mw")
 STATE_UNITS = ("rad", "rad/s", "N", "Nm")
 
 
+#: binary orders by which a state's normalisation may exceed its steady-state std (to fit P0)
+MAX_SIGMA_RAISE = 3
+
+
 def _pow2_near(x: float) -> int:
     """Exponent e of the power of two nearest to x (in log scale)."""
     return int(round(math.log2(x)))
@@ -91,12 +95,30 @@ def steady_state_sweep(vehicle: Vehicle, speeds_ms: np.ndarray) -> dict[str, np.
     return {"sd_prior": np.array(sd_prior), "sd_post": np.array(sd_post), "gain": np.array(gains)}
 
 
-def normalisation_exponents(vehicle: Vehicle) -> tuple[list[int], int]:
-    """(e_i for the 4 states, e_T for T_align): sigma = 2**e (see module docstring)."""
+def normalisation_exponents(vehicle: Vehicle, dt_ns: int = STEP_NS) -> tuple[list[int], int]:
+    """(e_i for the 4 states, e_T for T_align): sigma = 2**e (see module docstring).
+
+    sigma_i is the power of two nearest to the steady-state std of state i, raised (a coarser
+    LSB, by at most :data:`MAX_SIGMA_RAISE` binary orders) where the initial covariance
+    P0_ii + Qd_ii would not fit Q15.16 with 2x headroom: a stiff or heavy vehicle has small
+    steady-state stds against the fixed initial std of the tuning. A P0 still out of proportion
+    is left to the check in :func:`generate` (a ConfigError).
+    """
     speeds = np.array(SS_TABLE_KMH, dtype=np.float64) * KMH
     sd = steady_state_sweep(vehicle, speeds)["sd_prior"]
     geo = np.exp(np.mean(np.log(sd), axis=0))
-    e_state = [_pow2_near(float(s)) for s in geo]
+    est = vehicle.estimator
+    dt = dt_ns * 1e-9
+    q_cov = QFormat(32, F_COV)
+    p0_sd = (est.p0_beta, est.p0_yaw, est.p0_fw, est.p0_mw)
+    q_dens = (est.q_beta, est.q_yaw, est.q_fw, est.q_mw)
+    e_state = []
+    for s, p0, q in zip(geo, p0_sd, q_dens, strict=True):
+        e0 = e = _pow2_near(float(s))
+        # P0_ii + Qd_ii in normalised units (the check in generate()), 2x headroom
+        while e < e0 + MAX_SIGMA_RAISE and not q_cov.fits((p0**2 + q * dt) / math.ldexp(1.0, e) ** 2, 2.0):
+            e += 1
+        e_state.append(e)
     e_t = _pow2_near(math.sqrt(vehicle.estimator.r_align))
     return e_state, e_t
 
@@ -170,7 +192,7 @@ def inputs_hash(vehicle: Vehicle, dt_ns: int = STEP_NS) -> str:
 def generate(vehicle: Vehicle, dt_ns: int = STEP_NS) -> dict[str, Any]:
     """All constants of the firmware model for ``vehicle`` (a JSON-ready dict; see module docstring)."""
     dt = dt_ns * 1e-9
-    e_state, e_t = normalisation_exponents(vehicle)
+    e_state, e_t = normalisation_exponents(vehicle, dt_ns)
     sig = [math.ldexp(1.0, e) for e in e_state]
     sT = math.ldexp(1.0, e_t)
     est = vehicle.estimator
