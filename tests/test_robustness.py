@@ -386,13 +386,36 @@ def test_a_complete_vehicle_file_needs_no_name_and_no_optional_tables(tmp_path):
     assert v.name == "my_car" and v.body.mass == 1600.0 and v.overlay.max_torque > 0
 
 
+@pytest.mark.parametrize(
+    "body",
+    [
+        "mass_kg = 3000.0\nyaw_inertia_kgm2 = 7000.0\nlf_m = 1.6\nlr_m = 1.9\n[tires]\n"
+        "cf_N_per_rad = 90000.0\ncr_N_per_rad = 90000.0\nalign_rate_Nm_per_rad = 12000.0\n",  # a van
+        "[tires]\ncf_N_per_rad = 150000.0\ncr_N_per_rad = 140000.0\n",  # stiff tires
+    ],
+)
+def test_fixed_backend_takes_heavy_or_stiff_vehicles(body, drive, profile, tmp_path):
+    """Their steady-state covariance is small against the tuning's P0: the fixed-point scaling
+    adapts (was: ConfigError 'no 2x headroom', so the default backend refused the vehicle)."""
+    p = tmp_path / "car.toml"
+    p.write_text(f'extends = "reference"\n[vehicle]\n{body}')
+    v = load_vehicle(p)
+    assert v.name == "car"  # not the parent's name
+    fixed = replay(drive, profile, v, "fixed")
+    ref = replay(drive, profile, v, "float")
+    assert np.all(fixed.status[-200:] & Status.VALID)
+    np.testing.assert_allclose(fixed.fw, ref.fw, atol=0.01 * np.abs(ref.fw).max() + 1.0)
+    np.testing.assert_allclose(fixed.mw, ref.mw, atol=0.01 * np.abs(ref.mw).max() + 1.0)
+
+
 def test_extends_prefers_the_file_beside_the_child(tmp_path, monkeypatch):
     (tmp_path / "sub").mkdir()
-    (tmp_path / "base.toml").write_text('extends = "reference"\nname = "cwd"\n')
-    (tmp_path / "sub" / "base.toml").write_text('extends = "reference"\nname = "beside"\n')
+    (tmp_path / "base.toml").write_text('extends = "reference"\n[vehicle]\nmass_kg = 1500.0\n')
+    (tmp_path / "sub" / "base.toml").write_text('extends = "reference"\n[vehicle]\nmass_kg = 1700.0\n')
     (tmp_path / "sub" / "child.toml").write_text('extends = "base.toml"\n')
     monkeypatch.chdir(tmp_path)
-    assert load_vehicle("sub/child.toml").name == "beside"
+    v = load_vehicle("sub/child.toml")
+    assert v.body.mass == 1700.0 and v.name == "child"
 
 
 def test_bad_sim_options_are_one_line_errors(tmp_path, capsys):
@@ -461,7 +484,7 @@ def test_candump_parser_never_raises_on_random_bytes(raw):
 def test_candump_parser_round_trips_what_it_accepts(lines, newline):
     p = parse_candump_bytes(("\n".join(lines) + ("\n" if newline else "")).encode())
     f = p.frames
-    f = f.select((f.dlc <= 8) & (f.t_ns >= 0))  # FD frames keep only 8 bytes; see the xfail above
+    f = f.select(f.dlc <= 8)  # FD frames keep only their first 8 bytes
     q = parse_candump_bytes(format_candump(f).encode()).frames
     for col in ("t_ns", "can_id", "is_extended", "dlc", "data", "is_rx"):
         np.testing.assert_array_equal(getattr(q, col), getattr(f, col))

@@ -271,7 +271,10 @@ def _read_toml(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
         base_path = resolve_vehicle_path(parent, relative_to=path.parent)
     except ConfigError as exc:
         raise ConfigError(f"{path}: extends = {parent!r}: {exc}") from exc
-    return _merge(_read_toml(base_path, seen + (path,)), data)
+    merged = _merge(_read_toml(base_path, seen + (path,)), data)
+    if "name" not in data:
+        merged.pop("name", None)  # not the parent's name: the file is named after itself
+    return merged
 
 
 def resolve_vehicle_path(name_or_path: str | Path, relative_to: Path | None = None) -> Path:
