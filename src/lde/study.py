@@ -964,10 +964,14 @@ def plot_traces(results: Sequence[RunResult], path: Path, title: str = "") -> Pa
         ax_m.plot(tr["t"], tr["mw_ref"], color="0.6", lw=0.8, label="truth (unloaded CG)")
         ax_m.plot(tr["t"], tr["mw_hat"], "r--", lw=1.0, label="estimate")
         a = r.accuracy
-        sub = r.spec.label
+        sp = r.spec
+        sub = f"{sp.scenario} ({sp.payload or 'scenario payload'}, seed {sp.seed})\n"
+        sub += (
+            sp.group if sp.group and sp.group not in ("candidates", "evaluate") else Path(sp.est_vehicle).stem
+        )
         if a is not None:
             sub += f"\nNRMSE Fw {_pct(a.nrmse_fw)}, Mw {_pct(a.nrmse_mw)}"
-        ax_f.set_title(sub, fontsize=8)
+        ax_f.set_title(sub, fontsize=7)
         ax_f.set_ylabel("Fw [N]")
         ax_m.set_ylabel("Mw [Nm]")
         ax_m.set_xlabel("t [s]")
