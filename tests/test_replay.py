@@ -276,3 +276,45 @@ def test_python_can_formats_replay_like_candump(sample_replay, profile, vehicle,
         np.testing.assert_array_equal(other.t_ns, res.t_ns)
     np.testing.assert_allclose(other.fw, res.fw, rtol=0, atol=1e-6)
     np.testing.assert_allclose(other.mw, res.mw, rtol=0, atol=1e-6)
+
+
+def _run_cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "lde", *args], capture_output=True, text=True, cwd=cwd, timeout=120
+    )
+
+
+def test_cli_never_overwrites_an_input_log(tmp_path: Path):
+    """An output that is one of the LOGs (any spelling, a symlink) or another output: exit 2, one
+    line, nothing written; a LOG given twice: the same."""
+    log = tmp_path / "a.log"
+    log.write_bytes(SAMPLE.read_bytes())
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "link.csv").symlink_to(log)
+    before = log.read_bytes()
+    cases = [
+        ["replay", "a.log", "--csv", "a.log"],
+        ["replay", "a.log", "--mcap", "a.log"],
+        ["replay", "a.log", "--csv", "sub/../a.log"],
+        ["replay", "a.log", "--csv", "link.csv"],
+        ["replay", "a.log", "--csv", "o.x", "--mcap", "o.x"],
+        ["replay", "a.log", "a.log", "--csv", "d"],
+        ["replay", "a.log", "./sub/../a.log"],
+    ]
+    expect = ["input log", "input log", "input log", "input log", "same file", "twice", "twice"]
+    for args, what in zip(cases, expect, strict=True):
+        proc = _run_cli(args, tmp_path)
+        assert proc.returncode == 2, (args, proc.stderr)
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("lde: error:"), (args, proc.stderr)
+        assert what in lines[0], (args, proc.stderr)
+        assert log.read_bytes() == before, args
+        assert not (tmp_path / "o.x").exists() and not (tmp_path / "d").exists()
+    # several LOGs into a directory that holds one of them under its output name
+    other = tmp_path / "b.log"
+    other.write_bytes(before)
+    csv_log = tmp_path / "a.csv"  # a python-can CSV log that would be <dir>/a.csv
+    csv_log.write_text("x\n")
+    proc = _run_cli(["replay", "a.csv", "b.log", "--csv", "."], tmp_path)
+    assert proc.returncode == 2 and "input log" in proc.stderr, proc.stderr
+    assert csv_log.read_text() == "x\n"

@@ -4,6 +4,10 @@ Replays CAN logs (MCAP, candump ``-L``, or any python-can format) through the es
 3.9 ms grid and writes one CSV row per step (``t`` in the log's own time base) and/or an MCAP
 recording. A short summary goes to stderr. With several LOGs, ``--csv`` / ``--mcap`` name
 directories (one ``<log stem>.csv`` / ``.mcap`` each) and a progress bar shows.
+
+Before anything is read or written, the outputs are checked: a LOG given twice (by any spelling of
+its path) is an error, and so is an output that is one of the LOGs or another output (an output never
+overwrites an input).
 """
 
 from __future__ import annotations
@@ -58,14 +62,39 @@ def _out_names(logs: list[Path]) -> dict[Path, str]:
 
 
 def _out_path(opt: Path | None, name: str, suffix: str, many: bool) -> Path | None:
+    """The output file of one log (nothing is created here)."""
     if opt is None:
         return None
-    if many:
-        opt.mkdir(parents=True, exist_ok=True)
-        return opt / f"{name}{suffix}"
-    if opt.is_dir():
+    if many or opt.is_dir():
         return opt / f"{name}{suffix}"
     return opt
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """True if ``a`` and ``b`` name one file: the same resolved path, or (both existing) the same
+    inode (a hard link, a bind mount)."""
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return a.exists() and b.exists() and a.samefile(b)
+    except OSError:
+        return False
+
+
+def _check_paths(logs: list[Path], outputs: list[tuple[str, Path]]) -> None:
+    """ConfigError (nothing read or written yet) for a LOG given twice, an output that is a LOG,
+    or two outputs that are one file."""
+    for i, a in enumerate(logs):
+        for b in logs[:i]:
+            if _same_file(a, b):
+                raise ConfigError(f"LOG {a} is given twice (also as {b}): give each log once")
+    for i, (opt, out) in enumerate(outputs):
+        for log in logs:
+            if _same_file(out, log):
+                raise ConfigError(f"{opt} {out} is the input log {log}: it would be overwritten")
+        for opt2, out2 in outputs[:i]:
+            if _same_file(out, out2):
+                raise ConfigError(f"{opt} {out} and {opt2} {out2} are the same file: give two names")
 
 
 def _summary(path: Path, log, res, elapsed: float) -> str:
@@ -103,14 +132,28 @@ def run(args: argparse.Namespace) -> int:
     for opt in (args.csv, args.mcap):
         if many and opt is not None and opt.exists() and not opt.is_dir():
             raise ConfigError(f"with several LOGs, {opt} must be a directory")
+    _check_paths(logs, [])
+    names = _out_names(logs)
+    if len(set(names.values())) < len(names):
+        raise ConfigError("several LOGs would write the same output file: give them different names")
+    outs = {
+        p: (_out_path(args.csv, names[p], ".csv", many), _out_path(args.mcap, names[p], ".mcap", many))
+        for p in logs
+    }
+    planned = [(opt, o) for c, m in outs.values() for opt, o in (("--csv", c), ("--mcap", m)) if o]
+    _check_paths(logs, planned)
     profile = load_profile(args.profile)
     vehicle = load_vehicle(args.vehicle or "reference")
     backend, _fn, note = resolve_backend(args.backend)
     if note and not args.quiet:
         print(f"lde replay: note: {note}", file=sys.stderr)
-    names = _out_names(logs)
-    if len(set(names.values())) < len(names):
-        raise ConfigError("several LOGs would write the same output file: give them different names")
+    if many:
+        for opt in (args.csv, args.mcap):
+            if opt is not None:
+                try:
+                    opt.mkdir(parents=True, exist_ok=True)
+                except OSError as exc:
+                    raise ConfigError(f"{opt}: cannot create the output directory: {exc}") from exc
     bar = None
     if many or any(p.is_file() and p.stat().st_size > _LARGE_LOG for p in logs):
         from tqdm import tqdm
@@ -119,12 +162,11 @@ def run(args: argparse.Namespace) -> int:
     for path in logs:
         t0 = time.perf_counter()
         log, res = replay_log(path, profile, vehicle, backend, use_recorded_steps=not args.no_recorded_steps)
-        csv_path = _out_path(args.csv, names[path], ".csv", many)
+        csv_path, mcap_path = outs[path]
         if csv_path is not None:
             t1 = time.perf_counter()
             write_csv(csv_path, res)
             res.timings["csv"] = time.perf_counter() - t1
-        mcap_path = _out_path(args.mcap, names[path], ".mcap", many)
         if mcap_path is not None:
             t1 = time.perf_counter()
             write_recording(
