@@ -430,3 +430,23 @@ def test_can_schema_decodes_with_the_ros2_cdr_decoder(tmp_path: Path):
     assert [g[3] for g in got] == frames.is_rx.tolist()
     assert [g[4] for g in got] == frames.dlc.tolist()
     assert [g[5] for g in got] == [frames.data[i].tobytes() for i in range(len(frames))]
+
+
+def test_mcap_metadata_is_read_with_and_without_summary(tmp_path: Path):
+    """The ``lde`` metadata record (profile, ...) is read from a complete file and from one cut
+    by a crash (no summary: found by walking the top-level records)."""
+    frames = random_frames(2000, seed=21)
+    path = tmp_path / "m.mcap"
+    meta = {"profile": "hyundai", "vehicle": "reference", "note": "ä ünïcode"}
+    with McapWriter(path, chunk_size=4096, metadata=meta) as w:
+        w.write_frames(frames)
+    assert read_mcap(path).metadata == {"lde": meta}
+    raw = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(raw[: len(raw) // 2])
+    data = read_mcap(cut)
+    assert data.truncated and data.metadata == {"lde": meta}
+    plain = tmp_path / "plain.mcap"
+    with McapWriter(plain) as w:
+        w.write_frames(frames)
+    assert read_mcap(plain).metadata == {}

@@ -318,3 +318,54 @@ def test_cli_never_overwrites_an_input_log(tmp_path: Path):
     proc = _run_cli(["replay", "a.csv", "b.log", "--csv", "."], tmp_path)
     assert proc.returncode == 2 and "input log" in proc.stderr, proc.stderr
     assert csv_log.read_text() == "x\n"
+
+
+def test_recording_replays_under_the_profile_it_names(tmp_path: Path, capsys):
+    """A recording of a hyundai replay, replayed without --profile, uses hyundai (from its ``lde``
+    metadata record) and gives the identical CSV; an explicit --profile wins, and a replay without
+    a single VALID step says so on stderr (even with -q)."""
+    d = tmp_path
+    assert (
+        main(
+            ["sim", "--scenario", "steady_wind", "--profile", "hyundai", "--duration", "3"]
+            + ["--log", str(d / "h.log")]
+        )
+        == 0
+    )
+    args = ["--backend", "float", "-q"]
+    assert (
+        main(
+            ["replay", str(d / "h.log"), "--profile", "hyundai", "--csv", str(d / "h1.csv")]
+            + ["--mcap", str(d / "h1.mcap"), *args]
+        )
+        == 0
+    )
+    assert read_mcap(d / "h1.mcap").metadata["lde"]["profile"] == "hyundai"
+    capsys.readouterr()
+    assert main(["replay", str(d / "h1.mcap"), "--csv", str(d / "h2.csv"), *args]) == 0
+    assert capsys.readouterr().err == ""
+    assert (d / "h2.csv").read_bytes() == (d / "h1.csv").read_bytes()
+    assert main(["replay", str(d / "h1.mcap"), "--profile", "lde", "--csv", str(d / "h3.csv"), *args]) == 0
+    err = capsys.readouterr().err
+    assert "no valid estimate" in err and "wrong --profile" in err and "used lde, given" in err
+    status = np.loadtxt(d / "h3.csv", delimiter=",", skiprows=1, usecols=5)
+    assert status.size > 0 and not np.any(status.astype(int) & 1)
+
+
+def test_recorded_profile_of_a_dbc_file(tmp_path: Path, profile, sample_replay):
+    """A profile from a user's DBC is recorded with its path; a recording naming a DBC that is not
+    there is a ConfigError asking for --profile; logs without metadata name none."""
+    from lde.errors import ConfigError
+    from lde.replay import profile_metadata, recorded_profile
+
+    dbc = tmp_path / "mine.dbc"
+    dbc.write_bytes(Path(profile.dbc_path).read_bytes())
+    mine = load_profile(dbc)
+    log, res = sample_replay
+    rec = tmp_path / "r.mcap"
+    write_recording(rec, log.frames, res, mine, metadata=profile_metadata(mine))
+    assert recorded_profile(read_log(rec)) == str(dbc.resolve())
+    assert recorded_profile(read_log(SAMPLE)) is None
+    dbc.unlink()
+    with pytest.raises(ConfigError, match="give --profile"):
+        recorded_profile(read_log(rec))

@@ -13,8 +13,13 @@ can be timed and tested alone; :func:`replay` runs both. Step times are the grid
 first accepted MDPS frame, or, for an lde recording (``/can/tx`` and ``/lde/estimate`` present), the
 recorded step times, so that a live run is reproduced exactly.
 
+The CAN profile of a replay is the one given; when none is given (:func:`replay_log` with
+``profile=None``, ``lde replay`` without ``--profile``), the one named in the log's ``lde`` metadata
+record (:func:`recorded_profile`: lde recordings, ``lde sim --mcap`` files), else ``lde``.
+
 Outputs: :func:`write_csv` (one row per step; ``t`` in seconds in the log's own time base) and
-:func:`write_recording` (an MCAP recording that itself replays to the same estimates).
+:func:`write_recording` (an MCAP recording that itself replays to the same estimates; its ``lde``
+metadata record names the profile, see :func:`profile_metadata`).
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ from .grid import InputGrid, build_grid
 from .logio import LogData, McapWriter, read_log
 from .logio.textfmt import Column, format_rows, time_column
 from .params import Vehicle
-from .profiles import Profile
+from .profiles import PROFILE_NAMES, Profile, load_profile
 
 # the recording format's channels and field names are lde.recording's (one definition)
 from .recording import DIAG_TOPIC, ESTIMATE_TOPIC, EVENTS_TOPIC, INPUT_FIELDS, INPUTS_TOPIC, STATUS_BITS
@@ -49,6 +54,9 @@ __all__ = [
     "replay",
     "replay_log",
     "recorded_step_times",
+    "recorded_profile",
+    "profile_metadata",
+    "no_valid_note",
     "resolve_backend",
     "receiver_diag",
     "write_csv",
@@ -135,6 +143,9 @@ class ReplayResult:
         timings: seconds spent per stage (decode, grid, filter, overlay).
         diag: per-step receiver diagnostics (:func:`receiver_diag`): ``frames_used`` (input frames
             accepted since the previous step), ``e2e_rejects`` (frames rejected since the start).
+        profile: the CAN profile used (set by :func:`replay_log`; None from :func:`replay`).
+        profile_origin: where it came from: ``"given"``, ``"recording"`` (the log's ``lde``
+            metadata record) or ``"default"`` (``lde``); empty from :func:`replay`.
     """
 
     t_ns: np.ndarray
@@ -154,6 +165,8 @@ class ReplayResult:
     recorded_steps: bool = False
     timings: dict[str, float] = field(default_factory=dict)
     diag: dict[str, np.ndarray] = field(default_factory=dict)
+    profile: Profile | None = None
+    profile_origin: str = ""
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -383,20 +396,88 @@ def recorded_overlay_enable(log: LogData, step_times_ns: np.ndarray | None) -> n
     return np.where(idx >= 0, val[np.maximum(idx, 0)] != 0, True)
 
 
+def profile_metadata(profile: Profile) -> dict[str, str]:
+    """The ``lde`` metadata entries that name ``profile`` in a recording: ``profile`` (its name)
+    and, for a profile loaded from a DBC file of the user's, ``profile_dbc`` (that file's path)."""
+    out = {"profile": profile.name}
+    if profile.name not in PROFILE_NAMES:
+        out["profile_dbc"] = str(Path(profile.dbc_path).resolve())
+    return out
+
+
+def recorded_profile(log: LogData) -> str | None:
+    """The CAN profile an MCAP log says it was made with, as :func:`lde.profiles.load_profile`
+    takes it: ``profile_dbc`` of its ``lde`` metadata record when that file exists, else the shipped
+    profile named ``profile``; None when the log names none (candump, ASC, ... or a foreign MCAP).
+
+    Raises:
+        ConfigError: the log names a profile that cannot be found here (a DBC file of another
+            machine): give ``--profile``.
+    """
+    meta = log.mcap.metadata.get("lde", {}) if log.mcap is not None else {}
+    name, dbc = meta.get("profile", ""), meta.get("profile_dbc", "")
+    if dbc and Path(dbc).is_file():
+        return dbc
+    if name in PROFILE_NAMES and not dbc:
+        return name
+    if name or dbc:
+        raise ConfigError(
+            f"{log.path}: recorded with CAN profile {name or dbc!r}"
+            + (f" (DBC {dbc}, not found)" if dbc else " (not a shipped profile)")
+            + ": give --profile (lde, hyundai or the .dbc path)"
+        )
+    return None
+
+
+def no_valid_note(res: ReplayResult) -> str | None:
+    """A one-line explanation when a replay has steps but not one VALID estimate (all zeros: most
+    often the wrong CAN profile), else None."""
+    if len(res) == 0 or np.any(res.status & 1):
+        return None
+    anchor = res.profile.anchor_message if res.profile is not None else ""
+    m = res.frames.messages.get(anchor)
+    if m is None or m.received == 0:
+        why = f"no {anchor or 'MDPS'} frames of this profile in the log"
+    elif m.used == 0:
+        why = f"all {m.received} {anchor} frames rejected (E2E/length)"
+    else:
+        why = f"{anchor} frames used {m.used} of {m.received}; the estimate never became valid"
+    if res.profile is None:
+        return f"no valid estimate: {why}"
+    where = {"given": "given", "recording": "from the recording", "default": "the default"}
+    origin = where.get(res.profile_origin, res.profile_origin)
+    return f"no valid estimate: {why} — wrong --profile? (used {res.profile.name}, {origin})"
+
+
 def replay_log(
     path: str | Path,
-    profile: Profile,
+    profile: Profile | None,
     vehicle: Vehicle,
     backend: str | None = "float",
     *,
     use_recorded_steps: bool = True,
+    profiles: dict[str, Profile] | None = None,
 ) -> tuple[LogData, ReplayResult]:
     """Read a log (any format of :func:`lde.logio.read_log`) and replay it.
 
     An lde recording is replayed on its recorded step times unless ``use_recorded_steps`` is False.
+    ``profile`` None: the profile the log names (:func:`recorded_profile`), else ``lde``;
+    ``profiles`` caches loaded profiles by name across calls.
+
+    Raises:
+        LogFormatError: unreadable log. ConfigError: a recorded profile that cannot be loaded.
     """
     t0 = time.perf_counter()
     log = read_log(Path(path), skip_tx=True, json_topics=[EVENTS_TOPIC], json_optional=True)
+    origin = "given"
+    if profile is None:
+        key = recorded_profile(log)
+        origin = "recording" if key else "default"
+        key = key or "lde"
+        cache = profiles if profiles is not None else {}
+        if key not in cache:
+            cache[key] = load_profile(key)
+        profile = cache[key]
     steps = recorded_step_times(log) if use_recorded_steps else None
     enable = recorded_overlay_enable(log, steps)
     n_tx = None
@@ -407,6 +488,7 @@ def replay_log(
         log.frames, profile, vehicle, backend, step_times_ns=steps, tx_frames=n_tx, overlay_enable=enable
     )
     res.timings = {"read": t1 - t0, **res.timings}
+    res.profile, res.profile_origin = profile, origin
     return log, res
 
 

@@ -30,7 +30,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description=__doc__.split("\n\n")[1] if __doc__ else None,
     )
     p.add_argument("logs", nargs="+", metavar="LOG", help="MCAP, candump -L text, ASC, BLF, TRC, CSV, ...")
-    p.add_argument("--profile", default="lde", help="CAN profile: lde, hyundai or a .dbc path (default: lde)")
+    p.add_argument(
+        "--profile",
+        default=None,
+        help="CAN profile: lde, hyundai or a .dbc path (default: the one an lde recording names, else lde)",
+    )
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
     p.add_argument(
         "--backend",
@@ -111,7 +115,9 @@ def _summary(path: Path, log, res, elapsed: float) -> str:
         f" ({'recorded step times' if res.recorded_steps else 'grid from the first MDPS frame'})",
         f"  frames used {f.used}, rejected {f.rejected} ({causes}), ignored ids {f.ignored}, lde's own {f.tx}"
         + (f"; not read: {', '.join(extra)}" if extra else ""),
-        f"  backend {res.backend}, overlay "
+        f"  profile {res.profile.name if res.profile else '?'}"
+        f"{' (from the recording)' if res.profile_origin == 'recording' else ''},"
+        f" backend {res.backend}, overlay "
         f"{'lde.overlay' if res.overlay else 'not available (T_overlay = 0)'};"
         f" took {elapsed:.3f} s (" + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in res.timings.items()) + ")",
     ]
@@ -125,7 +131,14 @@ def _summary(path: Path, log, res, elapsed: float) -> str:
 def run(args: argparse.Namespace) -> int:
     from ..params import load_vehicle
     from ..profiles import load_profile
-    from ..replay import replay_log, resolve_backend, write_csv, write_recording
+    from ..replay import (
+        no_valid_note,
+        profile_metadata,
+        replay_log,
+        resolve_backend,
+        write_csv,
+        write_recording,
+    )
 
     logs = [Path(p) for p in args.logs]
     many = len(logs) > 1
@@ -142,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
     }
     planned = [(opt, o) for c, m in outs.values() for opt, o in (("--csv", c), ("--mcap", m)) if o]
     _check_paths(logs, planned)
-    profile = load_profile(args.profile)
+    profile = load_profile(args.profile) if args.profile is not None else None
+    profiles: dict = {}  # profiles named by recordings, loaded once
     vehicle = load_vehicle(args.vehicle or "reference")
     backend, _fn, note = resolve_backend(args.backend)
     if note and not args.quiet:
@@ -161,7 +175,14 @@ def run(args: argparse.Namespace) -> int:
         bar = tqdm(total=len(logs), unit="log", disable=args.quiet or None, file=sys.stderr)
     for path in logs:
         t0 = time.perf_counter()
-        log, res = replay_log(path, profile, vehicle, backend, use_recorded_steps=not args.no_recorded_steps)
+        log, res = replay_log(
+            path,
+            profile,
+            vehicle,
+            backend,
+            use_recorded_steps=not args.no_recorded_steps,
+            profiles=profiles,
+        )
         csv_path, mcap_path = outs[path]
         if csv_path is not None:
             t1 = time.perf_counter()
@@ -173,10 +194,10 @@ def run(args: argparse.Namespace) -> int:
                 mcap_path,
                 log.frames,
                 res,
-                profile,
+                res.profile,
                 metadata={
                     "source": str(path),
-                    "profile": profile.name,
+                    **profile_metadata(res.profile),
                     "vehicle": vehicle.name,
                     "backend": res.backend,
                 },
@@ -185,6 +206,13 @@ def run(args: argparse.Namespace) -> int:
         elapsed = time.perf_counter() - t0
         if bar is not None:
             bar.update(1)
+        warn = no_valid_note(res)
+        if warn:  # shown even with -q: the CSV is all zeros
+            text = f"lde replay: warning: {path}: {warn}"
+            if bar is not None:
+                bar.write(text, file=sys.stderr)
+            else:
+                print(text, file=sys.stderr)
         if not args.quiet:
             text = _summary(path, log, res, elapsed)
             if bar is not None:

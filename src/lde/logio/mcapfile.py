@@ -80,7 +80,7 @@ __all__ = [
 MAGIC = b"\x89MCAP0\r\n"
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE = 0x01, 0x02, 0x03, 0x04, 0x05
 OP_CHUNK, OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS = 0x06, 0x07, 0x08, 0x0B
-OP_SUMMARY_OFFSET, OP_DATA_END = 0x0E, 0x0F
+OP_METADATA, OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = 0x0C, 0x0D, 0x0E, 0x0F
 
 TOPIC_RX = "/can/rx"
 TOPIC_TX = "/can/tx"
@@ -300,7 +300,7 @@ class McapWriter:
         self._json_keys: dict[int, tuple[str, ...]] = {}
         self._n_metadata = 0
         if metadata:
-            self._write(_record(0x0C, _str("lde") + _map_str(dict(metadata))))
+            self._write(_record(OP_METADATA, _str("lde") + _map_str(dict(metadata))))
             self._n_metadata = 1
 
     # ------------------------------------------------------------------ low level
@@ -686,6 +686,8 @@ class McapData:
         chunks_read, chunks_skipped: chunks decompressed / known from their message indexes only.
         truncated: the file has no summary and ends inside a record (a recording cut by a crash):
             everything up to the last complete chunk was read.
+        metadata: name -> key/value strings of the file's metadata records (lde's writers store
+            ``lde``: profile, vehicle, backend, source...); empty when there are none.
     """
 
     frames: FrameBatch
@@ -697,6 +699,7 @@ class McapData:
     chunks_read: int = 0
     chunks_skipped: int = 0
     truncated: bool = False
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
 
 
 def _decompress(compression: str, data: bytes, size: int) -> bytes:
@@ -771,6 +774,7 @@ def read_mcap(
             raise LogFormatError(f"{p}: {exc}") from exc
         except Exception as exc:  # noqa: BLE001 - the mcap library raises many types on corrupt input
             raise LogFormatError(f"{p}: corrupt MCAP file ({type(exc).__name__}: {exc})") from exc
+        data.metadata = _read_metadata(raw, summary)
     if require_can and not any(ti.schema_name == CAN_SCHEMA_NAME for ti in data.topics.values()):
         names = ", ".join(sorted(data.topics)) or "none"
         raise LogFormatError(
@@ -778,6 +782,60 @@ def read_mcap(
         )
     _fill_json(data, json_topics, json_optional)
     return data
+
+
+def _parse_metadata(raw, o: int) -> tuple[str, dict[str, str]] | None:
+    """(name, key/value map) of the metadata record at offset ``o``; None if there is none."""
+    if o + 9 > len(raw) or raw[o] != OP_METADATA:
+        return None
+    (length,) = struct.unpack_from("<Q", raw, o + 1)
+    end = o + 9 + length
+    if end > len(raw):
+        return None
+    body = bytes(raw[o + 9 : end])
+
+    def text(i: int) -> tuple[str, int]:
+        (n,) = struct.unpack_from("<I", body, i)
+        if i + 4 + n > len(body):
+            raise ValueError("string past the record")
+        return body[i + 4 : i + 4 + n].decode("utf-8"), i + 4 + n
+
+    try:
+        name, i = text(0)
+        (map_len,) = struct.unpack_from("<I", body, i)
+        i += 4
+        stop = i + map_len
+        out: dict[str, str] = {}
+        while i < stop:
+            k, i = text(i)
+            v, i = text(i)
+            out[k] = v
+    except (struct.error, ValueError, UnicodeDecodeError):
+        return None
+    return name, out
+
+
+def _read_metadata(raw, summary) -> dict[str, dict[str, str]]:
+    """The metadata records of the file: through the summary's metadata indexes when it has them,
+    else by walking the top-level records (a file without summary or index; stops at the data end,
+    the footer or a record cut short). A damaged record is left out, never fatal."""
+    offsets = [int(mi.offset) for mi in (getattr(summary, "metadata_indexes", None) or [])]
+    if not offsets:
+        pos, n = len(MAGIC), len(raw)
+        while pos + 9 <= n:
+            op = raw[pos]
+            if op in (OP_DATA_END, OP_FOOTER):
+                break
+            (length,) = struct.unpack_from("<Q", raw, pos + 1)
+            if op == OP_METADATA:
+                offsets.append(pos)
+            pos += 9 + int(length)
+    out: dict[str, dict[str, str]] = {}
+    for o in offsets:
+        rec = _parse_metadata(raw, o)
+        if rec is not None:
+            out.setdefault(rec[0], {}).update(rec[1])
+    return out
 
 
 def _wanted_json_ids(
