@@ -93,3 +93,38 @@ def test_cli_demo_bad_scenario_is_a_clear_error(capsys: pytest.CaptureFixture[st
     rc = main(["demo", "--scenario", "no_such_thing", "--no-mcap", "--no-plot"])
     assert rc == 2
     assert "unknown scenario" in capsys.readouterr().err
+
+
+def test_cli_demo_bad_output_paths_fail_before_the_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A plot or recording path that cannot be written is a one-line error before simulating."""
+    import lde.demo
+
+    def no_run(*a, **k):
+        raise AssertionError("simulated although an output path is bad")
+
+    monkeypatch.setattr(lde.demo, "run_closed_loop", no_run)
+    monkeypatch.setattr(lde.demo, "run_without_overlay_fast", no_run)
+    base = ["demo", "--duration", "4", "--scenario", "steady_wind"]
+    cases = [
+        (["--no-mcap", "--plot", str(tmp_path / "missing" / "p.png")], "no such directory"),
+        (["--no-plot", "--mcap", str(tmp_path / "missing" / "r.mcap")], "no such directory"),
+        (["--no-mcap", "--plot", str(tmp_path)], "is a directory"),
+        (["--mcap", str(tmp_path / "x"), "--plot", str(tmp_path / "x")], "give two file names"),
+    ]
+    for extra, what in cases:
+        assert main(base + extra) == 2, extra
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("lde: error:") and what in err[0], (extra, err)
+    assert not (tmp_path / "x").exists()
+
+
+def test_plot_write_error_is_an_lde_error(tmp_path: Path) -> None:
+    from lde.errors import LdeError
+    from lde.plots import plot_demo
+
+    keys = ("t", "fw_hat", "fw_true", "mw_hat", "mw_true", "driver_torque", "lateral_position")
+    run = {k: np.linspace(0.0, 1.0, 5) for k in (*keys, "t_overlay", "speed")}
+    with pytest.raises(LdeError, match="cannot write the plot"):
+        plot_demo(run, None, tmp_path / "missing" / "p.png")

@@ -23,6 +23,7 @@ from __future__ import annotations
 import itertools
 import logging
 import math
+import os
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -37,6 +38,7 @@ from .units import STEP_NS
 
 __all__ = [
     "DEFAULT_SCENARIO",
+    "check_output_paths",
     "DemoRun",
     "DemoSummary",
     "SimDriver",
@@ -425,6 +427,28 @@ def summarise(on: DemoRun, off: DemoRun, scenario: str, seed: int, backend: str)
     )
 
 
+def check_output_paths(outputs: Mapping[str, str | Path | None]) -> None:
+    """ConfigError for an output (what -> path; None: not written) that is a directory, lies in a
+    directory that does not exist or cannot be written, or is the same file as another output.
+    Called before simulating, so a bad path never costs a run."""
+    seen: dict[Path, str] = {}
+    for what, value in outputs.items():
+        if value is None:
+            continue
+        path = Path(value)
+        if str(value) == "" or path.is_dir():
+            raise ConfigError(f"{what} {str(value)!r}: is a directory, need a file name")
+        parent = path.parent
+        if not parent.is_dir():
+            raise ConfigError(f"{what} {path}: no such directory {parent}")
+        if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
+            raise ConfigError(f"{what} {path}: not writable")
+        key = path.resolve()
+        if key in seen:
+            raise ConfigError(f"{what} {path} is also the {seen[key]}: give two file names")
+        seen[key] = what
+
+
 def run_demo(
     scenario: str = DEFAULT_SCENARIO,
     *,
@@ -439,12 +463,17 @@ def run_demo(
     """Both runs (overlay on, then off), the summary, the recording and the plot.
 
     The run without overlay uses the simulator's fast path (:func:`run_without_overlay_fast`)
-    unless ``full_off_run``.
+    unless ``full_off_run``. The output paths are checked before anything runs
+    (:func:`check_output_paths`).
+
+    Raises:
+        ConfigError: unknown scenario, or an output path that cannot be written.
     """
     from vcan_sim.scenarios import SCENARIOS
 
     if scenario not in SCENARIOS:
         raise ConfigError(f"unknown scenario {scenario!r} (known: {', '.join(SCENARIOS)})")
+    check_output_paths({"MCAP recording": mcap, "plot": png})
     kw: dict[str, Any] = {"seed": seed, "duration": duration, "vehicle": vehicle}
     on = run_closed_loop(scenario, overlay=True, backend=backend, record=mcap, **kw)
     if full_off_run:

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import LogFormatError
+
 __all__ = ["plot_demo"]
 
 
@@ -30,6 +32,9 @@ def plot_demo(
     Each run is a mapping of equal-length arrays: ``t`` [s], ``fw_hat``, ``fw_true`` [N],
     ``mw_hat``, ``mw_true`` [Nm], ``driver_torque`` [Nm], ``lateral_position`` [m],
     ``t_overlay`` [Nm], ``speed`` [m/s]. ``without_overlay`` may be None (only one run).
+
+    Raises:
+        LogFormatError: the file cannot be written (missing directory, no permission).
     """
     import matplotlib
 
@@ -90,6 +95,10 @@ def plot_demo(
     if title:
         fig.suptitle(title)
     out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
+    try:
+        fig.savefig(out, dpi=110)
+    except OSError as exc:
+        raise LogFormatError(f"{out}: cannot write the plot: {exc.strerror or exc}") from exc
+    finally:
+        plt.close(fig)
     return out
