@@ -450,3 +450,61 @@ def test_mcap_metadata_is_read_with_and_without_summary(tmp_path: Path):
     with McapWriter(plain) as w:
         w.write_frames(frames)
     assert read_mcap(plain).metadata == {}
+
+
+# ----------------------------------------------------------------------------- gzip
+def _gz(src: Path, dst: Path, members: int = 1) -> Path:
+    import gzip
+
+    raw = src.read_bytes()
+    cut = [len(raw) * i // members for i in range(members + 1)]
+    dst.write_bytes(
+        b"".join(gzip.compress(raw[a:b], mtime=0) for a, b in zip(cut[:-1], cut[1:], strict=True))
+    )
+    return dst
+
+
+@pytest.mark.parametrize("suffix", [".log", ".asc", ".blf", ".mcap"])
+def test_gzip_compressed_logs_read_like_the_plain_ones(tmp_path: Path, suffix: str):
+    """``x<suffix>.gz`` (also a multi-dot name, a multi-member gzip) gives the frames of
+    ``x<suffix>``; format ``<format>.gz``."""
+    frames = random_frames(3000, seed=31, classic=True)
+    plain = tmp_path / f"x{suffix}"
+    if suffix == ".log":
+        write_candump(plain, frames)
+    elif suffix == ".mcap":
+        with McapWriter(plain, metadata={"profile": "lde"}) as w:
+            w.write_frames(frames)
+    else:
+        with can.Logger(str(plain)) as logger:
+            for m in frames.to_messages(channel=0):
+                logger.on_message_received(m)
+    ref = read_log(plain)
+    for name, members in ((f"x{suffix}.gz", 1), (f"my.drive{suffix}.gz", 3)):
+        gz = _gz(plain, tmp_path / name, members)
+        data = read_log(gz)
+        assert data.format == ref.format + ".gz" and data.path == gz
+        assert_frames_equal(data.frames, ref.frames)
+        assert data.stats == ref.stats
+    if suffix == ".mcap":
+        assert data.mcap is not None and data.mcap.metadata["lde"]["profile"] == "lde"
+
+
+def test_gzip_candump_cut_short_and_bad_gzip(tmp_path: Path):
+    frames = random_frames(2000, seed=32)
+    plain = tmp_path / "x.log"
+    write_candump(plain, frames)
+    gz = _gz(plain, tmp_path / "x.log.gz").read_bytes()
+    # gzip content under the plain suffix is still read
+    (tmp_path / "y.log").write_bytes(gz)
+    assert read_log(tmp_path / "y.log").format == "candump.gz"
+    cut = tmp_path / "cut.log.gz"
+    cut.write_bytes(gz[: len(gz) // 2])
+    data = read_log(cut)
+    n = len(data.frames)
+    assert 0 < n < 2000 and data.stats.truncated_last_line + data.stats.malformed_lines <= 1
+    assert_frames_equal(data.frames, frames[:n])
+    for name, content in (("bad.log.gz", b"\x1f\x8bnot really gzip"), ("plain.asc.gz", b"hello\n")):
+        (tmp_path / name).write_bytes(content)
+        with pytest.raises(LogFormatError, match="gzip"):
+            read_log(tmp_path / name)

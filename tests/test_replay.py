@@ -369,3 +369,20 @@ def test_recorded_profile_of_a_dbc_file(tmp_path: Path, profile, sample_replay):
     dbc.unlink()
     with pytest.raises(ConfigError, match="give --profile"):
         recorded_profile(read_log(rec))
+
+
+def test_cli_replays_a_gzip_compressed_log(tmp_path: Path):
+    """``x.log.gz`` replays like ``x.log``; with several LOGs its output is named ``x_log_gz``."""
+    import gzip
+
+    gz = tmp_path / "sample_linear.log.gz"
+    gz.write_bytes(gzip.compress(SAMPLE.read_bytes(), mtime=0))
+    args = ["--backend", "float", "-q"]
+    assert main(["replay", str(gz), "--csv", str(tmp_path / "z.csv"), *args]) == 0
+    assert main(["replay", str(SAMPLE), "--csv", str(tmp_path / "p.csv"), *args]) == 0
+    assert (tmp_path / "z.csv").read_bytes() == (tmp_path / "p.csv").read_bytes()
+    assert main(["replay", str(SAMPLE), str(gz), "--csv", str(tmp_path / "d"), *args]) == 0
+    assert sorted(p.name for p in (tmp_path / "d").iterdir()) == [
+        "sample_linear_log.csv",
+        "sample_linear_log_gz.csv",
+    ]

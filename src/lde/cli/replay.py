@@ -1,9 +1,10 @@
 """``lde replay LOG... [--profile P] [--vehicle FILE] [--backend fixed|float] [--csv OUT] [--mcap OUT]``.
 
-Replays CAN logs (MCAP, candump ``-L``, or any python-can format) through the estimator on the
-3.9 ms grid and writes one CSV row per step (``t`` in the log's own time base) and/or an MCAP
-recording. A short summary goes to stderr. With several LOGs, ``--csv`` / ``--mcap`` name
-directories (one ``<log stem>.csv`` / ``.mcap`` each) and a progress bar shows.
+Replays CAN logs (MCAP, candump ``-L``, or any python-can format; each also gzip-compressed, as
+``x.log.gz``) through the estimator on the 3.9 ms grid and writes one CSV row per step (``t`` in the
+log's own time base) and/or an MCAP recording. A short summary goes to stderr. With several LOGs,
+``--csv`` / ``--mcap`` name directories (one ``<log stem>.csv`` / ``.mcap`` each, the stem without
+``.gz``) and a progress bar shows.
 
 Before anything is read or written, the outputs are checked: a LOG given twice (by any spelling of
 its path) is an error, and so is an output that is one of the LOGs or another output (an output never
@@ -29,7 +30,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="replay CAN logs through the estimator (CSV / MCAP out)",
         description=__doc__.split("\n\n")[1] if __doc__ else None,
     )
-    p.add_argument("logs", nargs="+", metavar="LOG", help="MCAP, candump -L text, ASC, BLF, TRC, CSV, ...")
+    p.add_argument(
+        "logs", nargs="+", metavar="LOG", help="MCAP, candump -L text, ASC, BLF, TRC, CSV, ... (also as .gz)"
+    )
     p.add_argument(
         "--profile",
         default=None,
@@ -57,12 +60,19 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _out_names(logs: list[Path]) -> dict[Path, str]:
-    """Output base name per log: its stem, or ``<stem>_<suffix>`` where stems collide."""
-    stems = [p.stem for p in logs]
-    return {
-        p: (f"{p.stem}_{p.suffix.lstrip('.')}" if stems.count(p.stem) > 1 and p.suffix else p.stem)
-        for p in logs
-    }
+    """Output base name per log: its stem (``x`` of ``x.log`` and of ``x.log.gz``), or
+    ``<stem>_<suffix>`` where stems collide."""
+
+    def plain(p: Path) -> Path:
+        return Path(p.stem) if p.suffix.lower() == ".gz" else p
+
+    stems = [plain(p).stem for p in logs]
+    out = {}
+    for p in logs:
+        q = plain(p)
+        suffix = "_".join(x.lstrip(".") for x in (q.suffix, p.suffix if q is not p else "") if x)
+        out[p] = f"{q.stem}_{suffix}" if stems.count(q.stem) > 1 and suffix else q.stem
+    return out
 
 
 def _out_path(opt: Path | None, name: str, suffix: str, many: bool) -> Path | None:
