@@ -508,3 +508,40 @@ def test_gzip_candump_cut_short_and_bad_gzip(tmp_path: Path):
         (tmp_path / name).write_bytes(content)
         with pytest.raises(LogFormatError, match="gzip"):
             read_log(tmp_path / name)
+
+
+def test_mcap_cut_inside_or_before_its_first_chunk_says_so(tmp_path: Path):
+    frames = random_frames(3000, seed=33)
+    path = tmp_path / "a.mcap"
+    with McapWriter(path) as w:  # one chunk of frames
+        w.write_frames(frames)
+    from mcap.reader import make_reader
+
+    with path.open("rb") as fh:
+        first = min(make_reader(fh).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    raw = path.read_bytes()
+    for name, end, where in (
+        ("in.mcap", first.chunk_start_offset + first.chunk_length // 2, "inside its first chunk"),
+        ("before.mcap", first.chunk_start_offset - 3, "before its first chunk"),
+    ):
+        cut = tmp_path / name
+        cut.write_bytes(raw[:end])
+        with pytest.raises(LogFormatError) as info:
+            read_log(cut)
+        msg = str(info.value)
+        assert msg.startswith(f"{cut}: truncated MCAP file: cut ") and where in msg, msg
+        assert "no complete chunk of frames" in msg and "\n" not in msg
+
+
+def test_mcap_with_only_sent_frames_says_so(tmp_path: Path):
+    """A recording that holds only lde's own /can/tx frames: that, not "0 frames"."""
+    frames = random_frames(1500, seed=34)
+    tx = frames.select(~frames.is_rx)
+    path = tmp_path / "tx.mcap"
+    with McapWriter(path) as w:
+        w.write_frames(tx)
+    with pytest.raises(
+        LogFormatError, match=rf"only frames lde sent \({len(tx)} on /can/tx\): no received input"
+    ):
+        read_log(path, skip_tx=True)
+    assert len(read_log(path).frames) == len(tx)  # read without skip_tx: the frames are there

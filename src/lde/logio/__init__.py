@@ -280,6 +280,15 @@ def _candump_data(p: Path, raw: bytes, fmt: str = "candump") -> LogData:
 
 
 def _require_frames(out: LogData) -> None:
+    """LogFormatError for a log without a single data frame (or, read with ``skip_tx``, an MCAP
+    recording that holds only the frames lde itself sent)."""
+    topics = out.mcap.topics if out.mcap is not None else {}
+    n_tx = topics[TOPIC_TX].count if TOPIC_TX in topics else 0
+    n_rx = topics[TOPIC_RX].count if TOPIC_RX in topics else 0
+    if len(out.frames) == 0 and n_tx > 0 and n_rx == 0:
+        raise LogFormatError(
+            f"{out.path}: only frames lde sent ({n_tx} on {TOPIC_TX}): no received input frames"
+        )
     if len(out.frames) == 0:
         raise LogFormatError(
             f"{out.path}: no CAN data frames in this {out.format} log ({_describe(out.stats)})"

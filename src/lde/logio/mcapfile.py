@@ -894,6 +894,9 @@ def _scan_top_level(raw) -> _Scan | None:
     Stops at the data end record, at the end of the file, or at a record cut short (``truncated``).
     Returns None when the file has messages outside chunks or schema/channel records only inside
     chunks (the ``mcap`` library reads those).
+
+    Raises:
+        LogFormatError: the file is cut before or inside its first chunk (nothing to recover).
     """
     from mcap.data_stream import ReadDataStream
     from mcap.records import Channel, Schema
@@ -904,14 +907,17 @@ def _scan_top_level(raw) -> _Scan | None:
     pos = len(MAGIC)
     n = len(raw)
     truncated = False
+    cut_op = -1  # opcode of the record the file ends in (-1: unknown)
     while True:
         if pos + 9 > n:
             truncated = pos < n
+            cut_op = raw[pos] if pos < n else -1
             break
         op = raw[pos]
         (length,) = struct.unpack_from("<Q", raw, pos + 1)
         if pos + 9 + length > n:
             truncated = True
+            cut_op = op
             break
         if op in (OP_SCHEMA, OP_CHANNEL):
             body = ReadDataStream(io.BytesIO(bytes(raw[pos + 9 : pos + 9 + length])))
@@ -928,6 +934,9 @@ def _scan_top_level(raw) -> _Scan | None:
         elif op in (OP_DATA_END, OP_FOOTER):
             break
         pos += 9 + int(length)
+    if truncated and not chunks:
+        where = "inside its first chunk" if cut_op == OP_CHUNK else f"at byte {n}, before its first chunk"
+        raise LogFormatError(f"truncated MCAP file: cut {where}; no complete chunk of frames")
     if not channels or not chunks:
         return None
     return _Scan(schemas, channels, chunks, truncated)
