@@ -545,3 +545,23 @@ def test_mcap_with_only_sent_frames_says_so(tmp_path: Path):
     ):
         read_log(path, skip_tx=True)
     assert len(read_log(path).frames) == len(tx)  # read without skip_tx: the frames are there
+
+
+def test_mcap_metadata_is_indexed_for_the_mcap_library(tmp_path: Path):
+    """The ``lde`` metadata record (and one added later) is in the summary's metadata indexes:
+    ``mcap``'s ``iter_metadata()`` finds them, and the statistics count them."""
+    from mcap.reader import make_reader
+
+    path = tmp_path / "m.mcap"
+    meta = {"profile": "hyundai", "vehicle": "reference"}
+    with McapWriter(path, chunk_size=4096, metadata=meta) as w:
+        w.write_frames(random_frames(1000, seed=35))
+        w.flush()
+        w.add_metadata("run", {"note": "after a chunk"})
+    with path.open("rb") as fh:
+        reader = make_reader(fh)
+        found = {m.name: m.metadata for m in reader.iter_metadata()}
+        summary = reader.get_summary()
+    assert found == {"lde": meta, "run": {"note": "after a chunk"}}
+    assert summary.statistics.metadata_count == 2 and len(summary.metadata_indexes) == 2
+    assert read_mcap(path).metadata == found

@@ -20,8 +20,8 @@ Layout (documented for users in ``docs/mcap.md``):
   :meth:`McapWriter.add_json_channel`.
 
 Writing: :class:`McapWriter` buffers messages, sorts them by ``log_time`` and writes zstd-compressed
-chunks (records built by a numba kernel), message indexes, chunk indexes, statistics and the summary,
-readable by the ``mcap`` library and by Foxglove. The CAN channels and each JSON channel go to
+chunks (records built by a numba kernel), message indexes, chunk indexes, metadata indexes, statistics
+and the summary, readable by the ``mcap`` library and by Foxglove. The CAN channels and each JSON channel go to
 separate chunks (time ranges of chunks of different channels overlap, which MCAP allows), so that
 reading the CAN frames decompresses no JSON.
 
@@ -249,7 +249,8 @@ class McapWriter:
         compression: ``"zstd"`` (default), ``"lz4"`` or ``""``.
         chunk_size: uncompressed bytes per chunk [B].
         buffer_bytes: flush threshold of the message buffer [B].
-        metadata: key/value strings stored as an MCAP metadata record ``lde``.
+        metadata: key/value strings stored as an MCAP metadata record ``lde`` (indexed in the
+            summary, see :meth:`add_metadata`).
     """
 
     def __init__(
@@ -298,10 +299,9 @@ class McapWriter:
         self.rx_channel = self._add_channel(TOPIC_RX, "cdr", can_schema)
         self.tx_channel = self._add_channel(TOPIC_TX, "cdr", can_schema)
         self._json_keys: dict[int, tuple[str, ...]] = {}
-        self._n_metadata = 0
+        self._metadata_indexes: list[bytes] = []
         if metadata:
-            self._write(_record(OP_METADATA, _str("lde") + _map_str(dict(metadata))))
-            self._n_metadata = 1
+            self.add_metadata("lde", metadata)
 
     # ------------------------------------------------------------------ low level
     def _write(self, b: bytes, crc: bool = True) -> None:
@@ -332,6 +332,16 @@ class McapWriter:
         return cid
 
     # ------------------------------------------------------------------ public API
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        """Write a metadata record ``name`` (string keys and values) now, and its metadata index
+        into the summary (so that ``mcap``'s ``iter_metadata()`` and Foxglove find it)."""
+        rec = _record(OP_METADATA, _str(name) + _map_str({str(k): str(v) for k, v in data.items()}))
+        offset = self._f.tell()
+        self._write(rec)
+        self._metadata_indexes.append(
+            _record(OP_METADATA_INDEX, struct.pack("<QQ", offset, len(rec)) + _str(name))
+        )
+
     def add_json_channel(
         self,
         topic: str,
@@ -485,7 +495,7 @@ class McapWriter:
 
     def close(self) -> None:
         """Flush, then write the data end, the summary (schemas, channels, statistics, chunk
-        indexes, summary offsets), the footer and the closing magic."""
+        indexes, metadata indexes, summary offsets), the footer and the closing magic."""
         if self._closed:
             return
         self.flush()
@@ -501,7 +511,7 @@ class McapWriter:
             len(self._schemas),
             len(self._channels),
             0,
-            self._n_metadata,
+            len(self._metadata_indexes),
             self._n_chunks,
             self._t_min or 0,
             self._t_max,
@@ -513,6 +523,7 @@ class McapWriter:
             (OP_CHANNEL, self._channels),
             (OP_STATISTICS, [_record(OP_STATISTICS, stats)]),
             (OP_CHUNK_INDEX, self._chunk_indexes),
+            (OP_METADATA_INDEX, self._metadata_indexes),
         ):
             group = b"".join(recs)
             if not group:
