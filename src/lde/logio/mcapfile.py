@@ -21,9 +21,9 @@ Layout (documented for users in ``docs/mcap.md``):
 
 Writing: :class:`McapWriter` buffers messages, sorts them by ``log_time`` and writes zstd-compressed
 chunks (records built by a numba kernel), message indexes, chunk indexes, metadata indexes, statistics
-and the summary, readable by the ``mcap`` library and by Foxglove. The CAN channels and each JSON channel go to
-separate chunks (time ranges of chunks of different channels overlap, which MCAP allows), so that
-reading the CAN frames decompresses no JSON.
+and the summary, readable by the ``mcap`` library and by Foxglove. The CAN channels and each JSON
+channel go to separate chunks (time ranges of chunks of different channels overlap, which MCAP
+allows), so that reading the CAN frames decompresses no JSON.
 
 Reading: :func:`read_mcap` reads the summary with the ``mcap`` library, then every chunk record
 directly: it decompresses the chunk (zstd / lz4 / none) and a numba kernel walks the records, filling
