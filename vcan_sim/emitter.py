@@ -11,6 +11,7 @@ Counters start at 0 and run on per message (Profile 1: 0..14).
 
 from __future__ import annotations
 
+import gc
 import logging
 import time
 from collections.abc import Callable
@@ -198,16 +199,23 @@ def _counter(n_sent: int, modulus: int) -> int:
 
 @dataclass
 class PumpStats:
-    """What :func:`pump` did: frames sent, overlay frames received / used, send errors, lateness."""
+    """What :func:`pump` did: frames sent, overlay frames received / used, send errors, lateness
+    (max [s]; frames sent more than :data:`LATE_S` after their time), wall and CPU time of the run [s]."""
 
     sent: int = 0
     received: int = 0
     overlay_used: int = 0
     send_errors: int = 0
     max_late_s: float = 0.0
+    late_frames: int = 0
     wall_s: float = 0.0
+    cpu_s: float = 0.0
     sim_s: float = 0.0
     frames: list[FrameBatch] = field(default_factory=list)
+
+
+#: a frame sent later than this after its time counts as late [s] (1 ms: a quarter MDPS period)
+LATE_S = 1e-3
 
 
 def to_messages(frames: FrameBatch, channel: str | None = None) -> list[can.Message]:
@@ -243,6 +251,12 @@ def pump(
     (a :class:`vcan_sim.closed_loop.OverlayReceiver`) and its request drives the overlay torque.
     """
     st = PumpStats()
+    # what exists now (modules, DBC objects, the schedules) leaves the collector's view: a full
+    # collection during the run then scans only what the run allocates (a full scan of everything
+    # takes tens of ms on a slow CPU, longer than the MDPS frame's timeout)
+    gc.collect()
+    gc.freeze()
+    cpu0 = time.process_time()
     sim0 = sim.t_ns
     wall0: float | None = None  # set at the first frame, after the first step's warm-up
 
@@ -271,6 +285,7 @@ def pump(
                     wait = due - time.monotonic()
                     if wait <= 0:
                         st.max_late_s = max(st.max_late_s, -wait)
+                        st.late_frames += -wait > LATE_S
                         break
                     if closed_loop and receiver is not None:
                         take(bus.recv(timeout=wait))
@@ -283,5 +298,6 @@ def pump(
                 st.send_errors += 1
                 log.warning("send failed: %s", exc)
     st.wall_s = time.monotonic() - wall0 if wall0 is not None else 0.0
+    st.cpu_s = time.process_time() - cpu0
     st.sim_s = (sim.t_ns - sim0) * 1e-9
     return st

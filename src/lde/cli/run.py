@@ -80,6 +80,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--priority", type=int, default=80, help="SCHED_FIFO priority with --realtime (1..99)")
     p.add_argument("--cpu", type=int, action="append", metavar="N", help="pin to CPU N (repeatable)")
+    p.add_argument(
+        "--spin-us",
+        type=float,
+        default=None,
+        metavar="US",
+        help="busy-wait this long before each deadline [us] (default 200; 0 sleeps only: on a CPU shared "
+        "with the simulator, user-mode Linux say, the spin takes time the others need)",
+    )
     p.add_argument("--log-period", type=float, default=10.0, metavar="SEC", help="timing log line period")
     p.set_defaults(func=run)
 
@@ -94,6 +102,12 @@ def _realtime(args: argparse.Namespace) -> None:
     result = enable(priority=args.priority, cpus=args.cpu, lock_memory=True)
     for w in getattr(result, "warnings", ()) or ():
         log.warning("--realtime: %s", w)
+
+
+def _spin_ns(spin_us: float) -> int:
+    if not (spin_us >= 0 and spin_us < 1e6):  # also rejects NaN
+        raise ConfigError(f"--spin-us {spin_us}: need 0 <= US < 1000000")
+    return int(round(spin_us * 1e3))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -145,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
             bus,
             profile,
             vehicle,
-            MonotonicClock(),
+            MonotonicClock() if args.spin_us is None else MonotonicClock(spin_ns=_spin_ns(args.spin_us)),
             backend=args.backend,
             recorder=recorder,
             overlay_enabled=not args.no_overlay,

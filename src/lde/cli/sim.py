@@ -70,6 +70,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--open-loop", action="store_true", help="live bus: ignore LDE_Overlay frames")
     p.add_argument(
+        "--rt-priority",
+        type=int,
+        metavar="N",
+        help="live bus: run the simulator SCHED_FIFO at priority N (1..99; warns where refused)",
+    )
+    p.add_argument(
+        "--nice",
+        type=int,
+        metavar="N",
+        help="live bus: run the simulator at nice level N (-20..19; negative needs root or CAP_SYS_NICE): "
+        "on a shared CPU it then goes before loggers and recorders (warns where refused)",
+    )
+    p.add_argument(
         "--fault",
         action="append",
         default=[],
@@ -121,6 +134,32 @@ def _check_outputs(args: argparse.Namespace) -> None:
             raise ConfigError(f"{opt} {path}: no such directory {parent}")
 
 
+def _overlay_filter(profile) -> list[dict[str, object]]:
+    """python-can receive filter passing only the profile's ``LDE_Overlay`` frame."""
+    spec = profile.spec("LDE_Overlay")
+    ext = bool(getattr(spec, "is_extended", False))
+    return [{"can_id": int(spec.frame_id), "can_mask": 0x1FFFFFFF if ext else 0x7FF, "extended": ext}]
+
+
+def _renice(level: int) -> None:
+    import os
+
+    if not -20 <= level <= 19:
+        raise ConfigError(f"--nice {level}: need -20..19")
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, level)
+    except (AttributeError, OSError) as exc:
+        log.warning("--nice %d refused (%s); normal priority", level, exc)
+
+
+def _sched_fifo(priority: int) -> None:
+    from ..clock import enable_realtime
+
+    result = enable_realtime(priority=priority, cpus=None, lock_memory=False)
+    for w in getattr(result, "warnings", ()) or ():
+        log.warning("--rt-priority: %s", w)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.list:
         return _print_list()
@@ -154,11 +193,20 @@ def run(args: argparse.Namespace) -> int:
     if live:
         from lde.service import open_bus
         from vcan_sim.closed_loop import OverlayReceiver
-        from vcan_sim.emitter import pump
+        from vcan_sim.emitter import LATE_S, pump
 
         realtime = True if args.realtime is None else args.realtime
         receiver = None if args.open_loop else OverlayReceiver(sim.profile)
-        bus = open_bus(**bus_kwargs(args))
+        kw = bus_kwargs(args)
+        # the kernel (SocketCAN) hands the simulator only the frames it reads: LDE_Overlay. Without
+        # the filter every LDE_Estimate/LDE_Diag frame wakes it up too (3 wake-ups per service step
+        # instead of 1), which on a slow single CPU (user-mode Linux) starves its own sending.
+        kw.setdefault("can_filters", _overlay_filter(sim.profile))
+        if args.nice is not None:
+            _renice(args.nice)
+        if args.rt_priority is not None:
+            _sched_fifo(args.rt_priority)
+        bus = open_bus(**kw)
         try:
             st = pump(sim, bus, realtime=realtime, closed_loop=not args.open_loop, receiver=receiver)
         except KeyboardInterrupt:
@@ -169,8 +217,9 @@ def run(args: argparse.Namespace) -> int:
             used = receiver.stats.used if receiver else 0
             print(
                 f"lde sim: {args.scenario}: sent {st.sent} frames over {st.sim_s:.2f} s simulated in "
-                f"{st.wall_s:.2f} s wall ({'real time' if realtime else 'fast'}); overlay frames used "
-                f"{used}, send errors {st.send_errors}, max lateness {st.max_late_s * 1e3:.2f} ms",
+                f"{st.wall_s:.2f} s wall ({'real time' if realtime else 'fast'}, CPU {st.cpu_s:.2f} s); overlay frames used "
+                f"{used}, send errors {st.send_errors}, max lateness {st.max_late_s * 1e3:.2f} ms, "
+                f"frames late > {LATE_S * 1e3:.0f} ms {st.late_frames}",
                 file=sys.stderr,
             )
     else:
