@@ -218,7 +218,8 @@ def run(args: argparse.Namespace) -> int:
             print(
                 f"lde sim: {args.scenario}: sent {st.sent} frames over {st.sim_s:.2f} s simulated in "
                 f"{st.wall_s:.2f} s wall ({'real time' if realtime else 'fast'}, CPU {st.cpu_s:.2f} s); "
-                f"overlay frames used {used}, send errors {st.send_errors}, max lateness {st.max_late_s * 1e3:.2f} ms, "
+                f"overlay frames used {used}, send errors {st.send_errors}, "
+                f"max lateness {st.max_late_s * 1e3:.2f} ms, "
                 f"frames late > {LATE_S * 1e3:.0f} ms {st.late_frames}",
                 file=sys.stderr,
             )
