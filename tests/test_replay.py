@@ -386,3 +386,26 @@ def test_cli_replays_a_gzip_compressed_log(tmp_path: Path):
         "sample_linear_log.csv",
         "sample_linear_log_gz.csv",
     ]
+
+
+def test_summary_of_a_log_with_two_time_bases(tmp_path: Path, capsys, sample_replay):
+    """Two joined recordings (relative, then epoch timestamps): the summary gives the stepped time
+    (steps x 3.9 ms) and 2 segments, not the ~1.7e9 s between the first and last step."""
+    from lde.frames import FrameBatch
+    from lde.logio import write_candump
+    from lde.units import STEP_NS
+
+    log, _ = sample_replay
+    f = log.frames
+    t0 = int(f.t_ns[0])
+    split = t0 + 8 * 10**9
+    early = f.select(f.t_ns < split)
+    early.t_ns = early.t_ns - t0 + 10**9
+    path = tmp_path / "mixed.log"
+    write_candump(path, FrameBatch.concat([early, f.select(f.t_ns >= split)]))
+    _, res = replay_log(path, None, load_vehicle(SAMPLE_VEHICLE), "float")
+    assert res.segments == 2 and res.duration_s == pytest.approx(len(res) * STEP_NS * 1e-9)
+    assert main(["replay", str(path), "--backend", "float", "--vehicle", str(SAMPLE_VEHICLE)]) == 0
+    err = capsys.readouterr().err
+    assert f"{len(res)} steps = {len(res) * STEP_NS * 1e-9:.3f} s stepped in 2 segments" in err, err
+    assert res.duration_s < 60.0

@@ -13,6 +13,12 @@ can be timed and tested alone; :func:`replay` runs both. Step times are the grid
 first accepted MDPS frame, or, for an lde recording (``/can/tx`` and ``/lde/estimate`` present), the
 recorded step times, so that a live run is reproduced exactly.
 
+Segments: a silence of the inputs longer than :data:`lde.grid.MAX_GAP_NS` (60 s) splits the grid
+into segments, each anchored again at its own first MDPS frame (see :mod:`lde.grid`); a log that
+joins two time bases (relative and epoch timestamps) thus replays as two segments. The steps then
+jump between segments: :attr:`ReplayResult.duration_s` is the stepped time (steps x 3.9 ms) and
+:attr:`ReplayResult.segments` counts the segments; ``t`` keeps each segment's own time base.
+
 The CAN profile of a replay is the one given; when none is given (:func:`replay_log` with
 ``profile=None``, ``lde replay`` without ``--profile``), the one named in the log's ``lde`` metadata
 record (:func:`recorded_profile`: lde recordings, ``lde sim --mcap`` files), else ``lde``.
@@ -36,7 +42,7 @@ import numpy as np
 from .e2e import E2EStatus
 from .errors import ConfigError, LogFormatError
 from .frames import FrameBatch
-from .grid import InputGrid, build_grid
+from .grid import MAX_GAP_NS, InputGrid, build_grid
 from .logio import LogData, McapWriter, read_log
 from .logio.textfmt import Column, format_rows, time_column
 from .params import Vehicle
@@ -45,6 +51,7 @@ from .profiles import PROFILE_NAMES, Profile, load_profile
 # the recording format's channels and field names are lde.recording's (one definition)
 from .recording import DIAG_TOPIC, ESTIMATE_TOPIC, EVENTS_TOPIC, INPUT_FIELDS, INPUTS_TOPIC, STATUS_BITS
 from .signals import Decoded, decode_batch
+from .units import STEP_NS
 
 __all__ = [
     "ReplayResult",
@@ -190,7 +197,17 @@ class ReplayResult:
 
     @property
     def duration_s(self) -> float:
-        return float(self.t_ns[-1] - self.t_ns[0]) * 1e-9 if len(self) else 0.0
+        """Stepped time [s]: steps x STEP_NS. Not the last minus the first step time, which also
+        spans the gaps between grid segments (a log joining two time bases: ~1.7e9 s)."""
+        return len(self) * STEP_NS * 1e-9
+
+    @property
+    def segments(self) -> int:
+        """Runs of steps with no gap longer than :data:`lde.grid.MAX_GAP_NS` between consecutive
+        steps (the grid's segments; 1 for an ordinary log, 0 without steps)."""
+        if len(self) == 0:
+            return 0
+        return 1 + int(np.count_nonzero(np.diff(self.t_ns) > MAX_GAP_NS))
 
 
 # ----------------------------------------------------------------------------- backends

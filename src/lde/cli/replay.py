@@ -121,7 +121,8 @@ def _summary(path: Path, log, res, elapsed: float) -> str:
         if v:
             extra.append(f"{v} {name.replace('_', ' ')}")
     lines = [
-        f"{path}: {log.format}, {f.total} frames, {len(res)} steps over {res.duration_s:.3f} s"
+        f"{path}: {log.format}, {f.total} frames, {len(res)} steps = {res.duration_s:.3f} s stepped"
+        f" in {res.segments} segment{'' if res.segments == 1 else 's'}"
         f" ({'recorded step times' if res.recorded_steps else 'grid from the first MDPS frame'})",
         f"  frames used {f.used}, rejected {f.rejected} ({causes}), ignored ids {f.ignored}, lde's own {f.tx}"
         + (f"; not read: {', '.join(extra)}" if extra else ""),
