@@ -409,3 +409,36 @@ def test_summary_of_a_log_with_two_time_bases(tmp_path: Path, capsys, sample_rep
     err = capsys.readouterr().err
     assert f"{len(res)} steps = {len(res) * STEP_NS * 1e-9:.3f} s stepped in 2 segments" in err, err
     assert res.duration_s < 60.0
+
+
+@pytest.mark.parametrize("command", ["replay", "demo"])
+def test_cli_start_up_imports_only_the_named_subcommand(command: str):
+    """``lde replay`` / ``lde demo`` build their parser without importing the service, the
+    calibrator, the study or numba (heavy imports live in the subcommands' ``run``)."""
+    code = (
+        "import sys; from lde.cli import build_parser; "
+        f"p = build_parser(['-v', '{command}', '--help']); "
+        "print(' '.join(m for m in sys.modules if m.split('.')[0] in ('lde', 'numba', 'dask', 'cantools')))"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    loaded = set(proc.stdout.split())
+    assert f"lde.cli.{command}" in loaded
+    heavy = {
+        "lde.service",
+        "lde.adaptive",
+        "lde.calibrate",
+        "lde.study",
+        "lde.cli.run",
+        "numba",
+        "dask",
+        "cantools",
+    }
+    assert not loaded & heavy, loaded & heavy
+    # and the full help still lists every subcommand
+    proc = subprocess.run(
+        [sys.executable, "-m", "lde", "--help"], capture_output=True, text=True, timeout=120
+    )
+    from lde.cli import SUBCOMMANDS
+
+    assert proc.returncode == 0 and all(f"    {name} " in proc.stdout for name in SUBCOMMANDS), proc.stdout

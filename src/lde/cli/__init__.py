@@ -2,6 +2,12 @@
 
 Errors a user can fix (:class:`lde.errors.LdeError`) end as one ``lde: error: ...`` line and exit
 status 2, never a traceback.
+
+Start-up: when the command line names a subcommand, only that subcommand's module is imported (the
+others get a bare placeholder parser), so ``lde replay`` does not pay for the service, the
+calibrator or the study's imports. ``lde``, ``lde --help`` and an unknown command import them all
+(the help lists every subcommand). A module's ``add_parser`` should stay cheap: heavy imports belong
+inside its ``run``.
 """
 
 from __future__ import annotations
@@ -27,7 +33,23 @@ def _version() -> str:
         return "unknown"
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _command_in(argv: Sequence[str]) -> str | None:
+    """The subcommand named on the command line (the first word that is not a top-level option),
+    when it is one of :data:`SUBCOMMANDS`; ``""`` for ``--version`` (no subcommand needed); else
+    None."""
+    for a in argv:
+        if a == "--version":
+            return ""
+        if a == "--":
+            return None
+        if not a.startswith("-"):
+            return a if a in SUBCOMMANDS else None
+    return None
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The ``lde`` parser. With ``argv`` naming a subcommand, only that subcommand's module is
+    imported; the others are placeholders (never shown: argparse prints one subcommand's help)."""
     parser = argparse.ArgumentParser(
         prog="lde",
         description="Lateral disturbance estimator for MDPS cars: CAN service, replay, simulator, studies.",
@@ -35,7 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
     parser.add_argument("--version", action="version", version=f"lde {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    only = _command_in(argv) if argv is not None else None
     for name in SUBCOMMANDS:
+        if only is not None and name != only:
+            sub.add_parser(name)
+            continue
         try:
             mod = importlib.import_module(f"{__name__}.{name}")
         except ModuleNotFoundError as exc:
@@ -47,7 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
