@@ -10,7 +10,6 @@ import pytest
 from lde.cli import main
 from lde.demo import run_closed_loop, run_demo, run_without_overlay_fast
 from lde.params import load_vehicle
-from lde.profiles import load_profile
 from lde.recording import read_recording
 from lde.replay import replay_log
 from lde.service import STATUS_DEADLINE_MISS
@@ -38,9 +37,10 @@ def _fixed_available() -> bool:
 def test_replay_of_the_recording_reproduces_the_live_outputs_exactly(tmp_path: Path, backend: str) -> None:
     path = tmp_path / "live.mcap"
     live = run_closed_loop("light_load", duration=8.0, seed=3, backend=backend, record=path)
-    _, res = replay_log(path, load_profile("lde"), load_vehicle("reference"), backend=backend)
+    _, res = replay_log(path, None, load_vehicle("reference"), backend=backend)
     s = live.series
     assert res.recorded_steps
+    assert res.profile is not None and res.profile.name == "lde" and res.profile_origin == "recording"
     np.testing.assert_array_equal(res.t_ns, s["t_ns"])
     np.testing.assert_array_equal(res.fw, s["fw_hat"])
     np.testing.assert_array_equal(res.mw, s["mw_hat"])
