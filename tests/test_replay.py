@@ -289,6 +289,7 @@ def test_cli_never_overwrites_an_input_log(tmp_path: Path):
     line, nothing written; a LOG given twice: the same."""
     log = tmp_path / "a.log"
     log.write_bytes(SAMPLE.read_bytes())
+    (tmp_path / "b.log").write_bytes(SAMPLE.read_bytes())
     (tmp_path / "sub").mkdir()
     (tmp_path / "link.csv").symlink_to(log)
     before = log.read_bytes()
@@ -300,8 +301,10 @@ def test_cli_never_overwrites_an_input_log(tmp_path: Path):
         ["replay", "a.log", "--csv", "o.x", "--mcap", "o.x"],
         ["replay", "a.log", "a.log", "--csv", "d"],
         ["replay", "a.log", "./sub/../a.log"],
+        ["replay", "a.log", "--csv", "nodir/x.csv"],
+        ["replay", "a.log", "b.log", "--csv", "nodir/d"],
     ]
-    expect = ["input log", "input log", "input log", "input log", "same file", "twice", "twice"]
+    expect = ["input log"] * 4 + ["same file", "twice", "twice"] + ["no such directory nodir"] * 2
     for args, what in zip(cases, expect, strict=True):
         proc = _run_cli(args, tmp_path)
         assert proc.returncode == 2, (args, proc.stderr)
@@ -311,8 +314,6 @@ def test_cli_never_overwrites_an_input_log(tmp_path: Path):
         assert log.read_bytes() == before, args
         assert not (tmp_path / "o.x").exists() and not (tmp_path / "d").exists()
     # several LOGs into a directory that holds one of them under its output name
-    other = tmp_path / "b.log"
-    other.write_bytes(before)
     csv_log = tmp_path / "a.csv"  # a python-can CSV log that would be <dir>/a.csv
     csv_log.write_text("x\n")
     proc = _run_cli(["replay", "a.csv", "b.log", "--csv", "."], tmp_path)

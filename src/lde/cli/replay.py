@@ -95,14 +95,18 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
-def _check_paths(logs: list[Path], outputs: list[tuple[str, Path]]) -> None:
+def _check_paths(logs: list[Path], outputs: list[tuple[str, Path]], many: bool = False) -> None:
     """ConfigError (nothing read or written yet) for a LOG given twice, an output that is a LOG,
-    or two outputs that are one file."""
+    two outputs that are one file, or an output in a missing directory (with several LOGs the
+    output directory itself is created, its parent must exist)."""
     for i, a in enumerate(logs):
         for b in logs[:i]:
             if _same_file(a, b):
                 raise ConfigError(f"LOG {a} is given twice (also as {b}): give each log once")
     for i, (opt, out) in enumerate(outputs):
+        d = out.parent
+        if not d.is_dir() and not (many and d.parent.is_dir()):
+            raise ConfigError(f"{opt} {out}: no such directory {d if not many else d.parent}")
         for log in logs:
             if _same_file(out, log):
                 raise ConfigError(f"{opt} {out} is the input log {log}: it would be overwritten")
@@ -165,7 +169,7 @@ def run(args: argparse.Namespace) -> int:
         for p in logs
     }
     planned = [(opt, o) for c, m in outs.values() for opt, o in (("--csv", c), ("--mcap", m)) if o]
-    _check_paths(logs, planned)
+    _check_paths(logs, planned, many)
     profile = load_profile(args.profile) if args.profile is not None else None
     profiles: dict = {}  # profiles named by recordings, loaded once
     vehicle = load_vehicle(args.vehicle or "reference")
