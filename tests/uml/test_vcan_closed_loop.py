@@ -50,7 +50,10 @@ CANDUMP_RCVBUF = 16 << 20  # bytes
 
 def _sim(tmp: Path, name: str, *extra: str) -> subprocess.CompletedProcess[str]:
     cmd = [*LDE, "sim", "-i", "socketcan", "-c", CHANNEL, "--scenario", SCENARIO, "--seed", "5"]
-    cmd += ["--duration", str(SIM_S), "--truth", str(tmp / f"{name}.csv"), *extra]
+    # --nice: on UML's one CPU the simulator (the car's other ECUs, on their own CPUs in a real car)
+    # goes before candump and the service's recorder thread; measured: without it, its MDPS frames
+    # stopped for longer than their timeout several times per run
+    cmd += ["--duration", str(SIM_S), "--truth", str(tmp / f"{name}.csv"), "--nice", "-10", *extra]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600)
 
 
@@ -98,6 +101,10 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
                 "--backend",
                 "fixed",
                 "--realtime",
+                # no busy-wait before each deadline: at SCHED_FIFO on UML's one CPU the spin is time
+                # taken from the simulator (the period error is not judged here)
+                "--spin-us",
+                "0",
                 "--record",
                 str(rec_path),
             ],
@@ -173,14 +180,60 @@ def test_recording_on_socketcan_replays_exactly(run: Run) -> None:
     np.testing.assert_array_equal(res.t_overlay[:n_cmp], rec.estimate["T_overlay"][:n_cmp])
 
 
+@dataclass
+class InputGaps:
+    """Input frames (from candump) that stopped for longer than their message's timeout."""
+
+    count: int = 0
+    longest_ms: float = 0.0
+    sim_starved: int = 0  # the service kept sending meanwhile: the simulator alone was held up
+    text: str = ""
+
+
+def _input_gaps(dump: Path, t0_s: float, t1_s: float) -> InputGaps:
+    """Gaps in the simulator's input messages within [t0_s, t1_s] (kernel time) longer than the
+    message's timeout: each one makes the inputs stale, which restarts the estimator's convergence."""
+    profile = load_profile("lde")
+    times: dict[int, list[float]] = defaultdict(list)
+    for m in can.CanutilsLogReader(str(dump)):
+        times[m.arbitration_id].append(m.timestamp)
+    out_t = np.array(times[profile.output_id("LDE_Estimate")])
+    g = InputGaps()
+    parts = []
+    for name, spec in profile.messages.items():
+        ts = np.array(times[spec.frame_id])
+        ts = ts[(ts >= t0_s) & (ts <= t1_s)]
+        if ts.size < 2:
+            continue
+        d = np.diff(ts)
+        idx = np.nonzero(d > spec.timeout_ns * 1e-9)[0]
+        starved = sum(int(np.count_nonzero((out_t > ts[i]) & (out_t < ts[i] + d[i])) >= 2) for i in idx)
+        if idx.size:
+            g.count += idx.size
+            g.sim_starved += starved
+            g.longest_ms = max(g.longest_ms, float(d[idx].max() * 1e3))
+            parts.append(
+                f"{name} {idx.size}x > {spec.timeout_ns / 1e6:.1f} ms (longest {d[idx].max() * 1e3:.0f} ms, "
+                f"{starved} while the service kept sending)"
+            )
+    g.text = "; ".join(parts)
+    return g
+
+
 def test_closed_loop_relieves_the_driver(run: Run) -> None:
     """The simulator applies the received overlay: the driver's holding torque drops.
 
-    Judged only when both processes kept their pace during the closed-loop run: UML runs them on one
-    (host-shared) CPU; a service that skips steps, or a simulator whose frames come late, leaves the
-    estimator with stale inputs (MDPS/ESC faults restart its convergence time) and the overlay off.
+    Judged whenever the environment kept its pace over the judged stretch (from one convergence time
+    before ``SETTLE_S`` to the end of the closed-loop run): the service ran >= 90 % of its steps and
+    no input message of the simulator stopped for longer than its timeout (counted in candump's
+    kernel timestamps). UML runs both processes on one host-shared CPU: when the host starves it, a
+    stale input restarts the estimator's convergence (1 s), so the overlay cannot engage -- then the
+    test skips with the measured gaps. Otherwise the estimate must be valid and the overlay must
+    relieve the driver.
     """
     used = int(re.search(r"overlay frames used (\d+)", run.closed.stderr).group(1))
+    cpu = re.search(r"in ([\d.]+) s wall \(real time, CPU ([\d.]+) s\)", run.closed.stderr)
+    cpu_share = float(cpu.group(2)) / float(cpu.group(1)) if cpu else float("nan")
     rec = read_recording(run.rec_path)
     t = rec.step_times_ns
     # the closed-loop run: the first SIM_S seconds of simulator traffic
@@ -189,18 +242,34 @@ def test_closed_loop_relieves_the_driver(run: Run) -> None:
     pace = np.count_nonzero(window) / (SIM_S * 1e9 / STEP_NS)
     late = window & (t >= first_rx + int(SETTLE_S * 1e9))
     valid = float(np.mean(rec.estimate["valid"][late])) if np.any(late) else 0.0
+    active = float(np.mean(rec.estimate["overlay_active"][late])) if np.any(late) else 0.0
+    converge_s = load_vehicle("reference").estimator.converge_time
+    judged0 = (first_rx * 1e-9) + SETTLE_S - converge_s
+    gaps = _input_gaps(run.dump, judged0, first_rx * 1e-9 + SIM_S)
     on = np.mean(np.abs(_driver_torque(run.tmp / "closed.csv")))
     off = np.mean(np.abs(_driver_torque(run.tmp / "open.csv")))
+    d = rec.diag
+    lat = d["latency_us"][window]
+    lat = lat[lat >= 0]
+    pe = d["period_error_us"][window]
     print(
         f"closed loop: service pace {100 * pace:.0f} % of 256 steps/s, estimate VALID in {100 * valid:.0f} %"
-        f" of the steps after {SETTLE_S} s, overlay frames used by the simulator {used}; mean |T_driver|"
-        f" after {SETTLE_S} s: closed loop {on:.3f} Nm, open loop {off:.3f} Nm"
+        f" and overlay active in {100 * active:.0f} % of the steps after {SETTLE_S} s, overlay frames used"
+        f" by the simulator {used}, simulator CPU {100 * cpu_share:.0f} % of the wall time; input gaps >"
+        f" timeout after {SETTLE_S - converge_s} s: {gaps.count} {gaps.text}; period error p50"
+        f" {np.percentile(pe, 50):.0f} us p99 {np.percentile(pe, 99):.0f} us, latency p50"
+        f" {np.percentile(lat, 50):.0f} us p99 {np.percentile(lat, 99):.0f} us; mean |T_driver| after"
+        f" {SETTLE_S} s: closed loop {on:.3f} Nm, open loop {off:.3f} Nm"
     )
-    if pace < 0.9 or valid < 0.9:
+    if pace < 0.9 or gaps.count:
         pytest.skip(
-            f"UML too slow here to judge the closed loop: service pace {100 * pace:.0f} % (needs 90 %), "
-            f"estimate valid in {100 * valid:.0f} % of the steps (needs 90 %: inputs went stale)"
+            f"UML did not keep the pace here (host CPU shared): service ran {100 * pace:.0f} % of its steps"
+            f" (needs 90 %); the simulator's inputs stopped for longer than their timeout {gaps.count}x"
+            f" after {SETTLE_S - converge_s} s ({gaps.text or 'none'}), each restarting the estimator's"
+            f" {converge_s} s convergence; simulator CPU {100 * cpu_share:.0f} % of the wall time;"
+            f" estimate valid in {100 * valid:.0f} % of the steps after {SETTLE_S} s"
         )
+    assert valid >= 0.9, f"inputs kept their pace but the estimate was valid in only {100 * valid:.0f} %"
     assert used > 0.5 * SIM_S * 1e9 / STEP_NS
     assert off > 0.2
     assert on < 0.6 * off
