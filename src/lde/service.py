@@ -3,7 +3,11 @@
 One step (:meth:`Service.step_once`) at step time ``t_k``:
 
 1. drain the bus; every frame is stamped with its receive time (the bus's timestamp, microsecond
-   rounded exactly like the log readers do: :func:`lde.frames.seconds_to_ns`);
+   rounded exactly like the log readers do: :func:`lde.frames.seconds_to_ns`); a frame whose
+   timestamp is at or before the previous step's time (the sender's kernel stamped it, but it
+   reached the socket only after that step's drain: seen in user-mode Linux with a real-time
+   sender) is re-stamped to the first microsecond after the previous step and counted
+   (``Service.late_rx``), so that the recording says when it could be used;
 2. feed the E2E receiver (:class:`lde.signals.Receiver`) with exactly the frames whose receive
    timestamp is ``<= t_k``, in timestamp order; later frames stay buffered for the next step;
 3. sample the latest valid inputs (sample-and-hold, staleness) at ``t_k``;
@@ -40,7 +44,7 @@ import can
 
 from .diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummary, diag_signals
 from .errors import BusError, ConfigError
-from .frames import seconds_to_ns
+from .frames import ns_to_seconds, seconds_to_ns
 from .units import STEP_NS
 
 __all__ = ["Service", "StepResult", "STATUS_DEADLINE_MISS", "make_estimator"]
@@ -197,6 +201,8 @@ class Service:
         self._pending: list[tuple[int, can.Message]] = []  # (t_rx_ns, msg), not yet used
         self._newest_input_ns = -1  # receive time of the newest frame used so far
         self._restamp: bool | None = None  # stamp frames on receipt (decided at the first frame)
+        self._last_t_k: int | None = None  # step time of the last step run [ns, bus time base]
+        self.late_rx = 0  # frames delivered after a step later than their timestamp: re-stamped
         self._stopping = False  # ramp-out requested (shutdown)
         self.steps = 0
         self.send_errors = 0  # frames the bus refused (full tx queue, bus-off), counted, not raised
@@ -245,6 +251,15 @@ class Service:
             if self._restamp:
                 t_rx = seconds_to_ns(self.now_ns() / 1e9)
                 msg.timestamp = t_rx / 1e9
+            last = self._last_t_k
+            if last is not None and t_rx <= last:
+                # stamped (by the sender's kernel) before a step that has already run without it: it
+                # reached our socket only after that step's drain. It takes part from the next step
+                # on, so it is recorded with the first microsecond after that step (a replay then
+                # feeds it where the live loop did).
+                t_rx = (last // 1000 + 1) * 1000
+                msg.timestamp = ns_to_seconds(t_rx)
+                self.late_rx += 1
             pending.append((t_rx, msg))
             if rec is not None:
                 rec.rx(msg)
@@ -290,6 +305,7 @@ class Service:
             t_start = self.now_ns()
         self._drain()
         n_used = self._feed_ready(t_k)
+        self._last_t_k = t_k
         inputs = self.receiver.sample(t_k)
         est = self.estimator.step(t_k, inputs)
         enable = self.overlay_enabled and not self._stopping

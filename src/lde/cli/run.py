@@ -186,6 +186,8 @@ def run(args: argparse.Namespace) -> int:
         )
         summary = service.run(stop_event=stop, on_step=on_step)
         log.info("%s", summary.log_line())
+        if service.late_rx:
+            log.info("frames that reached the service after the step of their timestamp: %d", service.late_rx)
     finally:
         for s, h in old.items():
             signal.signal(s, h)
