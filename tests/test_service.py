@@ -359,3 +359,46 @@ def test_replay_of_a_run_stopped_by_a_signal_reproduces_the_ramp_out(tmp_path) -
     # without the events channel the replay would keep the overlay on: the check above can fail
     ramp = [r.t_overlay for r in live[1500:]]
     assert len(ramp) > 10 and abs(ramp[0]) > abs(ramp[-1])
+
+
+def test_frame_delivered_after_its_step_is_restamped_fed_next_step_and_counted(rig) -> None:
+    """A frame stamped at or before the last step's time that only reaches the socket after that
+    step (a real-time sender on one CPU) is used at the next step, and recorded with the first
+    microsecond after the last step: the recording then says when it could be used, so a replay on
+    the recorded step times feeds it at the same step as the live run did."""
+    svc, feeder, feed_bus, clock = rig
+
+    class Capture:  # the recorder's hot-path interface
+        def __init__(self) -> None:
+            self.rx_msgs: list[can.Message] = []
+
+        def rx(self, msg: can.Message) -> None:
+            self.rx_msgs.append(msg)
+
+        def tx(self, msg: can.Message) -> None:
+            pass
+
+        def step(self, *args: object) -> None:
+            pass
+
+    _lockstep(svc, feeder, clock, 20)
+    t_last = T0 + 19 * STEP_NS
+    assert svc.late_rx == 0
+    cap = Capture()
+    svc.recorder = cap
+    vals = si_to_dbc(
+        svc.profile,
+        "MDPS_Sensors",
+        {"column_torque": 0.8, "assist_torque": 1.2, "steering_angle": 0.5 * DEG, "steering_rate": 0.0},
+    )
+    stamp_ns = t_last - 500_000  # stamped 0.5 ms before the last step, delivered only now
+    feed_bus.send(feeder.mdps.message(vals, stamp_ns))
+    t_k = T0 + 20 * STEP_NS
+    feeder.send_until(t_k)
+    clock.sleep_until(t_k)
+    res = svc.step_once(t_k)
+    assert svc.late_rx == 1
+    restamped = [m for m in cap.rx_msgs if round(m.timestamp * 1e6) == t_last // 1000 + 1]
+    assert len(restamped) == 1, [m.timestamp for m in cap.rx_msgs]
+    # every frame received in this step (the regular ones and the late one) was fed to this step
+    assert res.frames_used == len(cap.rx_msgs) >= 2
