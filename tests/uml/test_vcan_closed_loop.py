@@ -25,7 +25,7 @@ import subprocess
 import sys
 import time
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import can
@@ -190,6 +190,7 @@ class InputGaps:
     longest_ms: float = 0.0
     sim_starved: int = 0  # the service stepped meanwhile with the input stale: the simulator was held up
     text: str = ""
+    ends_s: list[float] = field(default_factory=list)  # kernel time of the first frame after each gap
 
 
 def _input_gaps(dump: Path, t0_s: float, t1_s: float) -> InputGaps:
@@ -213,6 +214,7 @@ def _input_gaps(dump: Path, t0_s: float, t1_s: float) -> InputGaps:
         # gap); a gap during which the whole guest stood still (no step either) leaves no stale step
         tmo = spec.timeout_ns * 1e-9
         starved = sum(int(np.any((out_t > ts[i] + tmo) & (out_t < ts[i] + d[i]))) for i in idx)
+        g.ends_s.extend(float(ts[i] + d[i]) for i in idx)
         if idx.size:
             g.count += idx.size
             g.sim_starved += starved
@@ -228,14 +230,15 @@ def _input_gaps(dump: Path, t0_s: float, t1_s: float) -> InputGaps:
 def test_closed_loop_relieves_the_driver(run: Run) -> None:
     """The simulator applies the received overlay: the driver's holding torque drops.
 
-    Judged whenever the environment kept its pace over the judged stretch (from one convergence time
-    before ``SETTLE_S`` to the end of the closed-loop run): the service ran >= 90 % of its steps and
-    never stepped while an input message of the simulator had stopped for longer than its timeout
-    (gaps counted in candump's kernel timestamps; a gap during which the whole guest stood still,
-    the service included, leaves no stale step and does not count). UML runs both processes on one host-shared CPU: when the host starves it, a
-    stale input restarts the estimator's convergence (1 s), so the overlay cannot engage -- then the
-    test skips with the measured gaps. Otherwise the estimate must be valid and the overlay must
-    relieve the driver.
+    UML runs every process on one emulated CPU and the whole guest stalls now and then (gaps of
+    50-100 ms seen with nothing else running, docs/service.md). An input message that stops for
+    longer than its timeout is a fault by design: the E2E receiver re-synchronises and the
+    estimator restarts its convergence (1 s), so the estimate is *meant* to be invalid for about a
+    second after each such gap. The estimate is therefore judged where the product says it must be
+    valid: on the steps after ``SETTLE_S`` that lie more than the convergence time (plus the
+    re-sync of the slowest message) after the end of every input gap (gaps from candump's kernel
+    timestamps). Judged when the service ran >= 90 % of its steps and such steps make up at least a
+    third of the stretch; otherwise the test skips with the measured gaps.
     """
     used = int(re.search(r"overlay frames used (\d+)", run.closed.stderr).group(1))
     cpu = re.search(r"in ([\d.]+) s wall \(real time, CPU ([\d.]+) s\)", run.closed.stderr)
@@ -267,17 +270,34 @@ def test_closed_loop_relieves_the_driver(run: Run) -> None:
         f" {np.percentile(lat, 50):.0f} us p99 {np.percentile(lat, 99):.0f} us; mean |T_driver| after"
         f" {SETTLE_S} s: closed loop {on:.3f} Nm, open loop {off:.3f} Nm"
     )
-    if pace < 0.9 or gaps.sim_starved:
+    # steps at which the estimate must be valid: past every input gap by the convergence time plus
+    # the re-sync of the slowest input message (sync_frames periods of ESC_Motion, 10 ms each)
+    recover_ns = int((converge_s + 0.1) * 1e9)
+    must = late.copy()
+    for end_s in gaps.ends_s:
+        end_ns = int(end_s * 1e9)
+        must &= ~((t >= end_ns - int(0.2e9)) & (t < end_ns + recover_ns))
+    n_must = int(np.count_nonzero(must))
+    valid_must = float(np.mean(rec.estimate["valid"][must])) if n_must else 0.0
+    print(
+        f"estimate VALID in {100 * valid_must:.1f} % of the {n_must} steps away from input gaps"
+        f" ({100 * n_must / max(1, np.count_nonzero(late)):.0f} % of the steps after {SETTLE_S} s)"
+    )
+    if pace < 0.9 or n_must < np.count_nonzero(late) / 3:
         pytest.skip(
             f"UML did not keep the pace here (stalls of single processes, docs/service.md): service ran"
             f" {100 * pace:.0f} % of its steps"
             f" (needs 90 %); the simulator's inputs stopped for longer than their timeout {gaps.count}x,"
             f" {gaps.sim_starved}x while the service stepped on,"
             f" after {SETTLE_S - converge_s} s ({gaps.text or 'none'}), each restarting the estimator's"
-            f" {converge_s} s convergence; simulator CPU {100 * cpu_share:.0f} % of the wall time;"
+            f" {converge_s} s convergence, so only {n_must} steps are away from input gaps (needs a third"
+            f" of the stretch); simulator CPU {100 * cpu_share:.0f} % of the wall time;"
             f" estimate valid in {100 * valid:.0f} % of the steps after {SETTLE_S} s"
         )
-    assert valid >= 0.9, f"inputs kept their pace but the estimate was valid in only {100 * valid:.0f} %"
+    assert valid_must >= 0.9, (
+        f"the estimate was valid in only {100 * valid_must:.0f} % of the steps where it must be (away from"
+        f" input gaps)"
+    )
     assert used > 0.5 * SIM_S * 1e9 / STEP_NS
     assert off > 0.2
     assert on < 0.6 * off
