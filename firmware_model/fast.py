@@ -15,12 +15,20 @@ Layouts (int64 arrays):
 
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import dataclass, replace
 
 import numpy as np
 from numba import njit
 
+from lde.conditioning import (
+    condition_arrays,
+    condition_kernel,
+    corrections_vector,
+    is_active,
+    without_corrections,
+)
 from lde.model import params_vector
 from lde.params import Vehicle
 from lde.step import (
@@ -480,6 +488,20 @@ def _to_si(tb: FixedTables, outs: np.ndarray) -> tuple[np.ndarray, ...]:
             outs[:, O_XM] * tb.state_lsb(3), outs[:, O_TA] * tb.t_align_lsb())
 
 
+def _conditioned(vehicle: Vehicle, t_ns, steering_angle, steering_rate, yaw_rate, column_torque):
+    """The inputs after the vehicle's corrections (shape errors as in :func:`run_batch_raw`)."""
+    if not is_active(vehicle):
+        return steering_angle, yaw_rate, column_torque
+    n = np.shape(t_ns)[0] if np.ndim(t_ns) == 1 else -1
+    arrays = {"steering_angle": steering_angle, "yaw_rate": yaw_rate, "column_torque": column_torque}
+    if steering_rate is not None:
+        arrays["steering_rate"] = steering_rate
+    for name, a in arrays.items():
+        if np.shape(a) != (n,):
+            raise StepInputError(f"{name} must have shape ({n},) like t_ns, got {np.shape(a)}")
+    return condition_arrays(vehicle, steering_angle, steering_rate, yaw_rate, column_torque)
+
+
 def run_batch_raw(tb: FixedTables, state: FastState, t_ns, speed, steering_angle, yaw_rate, column_torque,
                   assist_torque, mdps_ok, esc_ok) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The compiled loop on checked arrays: (t_ns int64, outs int64 (n, 5) raw, status uint8)."""
@@ -523,6 +545,7 @@ def run_batch(
     state: FastState | None = None,
     dt: float = STEP_S,
     shadow: bool = True,
+    steering_rate: np.ndarray | None = None,
 ) -> BatchResult:
     """The fixed-point backend with the signature and result type of :func:`lde.step.run_batch`.
 
@@ -533,7 +556,14 @@ def run_batch(
     ``shadow`` (default): the float filter (:func:`lde.step.run_batch`, its state kept in
     ``state.shadow_state``) runs beside it; steps where |dFw| > 5 N or |dMw| > 2 Nm get
     ``Status.SHADOW_DEVIATION`` and are counted in ``state.shadow_count``.
+
+    The vehicle's input corrections (:mod:`lde.conditioning`, ``steering_rate`` for the friction
+    term) are applied once, in float before the quantisation, and both filters see the same
+    conditioned inputs.
     """
+    steering_angle, yaw_rate, column_torque = _conditioned(vehicle, t_ns, steering_angle, steering_rate,
+                                                          yaw_rate, column_torque)
+    vehicle = without_corrections(vehicle)
     tb = tables_for(vehicle, _dt_ns(dt))
     st = FastState.initial(tables_vector(tb)) if state is None else state
     shadow_thread = None
@@ -588,6 +618,8 @@ class FixedEstimator:
     def __init__(self, vehicle: Vehicle, dt: float = STEP_S, shadow: bool = True) -> None:
         self.vehicle = vehicle
         self.dt = float(dt)
+        self._c = corrections_vector(vehicle)
+        vehicle = without_corrections(vehicle)  # both filters step on the conditioned inputs
         self.tables = tables_for(vehicle, _dt_ns(self.dt))
         self._tv = tables_vector(self.tables)
         self._coef = self.tables.coef_array()
@@ -612,6 +644,17 @@ class FixedEstimator:
     def step_ints(self, t_ns: int, inputs: EstimatorInputs) -> tuple[int, ...]:
         """(status, X_beta, X_r, X_Fw, X_Mw, T_align_hat) raw, as :func:`firmware_model.step.step_raw`
         (no shadow check: the integer step alone)."""
+        return self._step_ints(t_ns, self._condition(inputs))
+
+    def _condition(self, inputs: EstimatorInputs) -> EstimatorInputs:
+        """The raw inputs (an EstimatorInputs or the receiver's InputSample) after the corrections."""
+        angle, yaw, col = condition_kernel(self._c, float(inputs.steering_angle),
+                                           float(getattr(inputs, "steering_rate", math.nan)),
+                                           float(inputs.yaw_rate), float(inputs.column_torque))
+        return EstimatorInputs(float(inputs.speed), angle, yaw, col, float(inputs.assist_torque),
+                               bool(inputs.mdps_ok), bool(inputs.esc_ok))
+
+    def _step_ints(self, t_ns: int, inputs: EstimatorInputs) -> tuple[int, ...]:
         st = self.state
         status = step_si_kernel(self._tv, self._coef, st.x, st.P, st.aux, st.sat, self._ws, np.int64(t_ns),
                                 float(inputs.speed), float(inputs.steering_angle), float(inputs.yaw_rate),
@@ -623,7 +666,8 @@ class FixedEstimator:
     def step(self, t_ns: int, inputs: EstimatorInputs) -> EstimatorOutput:
         """One step at ``t_ns`` [ns]; the a-posteriori estimate in SI and the status (with the
         shadow check's SHADOW_DEVIATION when enabled)."""
-        s, xb, xr, xf, xm, ta = self.step_ints(t_ns, inputs)
+        inputs = self._condition(inputs)
+        s, xb, xr, xf, xm, ta = self._step_ints(t_ns, inputs)
         tb = self.tables
         out = EstimatorOutput(int(t_ns), xf * tb.state_lsb(2), xm * tb.state_lsb(3), ta * tb.t_align_lsb(),
                               xb * tb.state_lsb(0), xr * tb.state_lsb(1), Status(s))
@@ -633,11 +677,12 @@ class FixedEstimator:
         return replace(out, status=status)
 
     def run_batch(self, t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok,
-                  esc_ok) -> BatchResult:
+                  esc_ok, steering_rate=None) -> BatchResult:
         """:func:`run_batch` continuing from (and advancing) this estimator's state, the float
         shadow's included (``step`` and ``run_batch`` calls can be mixed)."""
         return run_batch(t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok, esc_ok,
-                         self.vehicle, state=self.state, dt=self.dt, shadow=self._float is not None)
+                         self.vehicle, state=self.state, dt=self.dt, shadow=self._float is not None,
+                         steering_rate=steering_rate)
 
     def saturations(self) -> dict[str, int]:
         return self.state.saturations()

@@ -41,6 +41,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from lde.conditioning import condition_kernel, corrections_vector, without_corrections
 from lde.params import Vehicle
 from lde.step import EstimatorInputs, EstimatorOutput, Status
 
@@ -406,7 +407,8 @@ class ReferenceEstimator:
 
     def __init__(self, vehicle: Vehicle, tables: FixedTables | None = None) -> None:
         self.vehicle = vehicle
-        self.tables = tables or tables_for(vehicle)
+        self._c = corrections_vector(vehicle)  # input corrections: float, before the quantisation
+        self.tables = tables or tables_for(without_corrections(vehicle))
         self.state = FixedState.initial(self.tables)
 
     def reset(self) -> None:
@@ -415,9 +417,11 @@ class ReferenceEstimator:
     def step_ints(self, t_ns: int, inputs: EstimatorInputs) -> tuple[int, ...]:
         """The raw result tuple of :func:`step_raw` for SI ``inputs``."""
         tb = self.tables
-        v, steer, yaw, tcol, tas, flags = quantise_inputs(
-            tb, inputs.speed, inputs.steering_angle, inputs.yaw_rate, inputs.column_torque,
-            inputs.assist_torque)
+        angle, yaw_rate, col = condition_kernel(self._c, float(inputs.steering_angle),
+                                                float(getattr(inputs, "steering_rate", math.nan)),
+                                                float(inputs.yaw_rate), float(inputs.column_torque))
+        v, steer, yaw, tcol, tas, flags = quantise_inputs(tb, inputs.speed, angle, yaw_rate, col,
+                                                          inputs.assist_torque)
         return step_raw(tb, self.state, int(t_ns), v, steer, yaw, tcol, tas, flags,
                         bool(inputs.mdps_ok), bool(inputs.esc_ok))
 

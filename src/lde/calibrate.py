@@ -64,15 +64,13 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ConfigError, LdeError
-from .params import VEHICLE_DIR, Vehicle
+from .params import FRICTION_RATE_WIDTH, VEHICLE_DIR, Vehicle
 from .units import DEG, KMH
 
 #: zero-phase Gaussian smoothing of every signal before differentiation [s]
 SMOOTH_S = 0.04
 #: the linear tire range used for the fit [m/s^2]
 MAX_LAT_ACCEL = 4.0
-#: steering-wheel rate scale of the smoothed friction sign tanh(rate / w) [rad/s]
-FRICTION_RATE_WIDTH = 2.0 * DEG
 #: a (b) regression worse conditioned than this cannot separate Cf from Cr
 MAX_COND = 1.0e4
 #: ... and with the torsion compliance as a fourth unknown, this (else the column is taken as rigid)

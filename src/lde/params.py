@@ -1,8 +1,8 @@
 """Typed, validated parameters loaded from TOML vehicle files.
 
 A vehicle file (``src/lde/vehicles/*.toml``, or any path given with ``--vehicle FILE``) has the
-tables ``[vehicle]``, ``[steering]``, ``[tires]``, ``[overlay]``, ``[estimator]`` and an optional
-``[sim]`` table that only the simulator reads. Keys carry their unit in their name
+tables ``[vehicle]``, ``[steering]``, ``[tires]``, ``[overlay]``, ``[estimator]``, the optional
+``[corrections]`` (input corrections, :mod:`lde.conditioning`) and an optional ``[sim]`` table that only the simulator reads. Keys carry their unit in their name
 (``mass_kg``, ``min_speed_kmh``); the loader converts to SI, so every attribute of these
 dataclasses is SI (kg, m, rad, N/rad, Nm/rad, m/s, Nm, Nm/s) with the unit in its docstring.
 
@@ -158,6 +158,47 @@ class EstimatorTuning:
     converge_time: float = 1.0
 
 
+#: default steering-wheel rate scale of the smoothed friction sign tanh(rate / w) [rad/s]
+FRICTION_RATE_WIDTH = 2.0 * DEG
+
+
+@dataclass(frozen=True)
+class InputCorrections:
+    """What the paper's model neglects, removed from the inputs before the step (:mod:`lde.conditioning`).
+
+    All zero (the default) is the paper's estimator. ``lde calibrate`` identifies them from a drive
+    without disturbance. Signs: "measured minus true", ISO 8855.
+
+    Attributes:
+        friction: Coulomb friction of the steering referred to the column [Nm] (eq. 11 drops it;
+            real racks and columns have 0.3-1 Nm). Needs a signed steering rate.
+        friction_rate_width: steering-wheel rate scale w of the smoothed sign tanh(rate / w) [rad/s].
+        torsion_compliance: steering-wheel angle per column torque [rad/Nm]: the twist of the
+            torsion bar when the angle sensor sits above it (0: the angle is the pinion's).
+        steer_offset: steering-wheel angle offset [rad].
+        yaw_bias: yaw-rate sensor bias [rad/s].
+        align_offset: offset of N (T_column + T_assist) [Nm at the steering axis].
+    """
+
+    friction: float = 0.0
+    friction_rate_width: float = FRICTION_RATE_WIDTH
+    torsion_compliance: float = 0.0
+    steer_offset: float = 0.0
+    yaw_bias: float = 0.0
+    align_offset: float = 0.0
+
+    @property
+    def is_identity(self) -> bool:
+        """No correction at all (the inputs pass through unchanged)."""
+        return (self.friction, self.torsion_compliance, self.steer_offset, self.yaw_bias, self.align_offset) == (
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+        )
+
+
 @dataclass(frozen=True)
 class Vehicle:
     """Everything a vehicle file holds. ``sim`` is the raw ``[sim]`` table for :mod:`vcan_sim`."""
@@ -168,6 +209,7 @@ class Vehicle:
     tires: TireParams
     overlay: OverlayLimits = field(default_factory=OverlayLimits)
     estimator: EstimatorTuning = field(default_factory=EstimatorTuning)
+    corrections: InputCorrections = field(default_factory=InputCorrections)
     sim: dict[str, Any] = field(default_factory=dict)
     source: str = ""
 
@@ -231,6 +273,17 @@ _SCHEMA: dict[str, tuple[type, dict[str, tuple[str, float | None]]]] = {
             "p0_mw_Nm": ("p0_mw", 1.0),
             "min_speed_kmh": ("min_speed", KMH),
             "converge_time_s": ("converge_time", 1.0),
+        },
+    ),
+    "corrections": (
+        InputCorrections,
+        {
+            "steering_friction_Nm": ("friction", 1.0),
+            "friction_rate_deg_s": ("friction_rate_width", DEG),
+            "torsion_deg_per_Nm": ("torsion_compliance", DEG),
+            "steering_angle_offset_deg": ("steer_offset", DEG),
+            "yaw_rate_bias_deg_s": ("yaw_bias", DEG),
+            "align_offset_Nm": ("align_offset", 1.0),
         },
     ),
 }
@@ -356,6 +409,7 @@ def vehicle_from_dict(data: dict[str, Any], src: str = "<dict>") -> Vehicle:
         tires=parts["tires"],
         overlay=parts["overlay"],
         estimator=parts["estimator"],
+        corrections=parts["corrections"],
         sim=sim,
         source=src,
     )
@@ -399,3 +453,10 @@ def validate(v: Vehicle) -> None:
         _check(getattr(e, name) > 0.0, s, f"estimator {name} must be > 0")
     _check(e.min_speed > 0.5, s, "estimator min_speed_kmh must be > 1.8 km/h (the model divides by vx)")
     _check(e.converge_time >= 0.0, s, "estimator converge_time_s must be >= 0")
+    c = v.corrections
+    _check(0.0 <= c.friction <= 5.0, s, f"corrections steering_friction_Nm {c.friction} outside 0..5")
+    _check(c.friction_rate_width > 0.0, s, "corrections friction_rate_deg_s must be > 0")
+    _check(abs(c.torsion_compliance) <= 5.0 * DEG, s, "corrections torsion_deg_per_Nm must lie in -5..5")
+    _check(abs(c.steer_offset) <= 20.0 * DEG, s, "corrections steering_angle_offset_deg must lie in -20..20")
+    _check(abs(c.yaw_bias) <= 5.0 * DEG, s, "corrections yaw_rate_bias_deg_s must lie in -5..5")
+    _check(abs(c.align_offset) <= 200.0, s, "corrections align_offset_Nm must lie in -200..200")

@@ -76,6 +76,7 @@ class InputMap:
     to_si: float  # SI units per DBC unit (DEG for deg -> rad, KMH for km/h -> m/s, 1.0 otherwise)
     sign: float = 1.0  # +1: the DBC signal is ISO 8855 already
     note: str = ""
+    signed: bool = True  # False: the signal is a magnitude (no direction)
 
     @property
     def group(self) -> str:
@@ -122,6 +123,11 @@ class Profile:
     messages: Mapping[str, MessageSpec]  # input messages by name
     outputs: Mapping[str, MessageSpec]  # lde's output messages by name
     anchor_message: str  # its first accepted frame anchors the step grid (the MDPS torque message)
+
+    @property
+    def steering_rate_signed(self) -> bool:
+        """The steering rate carries its direction (needed by the friction correction)."""
+        return self.inputs["steering_rate"].signed
 
     def message_by_id(self, frame_id: int) -> MessageSpec | None:
         """Input message with this 11-bit id, or None."""
@@ -179,7 +185,9 @@ _HYUNDAI = _ProfileDef(
         InputMap("column_torque", "MDPS12", ("CR_Mdps_StrTq",), 1.0, note="ISO sign assumed"),
         InputMap("assist_torque", "MDPS12", ("CR_Mdps_OutTq",), 1.0, note="taken as Nm; ISO sign assumed"),
         InputMap("steering_angle", "SAS11", ("SAS_Angle",), DEG, note="ISO sign assumed"),
-        InputMap("steering_rate", "SAS11", ("SAS_Speed",), DEG, note="unsigned on the car: a magnitude"),
+        InputMap(
+            "steering_rate", "SAS11", ("SAS_Speed",), DEG, note="unsigned on the car: a magnitude", signed=False
+        ),
         InputMap("yaw_rate", "ESP12", ("YAW_RATE",), DEG, note="ISO sign assumed"),
         InputMap("lat_accel", "ESP12", ("LAT_ACCEL",), 1.0, note="ISO sign assumed"),
         InputMap(

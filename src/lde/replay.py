@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from .conditioning import check_profile
 from .e2e import E2EStatus
 from .errors import ConfigError, LogFormatError
 from .frames import FrameBatch
@@ -292,6 +293,7 @@ def estimate(grid: InputGrid, vehicle: Vehicle, run_batch: Callable[..., Any]) -
         grid.mdps_ok,
         grid.esc_ok,
         vehicle,
+        steering_rate=grid.steering_rate,
     )
 
 
@@ -349,6 +351,7 @@ def replay(
             ``step_times_ns``; a recording's, so that a run ended by a signal replays exactly).
     """
     name, run_batch, _note = resolve_backend(backend)
+    check_profile(vehicle, profile.steering_rate_signed, profile.name)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     decoded, n_tx = decode(frames, profile)

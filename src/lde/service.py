@@ -42,6 +42,7 @@ from typing import Any
 
 import can
 
+from .conditioning import check_profile
 from .diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummary, diag_signals
 from .errors import BusError, ConfigError
 from .frames import ns_to_seconds, seconds_to_ns
@@ -190,6 +191,7 @@ class Service:
         self.log_period_ns = int(log_period_s * 1e9)
 
         self.receiver = Receiver(self.profile)
+        check_profile(self.vehicle, self.profile.steering_rate_signed, self.profile.name)
         self.estimator = make_estimator(self.vehicle, backend)
         self.limiter = OverlayLimiter(self.vehicle)
         self._enc_estimate = MessageEncoder(self.profile, "LDE_Estimate")

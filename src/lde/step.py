@@ -38,11 +38,13 @@ reference counting of the array arguments of the small kernels (a build without 
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
+from .conditioning import condition_arrays, condition_kernel, corrections_vector
 from .errors import LdeError
 from .kalman import UPDATE_WS, predict_inplace, update_inplace
 from .model import (
@@ -168,6 +170,7 @@ class EstimatorInputs:
     assist_torque: float  # Nm, total motor torque referred to the column
     mdps_ok: bool = True  # MDPS_Sensors fresh and E2E trusted
     esc_ok: bool = True  # ESC_Motion fresh and E2E trusted
+    steering_rate: float = math.nan  # rad/s, steering wheel (only the friction correction reads it)
 
 
 @dataclass(frozen=True)
@@ -403,6 +406,7 @@ def run_batch(
     *,
     state: EstimatorState | None = None,
     dt: float = STEP_S,
+    steering_rate: np.ndarray | None = None,
 ) -> BatchResult:
     """Run the estimator over arrays of inputs on the step grid (SI, one row per step).
 
@@ -414,6 +418,8 @@ def run_batch(
         vehicle: parameters and tuning.
         state: continue from this state (mutated in place); default: a fresh (reset) state.
         dt: model period [s], the grid period.
+        steering_rate: steering-wheel rate [rad/s] per step, for the vehicle's friction correction
+            (:mod:`lde.conditioning`; the other corrections do not need it).
 
     Returns:
         :class:`BatchResult` with the a-posteriori estimates and status bits per step.
@@ -422,6 +428,13 @@ def run_batch(
     if t.ndim != 1:
         raise StepInputError(f"t_ns must be 1-D, got shape {t.shape}")
     n = t.shape[0]
+    angle, yaw, col = condition_arrays(
+        vehicle,
+        _as_f64("steering_angle", steering_angle, n),
+        None if steering_rate is None else _as_f64("steering_rate", steering_rate, n),
+        _as_f64("yaw_rate", yaw_rate, n),
+        _as_f64("column_torque", column_torque, n),
+    )
     p = params_vector(vehicle, dt)
     st = EstimatorState.initial(p) if state is None else state
     outs = np.empty((n, N_OUT))
@@ -435,9 +448,9 @@ def run_batch(
         new_workspace(),
         t,
         _as_f64("speed", speed, n),
-        _as_f64("steering_angle", steering_angle, n),
-        _as_f64("yaw_rate", yaw_rate, n),
-        _as_f64("column_torque", column_torque, n),
+        angle,
+        yaw,
+        col,
         _as_f64("assist_torque", assist_torque, n),
         _as_bool("mdps_ok", mdps_ok, n),
         _as_bool("esc_ok", esc_ok, n),
@@ -465,6 +478,7 @@ class Estimator:
         self.vehicle = vehicle
         self.dt = float(dt)
         self._p = params_vector(vehicle, self.dt)
+        self._c = corrections_vector(vehicle)
         self._out = np.empty(N_OUT)
         self._wk = new_workspace()
         self.state = EstimatorState.initial(self._p)
@@ -475,8 +489,19 @@ class Estimator:
         reset_kernel(self._p, st.x, st.P, st.fs, st.ints)
 
     def step(self, t_ns: int, inputs: EstimatorInputs) -> EstimatorOutput:
-        """One step at time ``t_ns`` [ns]; returns the a-posteriori estimate and status."""
+        """One step at time ``t_ns`` [ns]; returns the a-posteriori estimate and status.
+
+        ``inputs`` is an :class:`EstimatorInputs` or the live receiver's
+        :class:`lde.signals.InputSample` (raw inputs: the vehicle's corrections are applied here).
+        """
         st, o = self.state, self._out
+        angle, yaw, col = condition_kernel(
+            self._c,
+            float(inputs.steering_angle),
+            float(getattr(inputs, "steering_rate", math.nan)),
+            float(inputs.yaw_rate),
+            float(inputs.column_torque),
+        )
         s = step_kernel(
             self._p,
             st.x,
@@ -486,9 +511,9 @@ class Estimator:
             self._wk,
             np.int64(t_ns),
             float(inputs.speed),
-            float(inputs.steering_angle),
-            float(inputs.yaw_rate),
-            float(inputs.column_torque),
+            angle,
+            yaw,
+            col,
             float(inputs.assist_torque),
             bool(inputs.mdps_ok),
             bool(inputs.esc_ok),
@@ -514,6 +539,7 @@ class Estimator:
         assist_torque: np.ndarray,
         mdps_ok: np.ndarray,
         esc_ok: np.ndarray,
+        steering_rate: np.ndarray | None = None,
     ) -> BatchResult:
         """:func:`run_batch` continuing from (and advancing) this estimator's state."""
         return run_batch(
@@ -528,4 +554,5 @@ class Estimator:
             self.vehicle,
             state=self.state,
             dt=self.dt,
+            steering_rate=steering_rate,
         )
