@@ -129,44 +129,28 @@ def test_gaussian_smooth_keeps_a_ramp_and_removes_noise():
     assert np.std(calibrate.gaussian_smooth(noisy, 10.0)) < 0.2
 
 
-def test_compensation_removes_friction_offset_and_bias_from_grid_inputs():
-    from lde.adaptive import Compensation, compensate
-    from lde.grid import InputGrid
+def test_written_vehicle_file_carries_the_input_corrections(tmp_path):
+    v = _truth_vehicle()
+    base = load_vehicle("reference")
+    cal = calibrate.calibrate(_drive(v, friction=0.6, steer_offset=1.5 * DEG), base)
+    loaded = load_vehicle(calibrate.write_vehicle(cal, base, tmp_path / "c.toml"))
+    assert loaded.corrections.friction == pytest.approx(cal.friction, abs=1e-4)
+    assert loaded.corrections.steer_offset == pytest.approx(cal.steer_offset, abs=1e-4 * DEG)
+    assert loaded.corrections.yaw_bias == pytest.approx(cal.yaw_bias, abs=1e-5 * DEG)
+    bare = load_vehicle(calibrate.write_vehicle(cal, base, tmp_path / "t.toml", corrections=False))
+    assert bare.corrections.is_identity
+    assert "\n[corrections]" not in (tmp_path / "t.toml").read_text()
 
-    v = load_vehicle("reference")
-    n = 5
-    rate = np.array([-1.0, -0.001, 0.0, 0.001, 1.0])  # rad/s
-    ones = np.ones(n)
-    g = InputGrid(
-        t_ns=np.arange(n, dtype=np.int64),
-        column_torque=ones * 1.0,
-        assist_torque=ones * 2.0,
-        steering_angle=ones * 0.1,
-        steering_rate=rate,
-        yaw_rate=ones * 0.01,
-        lat_accel=ones * 0.0,
-        speed=ones * 25.0,
-        valid={},
-        age_ns={},
-        mdps_ok=np.ones(n, dtype=bool),
-        esc_ok=np.ones(n, dtype=bool),
-    )
-    assert compensate(g, v, Compensation()) is g
-    c = Compensation(friction=0.5, steer_offset=0.02, yaw_bias=0.001, align_offset=3.0)
-    h = compensate(g, v, c)
-    N = v.steering.ratio
-    # fast left steering: friction adds to the measured torque, so it is subtracted
-    assert h.column_torque[-1] == pytest.approx(1.0 - 3.0 / N - 0.5, abs=1e-9)
-    assert h.column_torque[0] == pytest.approx(1.0 - 3.0 / N + 0.5, abs=1e-9)
-    assert h.column_torque[2] == pytest.approx(1.0 - 3.0 / N)  # no rate: no friction
-    assert h.steering_angle[0] == pytest.approx(0.08)
-    assert h.yaw_rate[0] == pytest.approx(0.009)
-    assert np.array_equal(h.assist_torque, g.assist_torque)
-    assert Compensation.from_options(
-        {"friction_Nm": 0.5, "steer_offset_deg": 1.0}
-    ).steer_offset == pytest.approx(DEG)
-    with pytest.raises(Exception, match="unknown compensation option"):
-        Compensation.from_options({"frcition_Nm": 1})
+
+def test_friction_is_not_identified_without_a_signed_rate():
+    v = _truth_vehicle()
+    d = _drive(v)
+    d = replace(d, steering_rate=np.abs(d.steering_rate))  # a magnitude, as on profile hyundai
+    cal = calibrate.calibrate(d, load_vehicle("reference"), identify_friction=False)
+    assert cal.friction == 0.0
+    assert cal.corrections().friction == 0.0
+    assert cal.cf == pytest.approx(52000.0, rel=0.03)
+    assert cal.align_rate == pytest.approx(1900.0, rel=0.03)
 
 
 def test_identifies_a_yaw_rate_bias():

@@ -108,8 +108,15 @@ def test_ladder_and_fault_specs_cover_every_step():
     assert any(dict(s.est_options).get("kappa_r") == 200.0 for s in lad)
     assert any(dict(s.est_options).get("payload_known") for s in lad)
     faults = study.fault_specs("est3", "/x/est3_fig12.toml", seeds=(0,))
-    assert {s.group.split(" / ")[1] for s in faults} == {"not compensated", "learned"}
+    assert {s.group.split(" / ")[1] for s in faults} == {
+        "not compensated",
+        "learned corrections",
+        "learned corrections and tires",
+    }
     assert all(s.sim_options for s in faults)
+    # the fault study measures the product (lde replay) with what `lde calibrate` writes
+    assert {s.estimator for s in faults} == {"replay"}
+    assert any(dict(s.est_options).get("calibrate_tires") == 0 for s in faults)
 
 
 @pytest.mark.slow

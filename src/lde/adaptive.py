@@ -15,78 +15,25 @@ neglects enters its measurements directly:
   ``delta_sw / N``. A linear model absorbs that into a lower effective Cf and K, which is right only
   while the column torque stays proportional to the aligning torque (the boost curve is not).
 
-Compensations here are preprocessing of the grid inputs before the product step, so the step
-itself is unchanged (the exact integration wanted in :mod:`lde.step` is in ``docs/study.md``):
-
-    T_column'        = T_column - T_fric tanh(delta_sw_dot / w)                   (friction)
-    delta_sw'        = delta_sw - c_tb T_column - d_sw                            (torsion twist, offset)
-    r'               = r - b_r                                                    (yaw-rate bias)
-    T_column'       -= T_0 / N                                                    (torque offset)
-
-with ``T_fric``, ``c_tb``, ``d_sw``, ``T_0`` from :func:`lde.calibrate.calibrate` on a drive without
-disturbance (or given as options). All SI; ISO 8855 signs; ``T_align`` with the paper's sign.
+The input corrections (friction, torsion twist, offsets, bias) are the product's
+(:mod:`lde.conditioning`, the vehicle file's ``[corrections]``); the prototypes here apply them the
+same way before their own filters.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import replace
 
 import numpy as np
 
-from .calibrate import FRICTION_RATE_WIDTH, DriveData
-from .errors import ConfigError
+from .calibrate import DriveData
+from .conditioning import condition_arrays, is_active
 from .frames import FrameBatch
 from .grid import InputGrid, build_grid
 from .params import Vehicle
 from .profiles import Profile, load_profile
 from .signals import decode_batch
 from .step import BatchResult, run_batch
-
-
-@dataclass(frozen=True)
-class Compensation:
-    """Input corrections applied before the estimator step (module docstring).
-
-    Attributes:
-        friction: Coulomb friction of the steering referred to the column [Nm] (0: none).
-        friction_width: steering-wheel rate scale of tanh(rate / w) [rad/s].
-        steer_offset: steering-wheel angle offset [rad] (measured minus true).
-        yaw_bias: yaw-rate bias [rad/s] (measured minus true).
-        align_offset: offset of N (T_column + T_assist) [Nm] at the steering axis.
-        torsion_compliance: c_tb, steering-wheel angle per column torque [rad/Nm] (0: rigid).
-    """
-
-    friction: float = 0.0
-    friction_width: float = FRICTION_RATE_WIDTH
-    steer_offset: float = 0.0
-    yaw_bias: float = 0.0
-    align_offset: float = 0.0
-    torsion_compliance: float = 0.0
-
-    @classmethod
-    def from_options(cls, options: dict[str, object]) -> Compensation:
-        """From study options ``friction_Nm``, ``friction_width_deg_s``, ``steer_offset_deg``,
-        ``yaw_bias_deg_s``, ``align_offset_Nm``, ``torsion_deg_per_Nm`` (unknown keys are errors)."""
-        from .units import DEG
-
-        keymap = {
-            "friction_Nm": ("friction", 1.0),
-            "friction_width_deg_s": ("friction_width", DEG),
-            "steer_offset_deg": ("steer_offset", DEG),
-            "yaw_bias_deg_s": ("yaw_bias", DEG),
-            "align_offset_Nm": ("align_offset", 1.0),
-            "torsion_deg_per_Nm": ("torsion_compliance", DEG),
-        }
-        kw = {}
-        for k, v in options.items():
-            if k not in keymap:
-                raise ConfigError(f"unknown compensation option {k!r} (known: {', '.join(keymap)})")
-            attr, f = keymap[k]
-            kw[attr] = float(v) * f  # type: ignore[arg-type]
-        return cls(**kw)
-
-    def is_identity(self) -> bool:
-        return all(getattr(self, f.name) == 0.0 for f in fields(self) if f.name != "friction_width")
 
 
 def grid_from_frames(frames: FrameBatch, profile: Profile | str = "lde") -> InputGrid:
@@ -111,36 +58,29 @@ def drive_from_grid(grid: InputGrid) -> DriveData:
     )
 
 
-def compensate(grid: InputGrid, vehicle: Vehicle, comp: Compensation) -> InputGrid:
-    """A copy of ``grid`` with the corrections of ``comp`` applied (module docstring)."""
-    if comp.is_identity():
+def compensate(grid: InputGrid, vehicle: Vehicle) -> InputGrid:
+    """A copy of ``grid`` with the vehicle's input corrections applied (:mod:`lde.conditioning`)."""
+    if not is_active(vehicle):
         return grid
-    n = vehicle.steering.ratio
-    col = grid.column_torque - comp.align_offset / n
-    if comp.friction != 0.0:
-        rate = np.where(np.isfinite(grid.steering_rate), grid.steering_rate, 0.0)
-        col = col - comp.friction * np.tanh(rate / comp.friction_width)
-    return replace(
-        grid,
-        column_torque=col,
-        steering_angle=grid.steering_angle - comp.torsion_compliance * grid.column_torque - comp.steer_offset,
-        yaw_rate=grid.yaw_rate - comp.yaw_bias,
+    angle, yaw, col = condition_arrays(
+        vehicle, grid.steering_angle, grid.steering_rate, grid.yaw_rate, grid.column_torque
     )
+    return replace(grid, steering_angle=angle, yaw_rate=yaw, column_torque=col)
 
 
-def estimate(grid: InputGrid, vehicle: Vehicle, comp: Compensation | None = None) -> BatchResult:
-    """The product step over (compensated) grid inputs."""
-    g = compensate(grid, vehicle, comp or Compensation())
+def estimate(grid: InputGrid, vehicle: Vehicle) -> BatchResult:
+    """The product step over the grid (it applies the vehicle's corrections itself)."""
     return run_batch(
-        g.t_ns,
-        g.speed,
-        g.steering_angle,
-        g.yaw_rate,
-        g.column_torque,
-        g.assist_torque,
-        g.mdps_ok,
-        g.esc_ok,
+        grid.t_ns,
+        grid.speed,
+        grid.steering_angle,
+        grid.yaw_rate,
+        grid.column_torque,
+        grid.assist_torque,
+        grid.mdps_ok,
+        grid.esc_ok,
         vehicle,
+        steering_rate=grid.steering_rate,
     )
 
 
@@ -169,13 +109,13 @@ Q_FA_FACTOR = 3.0
 def augmented_estimate(
     grid: InputGrid,
     vehicle: Vehicle,
-    comp: Compensation | None = None,
     accel_scale: float = 1.0,
     ay_std: float = AY_STD,
     q_fa_factor: float = Q_FA_FACTOR,
     curvature: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The 5-state filter above over (compensated) grid inputs: (t_ns, Fw [N], Mw [Nm], valid).
+    """The 5-state filter above over the grid inputs after the vehicle's corrections:
+    (t_ns, Fw [N], Mw [Nm], valid).
 
     ``curvature`` = (kappa_f, kappa_r, kappa_K) [1/rad^2] schedules the secant tire parameters on the
     estimated slip angles: ``C(alpha) = C (1 - kappa alpha^2)`` (the tires' force and aligning torque
@@ -183,7 +123,7 @@ def augmented_estimate(
     """
     from .units import STEP_S
 
-    g = compensate(grid, vehicle, comp or Compensation())
+    g = compensate(grid, vehicle)
     b, t, e = vehicle.body, vehicle.tires, vehicle.estimator
     m, iz, lf, lr, cf0, cr0, k0, n_ratio = (
         b.mass, b.yaw_inertia, b.lf, b.lr, t.cf, t.cr, t.align_rate, vehicle.steering.ratio,

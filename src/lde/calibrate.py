@@ -64,7 +64,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ConfigError, LdeError
-from .params import FRICTION_RATE_WIDTH, VEHICLE_DIR, Vehicle
+from .params import FRICTION_RATE_WIDTH, VEHICLE_DIR, InputCorrections, Vehicle
 from .units import DEG, KMH
 
 #: zero-phase Gaussian smoothing of every signal before differentiation [s]
@@ -146,6 +146,18 @@ class Calibration:
     def _torsion(self) -> str:
         return _torsion_text(self.torsion_compliance, self.torsion_identified)
 
+    def corrections(self) -> InputCorrections:
+        """The input corrections for the vehicle file's ``[corrections]`` (:mod:`lde.conditioning`).
+
+        A negative friction (noise on a drive with little steering) is taken as none."""
+        return InputCorrections(
+            friction=max(0.0, self.friction),
+            torsion_compliance=self.torsion_compliance if self.torsion_identified else 0.0,
+            steer_offset=self.steer_offset,
+            yaw_bias=self.yaw_bias,
+            align_offset=self.align_offset,
+        )
+
     def summary(self) -> str:
         return (
             f"Cf = {self.cf:.0f} N/rad, Cr = {self.cr:.0f} N/rad, K = {self.align_rate:.0f} Nm/rad "
@@ -182,10 +194,18 @@ def gaussian_smooth(x: np.ndarray, sigma_samples: float) -> np.ndarray:
 
 
 def calibrate(
-    drive: DriveData, base: Vehicle, *, smooth_s: float = SMOOTH_S, identify_torsion: bool = True
+    drive: DriveData,
+    base: Vehicle,
+    *,
+    smooth_s: float = SMOOTH_S,
+    identify_torsion: bool = True,
+    identify_friction: bool = True,
 ) -> Calibration:
     """Least-squares identification of Cf, Cr, K, torsion compliance, friction and offsets
-    (module docstring (a)-(c))."""
+    (module docstring (a)-(c)).
+
+    ``identify_friction`` False: no friction term (a steering rate without its sign, profile
+    ``hyundai``, cannot tell which way the friction acts); friction is then reported as 0."""
     t = np.asarray(drive.t, dtype=np.float64)
     n_all = t.size
     if n_all < MIN_SAMPLES:
@@ -207,7 +227,10 @@ def calibrate(
     vx = sm(drive.speed)
     delta_f = sm(drive.steering_angle) / N
     # the friction regressor is smoothed like the torque it explains (a smoothed sign step)
-    fric_sign = sm(np.tanh(np.asarray(drive.steering_rate, dtype=np.float64) / FRICTION_RATE_WIDTH))
+    if identify_friction:
+        fric_sign = sm(np.tanh(np.asarray(drive.steering_rate, dtype=np.float64) / FRICTION_RATE_WIDTH))
+    else:
+        fric_sign = np.zeros_like(t)
     t_col = sm(drive.column_torque)
     t_align = N * (t_col + sm(drive.assist_torque))
     r_dot = np.gradient(r, t)
@@ -327,7 +350,10 @@ def _fit_bc(
     # (c) N (Tcol + Tassist) = trail 2Ff + N T_fric S(tanh(rate/w)) + T_0
     X2 = np.column_stack([2.0 * ff[use], N * fric_sign[use], np.ones(n)])
     y2 = t_align[use]
-    c2, *_ = np.linalg.lstsq(X2, y2, rcond=None)
+    if np.any(fric_sign[use] != 0.0):
+        c2, *_ = np.linalg.lstsq(X2, y2, rcond=None)
+    else:  # no friction regressor (identify_friction=False)
+        c2 = np.insert(np.linalg.lstsq(X2[:, [0, 2]], y2, rcond=None)[0], 1, 0.0)
     trail, fric, t0 = (float(v) for v in c2)
     res2 = y2 - X2 @ c2
     if not trail > 0.0:
@@ -380,11 +406,13 @@ def _fit_d(
 
 
 def vehicle_toml(
-    cal: Calibration, base: Vehicle, name: str = "calibrated", log: str = "", full: Calibration | None = None
+    cal: Calibration, base: Vehicle, name: str = "calibrated", log: str = "", corrections: bool = True
 ) -> str:
-    """A vehicle file that ``extends`` the base vehicle and overrides ``[tires]``.
+    """A vehicle file that ``extends`` the base vehicle and overrides ``[tires]`` and (with
+    ``corrections``) ``[corrections]`` (:mod:`lde.conditioning`) with the calibration.
 
-    Friction and offsets are written as comments: the vehicle schema has no keys for them yet.
+    Without ``corrections`` the calibration should come from ``calibrate(identify_torsion=False)``:
+    the tire values are then effective ones for the paper's step, the twist folded in.
     """
     src = Path(base.source) if base.source else None
     if src is not None and src.parent == VEHICLE_DIR:
@@ -394,28 +422,19 @@ def vehicle_toml(
     else:
         extends = base.name
     from_log = f" from {log}" if log else ""
+    what = "tire parameters and input corrections" if corrections else "effective tire parameters"
     lines = [
-        f"# Written by `lde calibrate`{from_log}: linear-equivalent tire parameters identified by least",
-        "# squares on the bicycle-model equations over a drive without disturbance (src/lde/calibrate.py),",
-        "# for the estimator step as it is (steering angle / N taken as the road-wheel angle, friction",
-        "# not modelled): the torsion-bar twist is folded into these effective values.",
+        f"# Written by `lde calibrate`{from_log}: {what} identified by least squares on the",
+        "# bicycle-model equations over a drive without disturbance (src/lde/calibrate.py).",
         f"# {cal.n} samples; residuals {cal.rms_slip / DEG:.4f} deg (slip balance) and "
         f"{cal.rms_align:.3f} Nm (aligning torque); condition number {cal.cond:.1f}.",
-    ]
-    if full is not None:
-        lines += [
-            "# Full calibration (for the compensated estimator lde.adaptive; not in the vehicle schema yet):",
-            f"#   Cf {full.cf:.0f} N/rad, Cr {full.cr:.0f} N/rad, K {full.align_rate:.0f} Nm/rad,",
-            f"#   torsion bar {_torsion_text(full.torsion_compliance, full.torsion_identified)},",
-        ]
-    lines += [
-        f"#   steering Coulomb friction {cal.friction:.3f} Nm at the column, accelerometer scale "
-        f"{cal.accel_scale:.3f},",
-        f"#   steering-wheel angle offset {cal.steer_offset / DEG:.3f} deg, yaw-rate bias "
-        f"{cal.yaw_bias / DEG:.4f} deg/s, T_align offset {cal.align_offset:.3f} Nm.",
+        f"# Also identified: accelerometer scale {cal.accel_scale:.3f} (roll tilt; the estimator does not "
+        "use a_y); the",
+        "# body (mass, yaw inertia, CG, ratio) is the base vehicle's: lateral signals cannot tell the mass,",
+        "# so the tire values scale with the assumed mass.",
         f"extends = {_toml_str(extends)}",
         f"name = {_toml_str(name)}",
-        f"description = {_toml_str(f'{base.name} with tires calibrated by lde calibrate{from_log}')}",
+        f"description = {_toml_str(f'{base.name} calibrated by lde calibrate{from_log}')}",
         "",
         "[tires]",
         f"cf_N_per_rad = {cal.cf:.1f}",
@@ -423,6 +442,24 @@ def vehicle_toml(
         f"align_rate_Nm_per_rad = {cal.align_rate:.1f}",
         "",
     ]
+    if corrections:
+        c = cal.corrections()
+        lines += [
+            "[corrections]           # removed from the inputs before the step (src/lde/conditioning.py)",
+            f"steering_friction_Nm = {c.friction:.4f}        # Coulomb, at the column",
+            f"friction_rate_deg_s = {c.friction_rate_width / DEG:.3f}",
+            f"torsion_deg_per_Nm = {c.torsion_compliance / DEG:.5f}        # {cal._torsion()}",
+            f"steering_angle_offset_deg = {c.steer_offset / DEG:.4f}",
+            f"yaw_rate_bias_deg_s = {c.yaw_bias / DEG:.5f}",
+            f"align_offset_Nm = {c.align_offset:.4f}          # at the steering axis",
+            "",
+        ]
+    else:
+        lines += [
+            "# [corrections] not written (--no-corrections); identified: friction "
+            f"{cal.friction:.3f} Nm, angle offset {cal.steer_offset / DEG:.3f} deg,",
+            f"# yaw-rate bias {cal.yaw_bias / DEG:.4f} deg/s, T_align offset {cal.align_offset:.3f} Nm.",
+        ]
     return "\n".join(lines)
 
 
@@ -445,13 +482,13 @@ def write_vehicle(
     path: Path,
     name: str = "calibrated",
     log: str = "",
-    full: Calibration | None = None,
+    corrections: bool = True,
 ) -> Path:
     """Write :func:`vehicle_toml` to ``path`` and check that it loads."""
     from .params import load_vehicle
 
     try:
-        path.write_text(vehicle_toml(cal, base, name=name, log=log, full=full))
+        path.write_text(vehicle_toml(cal, base, name=name, log=log, corrections=corrections))
     except OSError as exc:
         raise ConfigError(f"cannot write {path}: {exc}") from exc
     load_vehicle(path)

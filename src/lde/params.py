@@ -288,6 +288,8 @@ _SCHEMA: dict[str, tuple[type, dict[str, tuple[str, float | None]]]] = {
     ),
 }
 _REQUIRED_TABLES = ("vehicle", "steering", "tires")
+#: the ``[corrections]`` keys of a vehicle file (units in the names)
+CORRECTION_KEYS: tuple[str, ...] = tuple(_SCHEMA["corrections"][1])
 
 
 def _std_to_var(key: str, value: float) -> float:
@@ -413,6 +415,16 @@ def vehicle_from_dict(data: dict[str, Any], src: str = "<dict>") -> Vehicle:
         sim=sim,
         source=src,
     )
+    validate(v)
+    return v
+
+
+def with_corrections(vehicle: Vehicle, keys: dict[str, Any], src: str = "<options>") -> Vehicle:
+    """``vehicle`` with some ``[corrections]`` keys replaced (file key names and units, e.g.
+    ``steering_friction_Nm``; unknown keys are errors), re-validated."""
+    keymap = _SCHEMA["corrections"][1]
+    current = {k: getattr(vehicle.corrections, attr) / (f or 1.0) for k, (attr, f) in keymap.items()}
+    v = replace(vehicle, corrections=_build(InputCorrections, "corrections", {**current, **keys}, src))
     validate(v)
     return v
 

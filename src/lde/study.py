@@ -24,7 +24,7 @@ import csv
 import math
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +32,7 @@ import numpy as np
 
 from . import metrics
 from .errors import ConfigError, LdeError
+from .params import CORRECTION_KEYS, with_corrections
 from .units import DEG
 
 #: Table 1 candidate sets (shipped vehicle files; est2 with the erratum-6 lr)
@@ -144,22 +145,22 @@ SIM_OPTIONS: dict[str, tuple[str, str, float]] = {
     "column_torque_bias_Nm": ("sensors", "column_torque_bias", 1.0),
     "lat_accel_bias": ("sensors", "lat_accel_bias", 1.0),
 }
-#: estimator options of the "adaptive" estimator besides the Compensation keys (lde.adaptive):
-#: calibrate = a scenario name: identify tires, friction and offsets on that (undisturbed)
-#: scenario with the same simulated vehicle, payload and options (seed + 1000), then estimate with
-#: them; calibrate_tires = 0 to apply only the friction/offset compensation of that calibration;
+#: estimator options. Both estimators: the vehicle file's [corrections] keys (CORRECTION_KEYS);
+#: calibrate = a scenario name: identify tires and input corrections on that (undisturbed)
+#: scenario with the same simulated vehicle, payload and options (seed + 1000), as `lde calibrate`
+#: does, then estimate with them; calibrate_tires = 0 to keep the file's tires (corrections only);
+#: torsion (below). The "adaptive" estimator (lde.adaptive) also takes ADAPTIVE_OPTIONS:
 #: payload_known = 1: the estimator's mass, yaw inertia and CG are the loaded vehicle's (what a
 #: wheel-load or mass signal would give through eqs. 17-18) instead of the vehicle file's;
 #: torsion = 0/1: torsion-bar term in the calibration (default: only when the profile's angle is the
 #: steering-wheel angle, i.e. not on `lde`, whose angle is the MDPS's pinion angle);
 #: lat_accel = 1: the 5-state filter with a_y (q_fa_factor scales its wind random walk);
 #: kappa_f, kappa_r, kappa_k: slip-scheduled secant tire parameters [1/rad^2].
+ADAPTIVE_OPTIONS = ("payload_known", "lat_accel", "q_fa_factor", "kappa_f", "kappa_r", "kappa_k")
 CALIBRATION_SEED_OFFSET = 1000
 
 
 def _sim_params(vehicle: Any, options: dict[str, OptionValue]) -> Any:
-    from dataclasses import replace
-
     from vcan_sim.config import sim_params_from_vehicle
 
     sp = sim_params_from_vehicle(vehicle)
@@ -215,64 +216,60 @@ def simulate_and_estimate(
     _check_plant(sim.truth)
     vehicle = load_vehicle(spec.est_vehicle)
     profile = load_profile(spec.profile)
+    if spec.estimator not in ("replay", "adaptive"):
+        raise ConfigError(f"unknown estimator {spec.estimator!r} (replay or adaptive)")
+    opts = dict(spec.est_options)
+    cal_scenario = opts.pop("calibrate", None)
+    cal_tires = bool(opts.pop("calibrate_tires", 1))
+    # the `lde` profile's angle is the MDPS's motor-side (pinion) angle: no torsion-bar twist in it
+    use_torsion = bool(opts.pop("torsion", spec.profile != "lde"))
+    if opts.pop("payload_known", 0):
+        if spec.estimator != "adaptive":
+            raise ConfigError("estimator option payload_known needs --estimator adaptive")
+        # scheduled on the measured load: mass, Iz and CG from the wheel loads (eqs. 17-18)
+        b = sim.body
+        vehicle = vehicle.with_body(mass=b.mass, yaw_inertia=b.yaw_inertia, lf=b.lf, lr=b.lr)
+    cal = None
+    if cal_scenario:
+        # what `lde calibrate` writes: tires and input corrections identified on an undisturbed drive
+        cal = _calibrate_on(spec, str(cal_scenario), vehicle, profile, identify_torsion=use_torsion)
+        vehicle = replace(vehicle, corrections=cal.corrections())
+        if cal_tires:
+            vehicle = _with_tires(vehicle, cal.cf, cal.cr, cal.align_rate)
+    corr = {k: opts.pop(k) for k in list(opts) if k in CORRECTION_KEYS}
+    if corr:
+        vehicle = with_corrections(vehicle, corr, "estimator options")
     if spec.estimator == "replay":
         from .replay import replay
 
-        opts = dict(spec.est_options)
-        cal_scenario = opts.pop("calibrate", None)
         if opts:
             raise ConfigError(f"estimator options {sorted(opts)} need --estimator adaptive")
-        if cal_scenario:
-            # what `lde calibrate` writes: effective tires for the step as it is (no torsion model)
-            cal = _calibrate_on(spec, str(cal_scenario), vehicle, profile, identify_torsion=False)
-            vehicle = _with_tires(vehicle, cal.cf, cal.cr, cal.align_rate)
         out = replay(sim.frames, profile, vehicle, spec.backend)
         t_ns, fw, mw, status = out.t_ns, out.fw, out.mw, out.status
-    elif spec.estimator == "adaptive":
+    else:
         from . import adaptive
 
-        opts = dict(spec.est_options)
-        cal_scenario = opts.pop("calibrate", None)
-        cal_tires = bool(opts.pop("calibrate_tires", 1))
         use_ay = bool(opts.pop("lat_accel", 0))
-        # the `lde` profile's angle is the MDPS's motor-side (pinion) angle: no torsion-bar twist in it
-        use_torsion = bool(opts.pop("torsion", spec.profile != "lde"))
         ay_kw: dict[str, Any] = {}
         if "q_fa_factor" in opts:
             ay_kw["q_fa_factor"] = float(opts.pop("q_fa_factor"))
         if "kappa_f" in opts or "kappa_r" in opts or "kappa_k" in opts:
             ay_kw["curvature"] = tuple(float(opts.pop(k, 0.0)) for k in ("kappa_f", "kappa_r", "kappa_k"))
-        if opts.pop("payload_known", 0):
-            # scheduled on the measured load: mass, Iz and CG from the wheel loads (eqs. 17-18)
-            b = sim.body
-            vehicle = vehicle.with_body(mass=b.mass, yaw_inertia=b.yaw_inertia, lf=b.lf, lr=b.lr)
-        comp = adaptive.Compensation.from_options(opts)
-        if cal_scenario:
-            cal = _calibrate_on(spec, str(cal_scenario), vehicle, profile, identify_torsion=use_torsion)
-            comp = adaptive.Compensation(
-                friction=cal.friction,
-                steer_offset=cal.steer_offset,
-                yaw_bias=cal.yaw_bias,
-                align_offset=cal.align_offset,
-                torsion_compliance=cal.torsion_compliance,
+        if opts:
+            raise ConfigError(
+                f"unknown estimator option(s) {sorted(opts)} (known: {', '.join(sorted(ADAPTIVE_OPTIONS))} "
+                f"and the vehicle file's [corrections] keys {', '.join(CORRECTION_KEYS)})"
             )
-            if cal_tires:
-                vehicle = _with_tires(vehicle, cal.cf, cal.cr, cal.align_rate)
         grid = adaptive.grid_from_frames(sim.frames, profile)
         if use_ay:
             t_ns, fw, mw, ok = adaptive.augmented_estimate(
-                grid,
-                vehicle,
-                comp,
-                accel_scale=cal.accel_scale if cal_scenario else 1.0,
-                **ay_kw,
+                grid, vehicle, accel_scale=cal.accel_scale if cal is not None else 1.0, **ay_kw
             )
             status = np.where(ok, int(Status.VALID), 0)
         else:
-            est = adaptive.estimate(grid, vehicle, comp)
+            est = adaptive.estimate(grid, vehicle)
             t_ns, fw, mw, status = est.t_ns, est.fw, est.mw, est.status
-    else:
-        raise ConfigError(f"unknown estimator {spec.estimator!r} (replay or adaptive)")
+
     valid = (np.asarray(status) & int(Status.VALID)) != 0
     tr = sim.truth
     truth = metrics.Truth(t=np.asarray(tr["t"]), fw=tr["Fw"], mw=tr["Mw"], mw_ref=tr["Mw_ref"])
@@ -297,13 +294,19 @@ def _check_plant(truth: dict[str, np.ndarray]) -> None:
 def _calibrate_on(
     spec: RunSpec, scenario: str, vehicle: Any, profile: Any, identify_torsion: bool = True
 ) -> Any:
-    """Calibrate on an undisturbed drive of the same simulated car (another seed)."""
+    """Calibrate on an undisturbed drive of the same simulated car (another seed), as
+    ``lde calibrate`` does (friction only where the profile's steering rate is signed)."""
     from . import adaptive
     from .calibrate import calibrate
 
     cal_sim = _simulate(spec, scenario, spec.seed + CALIBRATION_SEED_OFFSET)
     grid = adaptive.grid_from_frames(cal_sim.frames, profile)
-    return calibrate(adaptive.drive_from_grid(grid), vehicle, identify_torsion=identify_torsion)
+    return calibrate(
+        adaptive.drive_from_grid(grid),
+        vehicle,
+        identify_torsion=identify_torsion,
+        identify_friction=profile.steering_rate_signed,
+    )
 
 
 def _with_tires(vehicle: Any, cf: float, cr: float, k: float) -> Any:
@@ -722,13 +725,10 @@ def ladder_specs(
     cal = (("calibrate", "lane_change"),)
     steps: list[tuple[str, dict[str, Any]]] = [
         ("0 reference", dict(est_vehicle="reference")),
-        (f"1 {Path(winner).stem} (Table 1 winner)", dict(est_vehicle=winner)),
-        ("2 + Fig. 12 tires", dict(est_vehicle=tire_vehicle)),
-        (f"3 {Path(wc).stem} + tires from lde calibrate", dict(est_vehicle=wc, est_options=cal)),
-        (
-            "4 + learned compensation (friction, torsion, offsets)",
-            dict(est_vehicle=wc, estimator="adaptive", est_options=cal),
-        ),
+        ("1 reference + lde calibrate", dict(est_vehicle="reference", est_options=cal)),
+        (f"2 {Path(winner).stem} (Table 1 winner)", dict(est_vehicle=winner)),
+        ("3 + Fig. 12 tires", dict(est_vehicle=tire_vehicle)),
+        (f"4 {Path(wc).stem} + lde calibrate", dict(est_vehicle=wc, est_options=cal)),
         (
             "5 + load-scheduled m, Iz, CG",
             dict(est_vehicle=wc, estimator="adaptive", est_options=cal + (("payload_known", 1),)),
@@ -780,16 +780,19 @@ def fault_specs(
     winner_calibrated: str | None = None,
     curvature: tuple[float, float, float] | None = None,
 ) -> list[RunSpec]:
-    """Friction and sensor offsets in the simulator, with the final estimator (load known, a_y,
-    secant tires) without and with the compensation learned on an undisturbed drive."""
-    base: tuple[tuple[str, OptionValue], ...] = (("payload_known", 1), ("lat_accel", 1))
-    if curvature is not None:
-        base += tuple(zip(("kappa_f", "kappa_r", "kappa_k"), (round(c, 1) for c in curvature), strict=True))
+    """Friction and sensor offsets in the simulator, with the product estimator (``lde replay``)
+    and the reference file, as shipped and with what ``lde calibrate`` writes from an undisturbed
+    drive of the same car with the same fault: the input corrections alone (the file's tires
+    kept) and the corrections with the calibrated tires. ``winner``, ``tire_vehicle``,
+    ``winner_calibrated`` and ``curvature`` are accepted for the preset's common signature."""
+    del winner, tire_vehicle, winner_calibrated, curvature
+    cal: tuple[tuple[str, OptionValue], ...] = (("calibrate", "lane_change"),)
     specs = []
     for case, sim_opts in FAULT_CASES:
         for est_label, est_opts in (
-            ("not compensated", base),
-            ("learned", base + (("calibrate", "lane_change"),)),
+            ("not compensated", ()),
+            ("learned corrections", cal + (("calibrate_tires", 0),)),
+            ("learned corrections and tires", cal),
         ):
             for sc in scenarios:
                 for seed in seeds:
@@ -800,8 +803,7 @@ def fault_specs(
                             duration=duration,
                             sim_options=sim_opts,
                             group=f"{case} / {est_label}",
-                            est_vehicle=tire_vehicle,
-                            estimator="adaptive",
+                            est_vehicle="reference",
                             est_options=est_opts,
                         )
                     )

@@ -4,9 +4,11 @@ LOG is any log ``lde replay`` reads (MCAP, candump ``-L``, python-can formats) o
 significant disturbance* (still air, flat road) with transient steering: a few lane changes or a
 slalom at 60-120 km/h. Body parameters (mass, yaw inertia, CG, steering ratio) come from
 ``--vehicle`` (default: reference); the result is a vehicle file that ``extends`` it and overrides
-``[tires]`` with effective values for the estimator step as it is (the torsion-bar twist folded
-in), for ``lde run/replay --vehicle FILE``; the full calibration (tire values with the torsion bar
-modelled, friction, offsets, accelerometer scale) is written as comments. Method: ``lde.calibrate``
+``[tires]`` and ``[corrections]`` (steering friction, torsion-bar twist, steering-angle offset,
+yaw-rate bias, torque offset: removed from the inputs before the step, ``lde.conditioning``), for
+``lde run/replay --vehicle FILE``. ``--no-corrections`` writes only effective ``[tires]`` for the
+paper's step. The command replays the drive with the base and the calibrated file and prints the
+RMS of both estimates (the drive has no disturbance: lower is better). Method: ``lde.calibrate``
 (least squares on the bicycle-model equations; friction and offsets as extra regressors).
 """
 
@@ -46,20 +48,51 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="identify the torsion-bar twist in the steering angle (auto: not on profile lde, whose "
         "angle is the MDPS's pinion angle; yes on profiles that carry the steering-wheel angle)",
     )
+    p.add_argument(
+        "--no-corrections",
+        dest="corrections",
+        action="store_false",
+        help="write only [tires], effective values for the paper's step (no [corrections] table)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from ..params import load_vehicle as _load
+    from ..profiles import load_profile
+    from ..step import Status, run_batch
+
     base = load_vehicle(args.vehicle)
+    profile = load_profile(args.profile)
     log = read_log(args.log)
-    grid = grid_from_frames(log.frames, args.profile)
+    grid = grid_from_frames(log.frames, profile)
     drive = drive_from_grid(grid)
-    torsion = args.torsion == "yes" or (args.torsion == "auto" and str(args.profile) != "lde")
-    full = calibrate(drive, base, identify_torsion=torsion)
-    # the file is for the estimator step as it is: no torsion model, so fit effective values
-    cal = calibrate(drive, base, identify_torsion=False)
-    out = write_vehicle(cal, base, args.out, name=args.name, log=str(args.log), full=full)
-    print("full calibration:        " + full.summary())
-    print("effective (vehicle file): " + cal.summary())
+    if args.corrections:
+        torsion = args.torsion == "yes" or (args.torsion == "auto" and profile.name != "lde")
+        if not profile.steering_rate_signed:
+            print(f"note: profile {profile.name} carries the steering rate without its sign: friction not identified")
+        cal = calibrate(drive, base, identify_torsion=torsion, identify_friction=profile.steering_rate_signed)
+    else:
+        # tires only, for the paper's step: no torsion model, so fit effective values
+        cal = calibrate(drive, base, identify_torsion=False)
+    out = write_vehicle(cal, base, args.out, name=args.name, log=str(args.log), corrections=args.corrections)
+    print("calibration: " + cal.summary())
     print(f"wrote {out}")
+
+    # self-check on the same drive: it has no disturbance, so the estimate should be ~0
+    def rms(vehicle):  # (RMS Fw [N], RMS Mw [Nm]) over the valid steps
+        r = run_batch(grid.t_ns, grid.speed, grid.steering_angle, grid.yaw_rate, grid.column_torque,
+                      grid.assist_torque, grid.mdps_ok, grid.esc_ok, vehicle, steering_rate=grid.steering_rate)
+        ok = (r.status & Status.VALID) != 0
+        if not ok.any():
+            return float("nan"), float("nan")
+        return float(np.sqrt(np.mean(r.fw[ok] ** 2))), float(np.sqrt(np.mean(r.mw[ok] ** 2)))
+
+    b, c = rms(base), rms(_load(out))
+    print(
+        f"estimate on this (undisturbed) drive, RMS Fw / Mw: {base.name} {b[0]:.0f} N / {b[1]:.1f} Nm -> "
+        f"calibrated {c[0]:.0f} N / {c[1]:.1f} Nm"
+    )
     return 0

@@ -8,12 +8,14 @@ Presets (``--preset``):
   the eq. (19) error index (Fig. 11) and plots the winner's estimates against truth (Figs. 13-14).
 - ``smoke`` — 4 short runs (est1/est3 on heavy/light): checks the whole chain in seconds.
 - ``ladder`` — what each estimator step buys on the target scenarios (heavy, light, every payload,
-  the undisturbed lane change): reference file, Table 1 winner, + Fig. 12 tires (identified on the
-  simulator under heavy and light load), + calibration from an undisturbed drive (friction, torsion
-  bar, accelerometer tilt, offsets; ``lde.adaptive``), + mass/inertia/CG scheduled on the load.
-- ``faults`` — steering friction and sensor offsets in the simulator, uncompensated and learned.
-- ``all`` — Fig. 12, then three Table 1 sweeps (shipped tires; Fig. 12 tires; calibrated and
-  compensated estimator), the ladder and the faults with their winners; ``summary_all.md``.
+  the undisturbed lane change): reference file, + ``lde calibrate`` (tires and input corrections
+  from an undisturbed drive, the product path), Table 1 winner, + Fig. 12 tires (identified on the
+  simulator under heavy and light load), + ``lde calibrate``, then the prototypes of
+  ``lde.adaptive``: mass/inertia/CG scheduled on the load, lateral acceleration, secant tires.
+- ``faults`` — steering friction and sensor offsets in the simulator: the product with the
+  reference file as shipped and with the input corrections (and tires) ``lde calibrate`` learns.
+- ``all`` — Fig. 12, then three Table 1 sweeps (shipped tires; Fig. 12 tires; + ``lde calibrate``),
+  the ladder and the faults with their winners; ``summary_all.md``.
 
 Runs go to a ``LocalCluster(n_workers=--workers, threads_per_worker=1)`` by default or to an existing
 scheduler with ``--scheduler tcp://HOST:8786``; ``--workers 0`` runs in this process.
@@ -162,15 +164,13 @@ def run(args: argparse.Namespace) -> int:
     if args.preset == "all":
         cands = tuple(args.candidates or study.CANDIDATES)
         tire_files = _fig12(ctx, cands)
-        _sweep(ctx, "paper", cands, sweep_kw, "Table 1 sets with the shipped (placeholder) tires")
+        _sweep(ctx, "paper", cands, sweep_kw, "Table 1 sets as shipped")
         best = _sweep(
             ctx, "paper_fig12", tuple(tire_files.values()), sweep_kw, "Table 1 sets with the Fig. 12 tires"
         )
         winner = winner or Path(best).stem.removesuffix("_fig12")
-        cal_kw = dict(sweep_kw, estimator="adaptive", est_options=(("calibrate", "lane_change"),))
-        winner_cal = _sweep(
-            ctx, "paper_calibrated", cands, cal_kw, "Table 1 sets, estimator calibrated and compensated"
-        )
+        cal_kw = dict(sweep_kw, est_options=(("calibrate", "lane_change"),))
+        winner_cal = _sweep(ctx, "paper_calibrated", cands, cal_kw, "Table 1 sets + lde calibrate")
     if args.preset in ("ladder", "faults", "all"):
         winner = winner or "est3"
         tire_vehicle = _fig12(ctx, (winner,))[winner] if args.preset != "all" else tire_files[winner]
