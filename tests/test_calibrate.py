@@ -160,3 +160,41 @@ def test_identifies_a_yaw_rate_bias():
     cal = calibrate.calibrate(d, load_vehicle("reference"))
     assert cal.yaw_bias == pytest.approx(0.2 * DEG, abs=0.01 * DEG)
     assert cal.cf == pytest.approx(52000.0, rel=0.05)
+
+
+@pytest.mark.slow
+def test_cli_calibrate_writes_a_file_that_replay_uses(tmp_path):
+    """lde sim (undisturbed lane change, 0.8 Nm friction via the vehicle's [sim]) -> lde calibrate ->
+    lde replay --vehicle: the written corrections take the undisturbed estimate down."""
+    pytest.importorskip("vcan_sim")
+    import contextlib
+    import io
+
+    from lde.cli import main
+
+    def run(*args):
+        out = io.StringIO()
+        with contextlib.redirect_stdout(out):
+            rc = main([str(a) for a in args])
+        return rc, out.getvalue()
+
+    sim_vehicle = tmp_path / "sticky.toml"
+    sim_vehicle.write_text('extends = "reference"\nname = "sticky"\n[sim.steering]\nrack_coulomb_Nm = 0.8\n')
+    log = tmp_path / "lc.log"
+    rc, _ = run("sim", "--scenario", "lane_change", "--seed", "5", "--duration", "30", "--vehicle", sim_vehicle,
+                "--log", log, "--truth", tmp_path / "lc.csv")
+    assert rc == 0
+    rc, text = run("calibrate", log, "-o", tmp_path / "cal.toml", "--keep-tires")
+    assert rc == 0, text
+    cal = load_vehicle(tmp_path / "cal.toml")
+    assert cal.tires == load_vehicle("reference").tires
+    assert cal.corrections.friction == pytest.approx(0.8, rel=0.15)
+    for vehicle, name in (("reference", "raw.csv"), (tmp_path / "cal.toml", "cal.csv")):
+        rc, _ = run("replay", log, "--vehicle", vehicle, "--csv", tmp_path / name, "--backend", "fixed")
+        assert rc == 0
+    rms = {}
+    for name in ("raw.csv", "cal.csv"):
+        rows = np.genfromtxt(tmp_path / name, delimiter=",", names=True)
+        late = rows["t"] > rows["t"][0] + 3.0
+        rms[name] = float(np.sqrt(np.mean(rows["Fw"][late] ** 2)))
+    assert rms["cal.csv"] < 0.5 * rms["raw.csv"], rms

@@ -406,7 +406,12 @@ def _fit_d(
 
 
 def vehicle_toml(
-    cal: Calibration, base: Vehicle, name: str = "calibrated", log: str = "", corrections: bool = True
+    cal: Calibration,
+    base: Vehicle,
+    name: str = "calibrated",
+    log: str = "",
+    corrections: bool = True,
+    tires: bool = True,
 ) -> str:
     """A vehicle file that ``extends`` the base vehicle and overrides ``[tires]`` and (with
     ``corrections``) ``[corrections]`` (:mod:`lde.conditioning`) with the calibration.
@@ -436,12 +441,19 @@ def vehicle_toml(
         f"name = {_toml_str(name)}",
         f"description = {_toml_str(f'{base.name} calibrated by lde calibrate{from_log}')}",
         "",
+    ]
+    tire_lines = [
         "[tires]",
         f"cf_N_per_rad = {cal.cf:.1f}",
         f"cr_N_per_rad = {cal.cr:.1f}",
         f"align_rate_Nm_per_rad = {cal.align_rate:.1f}",
         "",
     ]
+    if tires:
+        lines += tire_lines
+    else:
+        lines += ["# [tires] kept from the base vehicle (--keep-tires); identified:"]
+        lines += ["#   " + t for t in tire_lines[1:-1]] + [""]
     if corrections:
         c = cal.corrections()
         lines += [
@@ -483,12 +495,13 @@ def write_vehicle(
     name: str = "calibrated",
     log: str = "",
     corrections: bool = True,
+    tires: bool = True,
 ) -> Path:
     """Write :func:`vehicle_toml` to ``path`` and check that it loads."""
     from .params import load_vehicle
 
     try:
-        path.write_text(vehicle_toml(cal, base, name=name, log=log, corrections=corrections))
+        path.write_text(vehicle_toml(cal, base, name=name, log=log, corrections=corrections, tires=tires))
     except OSError as exc:
         raise ConfigError(f"cannot write {path}: {exc}") from exc
     load_vehicle(path)

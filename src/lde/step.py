@@ -2,6 +2,10 @@
 
 Per step k (time ``t_ns`` passed in, never read here), with inputs in SI:
 
+0. Input corrections. The vehicle file's ``[corrections]`` (steering friction, torsion twist,
+   offsets, bias: :mod:`lde.conditioning`) are removed from the raw inputs by the compiled
+   :func:`lde.conditioning.condition_kernel`, in :meth:`Estimator.step` and :func:`run_batch`
+   alike; none by default (the paper's estimator).
 1. Validity. The ESC group (speed, yaw rate) is usable when ``esc_ok`` and the yaw rate is
    finite; the MDPS group (steering angle, column and assist torque) when ``mdps_ok`` and all
    three are finite. An unusable ESC group sets ESC_FAULT; an unusable MDPS group MDPS_FAULT and

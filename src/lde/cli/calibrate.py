@@ -19,6 +19,7 @@ from pathlib import Path
 
 from ..adaptive import drive_from_grid, grid_from_frames
 from ..calibrate import calibrate, write_vehicle
+from ..errors import ConfigError
 from ..logio import read_log
 from ..params import load_vehicle
 
@@ -49,6 +50,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "angle is the MDPS's pinion angle; yes on profiles that carry the steering-wheel angle)",
     )
     p.add_argument(
+        "--keep-tires",
+        action="store_true",
+        help="write only [corrections]; keep the base vehicle's [tires] (when they are known better than a "
+        "lane change can tell, e.g. identified over the whole lateral-acceleration range)",
+    )
+    p.add_argument(
         "--no-corrections",
         dest="corrections",
         action="store_false",
@@ -77,7 +84,17 @@ def run(args: argparse.Namespace) -> int:
     else:
         # tires only, for the paper's step: no torsion model, so fit effective values
         cal = calibrate(drive, base, identify_torsion=False)
-    out = write_vehicle(cal, base, args.out, name=args.name, log=str(args.log), corrections=args.corrections)
+    if args.keep_tires and not args.corrections:
+        raise ConfigError("--keep-tires with --no-corrections would write nothing")
+    out = write_vehicle(
+        cal,
+        base,
+        args.out,
+        name=args.name,
+        log=str(args.log),
+        corrections=args.corrections,
+        tires=not args.keep_tires,
+    )
     print("calibration: " + cal.summary())
     print(f"wrote {out}")
 
