@@ -39,6 +39,8 @@ from lde.step import (
     EstimatorState,
     Status,
     StepInputError,
+    as_bool,
+    as_f64,
 )
 from lde.step import run_batch as float_run_batch
 from lde.units import STEP_S
@@ -493,13 +495,13 @@ def _conditioned(vehicle: Vehicle, t_ns, steering_angle, steering_rate, yaw_rate
     if not is_active(vehicle):
         return steering_angle, yaw_rate, column_torque
     n = np.shape(t_ns)[0] if np.ndim(t_ns) == 1 else -1
-    arrays = {"steering_angle": steering_angle, "yaw_rate": yaw_rate, "column_torque": column_torque}
-    if steering_rate is not None:
-        arrays["steering_rate"] = steering_rate
-    for name, a in arrays.items():
-        if np.shape(a) != (n,):
-            raise StepInputError(f"{name} must have shape ({n},) like t_ns, got {np.shape(a)}")
-    return condition_arrays(vehicle, steering_angle, steering_rate, yaw_rate, column_torque)
+    return condition_arrays(
+        vehicle,
+        as_f64("steering_angle", steering_angle, n),
+        None if steering_rate is None else as_f64("steering_rate", steering_rate, n),
+        as_f64("yaw_rate", yaw_rate, n),
+        as_f64("column_torque", column_torque, n),
+    )
 
 
 def run_batch_raw(tb: FixedTables, state: FastState, t_ns, speed, steering_angle, yaw_rate, column_torque,
@@ -510,24 +512,13 @@ def run_batch_raw(tb: FixedTables, state: FastState, t_ns, speed, steering_angle
         raise StepInputError(f"t_ns must be 1-D, got shape {t.shape}")
     n = t.shape[0]
 
-    def f64(name: str, a: object) -> np.ndarray:
-        arr = np.ascontiguousarray(a, dtype=np.float64)
-        if arr.shape != (n,):
-            raise StepInputError(f"{name} must have shape ({n},) like t_ns, got {arr.shape}")
-        return arr
-
-    def b(name: str, a: object) -> np.ndarray:
-        arr = np.ascontiguousarray(a, dtype=np.bool_)
-        if arr.shape != (n,):
-            raise StepInputError(f"{name} must have shape ({n},) like t_ns, got {arr.shape}")
-        return arr
-
     outs = np.empty((n, N_OUT), dtype=np.int64)
     status = np.empty(n, dtype=np.uint8)
     batch_kernel(tables_vector(tb), tb.coef_array(), state.x, state.P, state.aux, state.sat, t,
-                 f64("speed", speed), f64("steering_angle", steering_angle), f64("yaw_rate", yaw_rate),
-                 f64("column_torque", column_torque), f64("assist_torque", assist_torque),
-                 b("mdps_ok", mdps_ok), b("esc_ok", esc_ok), outs, status)
+                 as_f64("speed", speed, n), as_f64("steering_angle", steering_angle, n),
+                 as_f64("yaw_rate", yaw_rate, n), as_f64("column_torque", column_torque, n),
+                 as_f64("assist_torque", assist_torque, n), as_bool("mdps_ok", mdps_ok, n),
+                 as_bool("esc_ok", esc_ok, n), outs, status)
     return t, outs, status
 
 
@@ -619,6 +610,7 @@ class FixedEstimator:
         self.vehicle = vehicle
         self.dt = float(dt)
         self._c = corrections_vector(vehicle)
+        self._corrects = is_active(vehicle)
         vehicle = without_corrections(vehicle)  # both filters step on the conditioned inputs
         self.tables = tables_for(vehicle, _dt_ns(self.dt))
         self._tv = tables_vector(self.tables)
@@ -648,6 +640,8 @@ class FixedEstimator:
 
     def _condition(self, inputs: EstimatorInputs) -> EstimatorInputs:
         """The raw inputs (an EstimatorInputs or the receiver's InputSample) after the corrections."""
+        if not self._corrects:
+            return inputs
         angle, yaw, col = condition_kernel(self._c, float(inputs.steering_angle),
                                            float(getattr(inputs, "steering_rate", math.nan)),
                                            float(inputs.yaw_rate), float(inputs.column_torque))

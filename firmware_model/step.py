@@ -417,9 +417,11 @@ class ReferenceEstimator:
     def step_ints(self, t_ns: int, inputs: EstimatorInputs) -> tuple[int, ...]:
         """The raw result tuple of :func:`step_raw` for SI ``inputs``."""
         tb = self.tables
-        angle, yaw_rate, col = condition_kernel(self._c, float(inputs.steering_angle),
-                                                float(getattr(inputs, "steering_rate", math.nan)),
-                                                float(inputs.yaw_rate), float(inputs.column_torque))
+        angle, yaw_rate, col = inputs.steering_angle, inputs.yaw_rate, inputs.column_torque
+        if not self.vehicle.corrections.is_identity:
+            angle, yaw_rate, col = condition_kernel(self._c, float(angle),
+                                                    float(getattr(inputs, "steering_rate", math.nan)),
+                                                    float(yaw_rate), float(col))
         v, steer, yaw, tcol, tas, flags = quantise_inputs(tb, inputs.speed, angle, yaw_rate, col,
                                                           inputs.assist_torque)
         return step_raw(tb, self.state, int(t_ns), v, steer, yaw, tcol, tas, flags,

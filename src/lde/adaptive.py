@@ -33,7 +33,6 @@ from .grid import InputGrid, build_grid
 from .params import Vehicle
 from .profiles import Profile, load_profile
 from .signals import decode_batch
-from .step import BatchResult, run_batch
 
 
 def grid_from_frames(frames: FrameBatch, profile: Profile | str = "lde") -> InputGrid:
@@ -66,22 +65,6 @@ def compensate(grid: InputGrid, vehicle: Vehicle) -> InputGrid:
         vehicle, grid.steering_angle, grid.steering_rate, grid.yaw_rate, grid.column_torque
     )
     return replace(grid, steering_angle=angle, yaw_rate=yaw, column_torque=col)
-
-
-def estimate(grid: InputGrid, vehicle: Vehicle) -> BatchResult:
-    """The product step over the grid (it applies the vehicle's corrections itself)."""
-    return run_batch(
-        grid.t_ns,
-        grid.speed,
-        grid.steering_angle,
-        grid.yaw_rate,
-        grid.column_torque,
-        grid.assist_torque,
-        grid.mdps_ok,
-        grid.esc_ok,
-        vehicle,
-        steering_rate=grid.steering_rate,
-    )
 
 
 # --- augmented filter: lateral acceleration as a third measurement ---------------------------------

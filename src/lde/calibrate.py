@@ -152,7 +152,7 @@ class Calibration:
         A negative friction (noise on a drive with little steering) is taken as none."""
         return InputCorrections(
             friction=max(0.0, self.friction),
-            torsion_compliance=self.torsion_compliance if self.torsion_identified else 0.0,
+            torsion_compliance=self.torsion_compliance,  # 0 when not identified
             steer_offset=self.steer_offset,
             yaw_bias=self.yaw_bias,
             align_offset=self.align_offset,

@@ -30,6 +30,8 @@ replay stay bit-identical). ``lde calibrate`` identifies the values from a drive
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from numba import njit
 
@@ -64,14 +66,15 @@ def check_profile(vehicle: Vehicle, rate_signed: bool, profile_name: str = "") -
     magnitude (its sign is what the correction needs)."""
     if vehicle.corrections.friction != 0.0 and not rate_signed:
         raise ConfigError(
-            f"vehicle {vehicle.name!r} sets [corrections] steering_friction_Nm = {vehicle.corrections.friction:g}, "
-            f"but profile {profile_name or '?'!r} carries the steering rate as a magnitude: the friction's sign "
+            f"vehicle {vehicle.name!r} sets [corrections] steering_friction_Nm = "
+            f"{vehicle.corrections.friction:g}, but profile {profile_name or '?'!r} carries the steering "
+            "rate as a magnitude: the friction's sign "
             "cannot be known. Set steering_friction_Nm = 0 for this profile."
         )
 
 
 @njit(cache=True)
-def condition_kernel(c, steering_angle, steering_rate, yaw_rate, column_torque):  # pragma: no cover - compiled
+def condition_kernel(c, steering_angle, steering_rate, yaw_rate, column_torque):  # pragma: no cover
     """(steering_angle', yaw_rate', column_torque') after the corrections (module docstring)."""
     if c[C_ACTIVE] == 0.0:
         return steering_angle, yaw_rate, column_torque
@@ -95,7 +98,8 @@ def condition_arrays(
     yaw_rate: np.ndarray,
     column_torque: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(steering_angle', yaw_rate', column_torque') for arrays of step inputs (SI, same length).
+    """(steering_angle', yaw_rate', column_torque') for arrays of step inputs (SI; the same length,
+    which the callers check: :func:`lde.step.run_batch`, the fixed backend, the grid).
 
     ``steering_rate`` None means "not available": the friction term is then zero, which is an error
     when the vehicle asks for it (ConfigError). Identity corrections return the inputs themselves.
@@ -114,9 +118,6 @@ def condition_arrays(
         rate = np.ascontiguousarray(steering_rate, dtype=np.float64)
     yaw = np.ascontiguousarray(yaw_rate, dtype=np.float64)
     col = np.ascontiguousarray(column_torque, dtype=np.float64)
-    for name, a in (("steering_rate", rate), ("yaw_rate", yaw), ("column_torque", col)):
-        if a.shape != angle.shape:
-            raise ConfigError(f"{name} must have the shape of steering_angle {angle.shape}, got {a.shape}")
     out = (np.empty(n), np.empty(n), np.empty(n))
     _condition_loop(corrections_vector(vehicle), angle, rate, yaw, col, *out)
     return out
@@ -127,6 +128,4 @@ def without_corrections(vehicle: Vehicle) -> Vehicle:
     (the fixed backend's float shadow)."""
     if not is_active(vehicle):
         return vehicle
-    from dataclasses import replace
-
     return replace(vehicle, corrections=InputCorrections())

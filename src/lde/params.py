@@ -2,7 +2,8 @@
 
 A vehicle file (``src/lde/vehicles/*.toml``, or any path given with ``--vehicle FILE``) has the
 tables ``[vehicle]``, ``[steering]``, ``[tires]``, ``[overlay]``, ``[estimator]``, the optional
-``[corrections]`` (input corrections, :mod:`lde.conditioning`) and an optional ``[sim]`` table that only the simulator reads. Keys carry their unit in their name
+``[corrections]`` (input corrections, :mod:`lde.conditioning`) and an optional ``[sim]`` table
+that only the simulator reads. Keys carry their unit in their name
 (``mass_kg``, ``min_speed_kmh``); the loader converts to SI, so every attribute of these
 dataclasses is SI (kg, m, rad, N/rad, Nm/rad, m/s, Nm, Nm/s) with the unit in its docstring.
 
@@ -190,13 +191,8 @@ class InputCorrections:
     @property
     def is_identity(self) -> bool:
         """No correction at all (the inputs pass through unchanged)."""
-        return (self.friction, self.torsion_compliance, self.steer_offset, self.yaw_bias, self.align_offset) == (
-            0.0,
-            0.0,
-            0.0,
-            0.0,
-            0.0,
-        )
+        terms = (self.friction, self.torsion_compliance, self.steer_offset, self.yaw_bias, self.align_offset)
+        return all(v == 0.0 for v in terms)
 
 
 @dataclass(frozen=True)

@@ -186,7 +186,12 @@ _HYUNDAI = _ProfileDef(
         InputMap("assist_torque", "MDPS12", ("CR_Mdps_OutTq",), 1.0, note="taken as Nm; ISO sign assumed"),
         InputMap("steering_angle", "SAS11", ("SAS_Angle",), DEG, note="ISO sign assumed"),
         InputMap(
-            "steering_rate", "SAS11", ("SAS_Speed",), DEG, note="unsigned on the car: a magnitude", signed=False
+            "steering_rate",
+            "SAS11",
+            ("SAS_Speed",),
+            DEG,
+            note="unsigned on the car: a magnitude",
+            signed=False,
         ),
         InputMap("yaw_rate", "ESP12", ("YAW_RATE",), DEG, note="ISO sign assumed"),
         InputMap("lat_accel", "ESP12", ("LAT_ACCEL",), 1.0, note="ISO sign assumed"),

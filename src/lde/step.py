@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .conditioning import condition_arrays, condition_kernel, corrections_vector
+from .conditioning import condition_arrays, condition_kernel, corrections_vector, is_active
 from .errors import LdeError
 from .kalman import UPDATE_WS, predict_inplace, update_inplace
 from .model import (
@@ -383,14 +383,16 @@ def batch_kernel(
 # --- Python API -------------------------------------------------------------------------------
 
 
-def _as_f64(name: str, a: object, n: int) -> np.ndarray:
+def as_f64(name: str, a: object, n: int) -> np.ndarray:
+    """``a`` as a contiguous float64 array of shape (n,) (StepInputError otherwise)."""
     arr = np.ascontiguousarray(a, dtype=np.float64)
     if arr.shape != (n,):
         raise StepInputError(f"{name} must have shape ({n},) like t_ns, got {arr.shape}")
     return arr
 
 
-def _as_bool(name: str, a: object, n: int) -> np.ndarray:
+def as_bool(name: str, a: object, n: int) -> np.ndarray:
+    """``a`` as a contiguous bool array of shape (n,) (StepInputError otherwise)."""
     arr = np.ascontiguousarray(a, dtype=np.bool_)
     if arr.shape != (n,):
         raise StepInputError(f"{name} must have shape ({n},) like t_ns, got {arr.shape}")
@@ -434,10 +436,10 @@ def run_batch(
     n = t.shape[0]
     angle, yaw, col = condition_arrays(
         vehicle,
-        _as_f64("steering_angle", steering_angle, n),
-        None if steering_rate is None else _as_f64("steering_rate", steering_rate, n),
-        _as_f64("yaw_rate", yaw_rate, n),
-        _as_f64("column_torque", column_torque, n),
+        as_f64("steering_angle", steering_angle, n),
+        None if steering_rate is None else as_f64("steering_rate", steering_rate, n),
+        as_f64("yaw_rate", yaw_rate, n),
+        as_f64("column_torque", column_torque, n),
     )
     p = params_vector(vehicle, dt)
     st = EstimatorState.initial(p) if state is None else state
@@ -451,13 +453,13 @@ def run_batch(
         st.ints,
         new_workspace(),
         t,
-        _as_f64("speed", speed, n),
+        as_f64("speed", speed, n),
         angle,
         yaw,
         col,
-        _as_f64("assist_torque", assist_torque, n),
-        _as_bool("mdps_ok", mdps_ok, n),
-        _as_bool("esc_ok", esc_ok, n),
+        as_f64("assist_torque", assist_torque, n),
+        as_bool("mdps_ok", mdps_ok, n),
+        as_bool("esc_ok", esc_ok, n),
         outs,
         status,
     )
@@ -483,6 +485,7 @@ class Estimator:
         self.dt = float(dt)
         self._p = params_vector(vehicle, self.dt)
         self._c = corrections_vector(vehicle)
+        self._corrects = is_active(vehicle)
         self._out = np.empty(N_OUT)
         self._wk = new_workspace()
         self.state = EstimatorState.initial(self._p)
@@ -499,13 +502,10 @@ class Estimator:
         :class:`lde.signals.InputSample` (raw inputs: the vehicle's corrections are applied here).
         """
         st, o = self.state, self._out
-        angle, yaw, col = condition_kernel(
-            self._c,
-            float(inputs.steering_angle),
-            float(getattr(inputs, "steering_rate", math.nan)),
-            float(inputs.yaw_rate),
-            float(inputs.column_torque),
-        )
+        angle, yaw, col = float(inputs.steering_angle), float(inputs.yaw_rate), float(inputs.column_torque)
+        if self._corrects:
+            rate = float(getattr(inputs, "steering_rate", math.nan))
+            angle, yaw, col = condition_kernel(self._c, angle, rate, yaw, col)
         s = step_kernel(
             self._p,
             st.x,

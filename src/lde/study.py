@@ -267,7 +267,10 @@ def simulate_and_estimate(
             )
             status = np.where(ok, int(Status.VALID), 0)
         else:
-            est = adaptive.estimate(grid, vehicle)
+            from .replay import estimate
+            from .step import run_batch
+
+            est = estimate(grid, vehicle, run_batch)  # the product step (the float backend)
             t_ns, fw, mw, status = est.t_ns, est.fw, est.mw, est.status
 
     valid = (np.asarray(status) & int(Status.VALID)) != 0

@@ -69,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..params import load_vehicle as _load
     from ..profiles import load_profile
+    from ..replay import estimate
     from ..step import Status, run_batch
 
     base = load_vehicle(args.vehicle)
@@ -79,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
     if args.corrections:
         torsion = args.torsion == "yes" or (args.torsion == "auto" and profile.name != "lde")
         if not profile.steering_rate_signed:
-            print(f"note: profile {profile.name} carries the steering rate without its sign: friction not identified")
+            print(f"note: profile {profile.name} carries the steering rate without its sign: "
+                  "friction not identified")
         cal = calibrate(drive, base, identify_torsion=torsion, identify_friction=profile.steering_rate_signed)
     else:
         # tires only, for the paper's step: no torsion model, so fit effective values
@@ -100,8 +102,7 @@ def run(args: argparse.Namespace) -> int:
 
     # self-check on the same drive: it has no disturbance, so the estimate should be ~0
     def rms(vehicle):  # (RMS Fw [N], RMS Mw [Nm]) over the valid steps
-        r = run_batch(grid.t_ns, grid.speed, grid.steering_angle, grid.yaw_rate, grid.column_torque,
-                      grid.assist_torque, grid.mdps_ok, grid.esc_ok, vehicle, steering_rate=grid.steering_rate)
+        r = estimate(grid, vehicle, run_batch)
         ok = (r.status & Status.VALID) != 0
         if not ok.any():
             return float("nan"), float("nan")
