@@ -42,8 +42,16 @@ from lde.step import Estimator, EstimatorInputs
 from lde.step import run_batch as float_run_batch
 from lde.units import STEP_NS
 
-FIELDS = ("t_ns", "speed", "steering_angle", "yaw_rate", "column_torque", "assist_torque", "mdps_ok",
-          "esc_ok")
+FIELDS = (
+    "t_ns",
+    "speed",
+    "steering_angle",
+    "yaw_rate",
+    "column_torque",
+    "assist_torque",
+    "mdps_ok",
+    "esc_ok",
+)
 
 
 def qformat_rows(vehicle) -> list[tuple[str, str, str, str, str]]:
@@ -56,26 +64,47 @@ def qformat_rows(vehicle) -> list[tuple[str, str, str, str, str]]:
     units = ("rad", "rad/s", "N", "Nm")
     for i, e in enumerate(tb.sigma_exp):
         q = q32(tb.f_state - e)
-        rows.append((f"state {names[i]} (X = x / 2^{e}, Q15.16)", units[i], str(q), f"{q.lsb:.3g}",
-                     f"+-{q.real_max:.4g}"))
+        rows.append(
+            (
+                f"state {names[i]} (X = x / 2^{e}, Q15.16)",
+                units[i],
+                str(q),
+                f"{q.lsb:.3g}",
+                f"+-{q.real_max:.4g}",
+            )
+        )
     qt = q32(tb.f_state - tb.sigma_t_exp)
-    rows.append((f"T_align measurement / output (/ 2^{tb.sigma_t_exp})", "Nm", str(qt), f"{qt.lsb:.3g}",
-                 f"+-{qt.real_max:.4g}"))
+    rows.append(
+        (
+            f"T_align measurement / output (/ 2^{tb.sigma_t_exp})",
+            "Nm",
+            str(qt),
+            f"{qt.lsb:.3g}",
+            f"+-{qt.real_max:.4g}",
+        )
+    )
     qy = q32(tb.yaw_input_frac())
-    rows.append(("yaw-rate input (= state r's format)", "rad/s", str(qy), f"{qy.lsb:.3g}",
-                 f"+-{qy.real_max:.4g}"))
-    for label, unit, f in (("speed input", "m/s", tb.f_speed),
-                           ("steering-wheel angle input", "rad", tb.f_steer),
-                           ("column / assist torque input", "Nm", tb.f_torque),
-                           ("w = 1/vx", "s/m", tb.f_w)):
+    rows.append(
+        ("yaw-rate input (= state r's format)", "rad/s", str(qy), f"{qy.lsb:.3g}", f"+-{qy.real_max:.4g}")
+    )
+    for label, unit, f in (
+        ("speed input", "m/s", tb.f_speed),
+        ("steering-wheel angle input", "rad", tb.f_steer),
+        ("column / assist torque input", "Nm", tb.f_torque),
+        ("w = 1/vx", "s/m", tb.f_w),
+    ):
         q = q32(f)
         rows.append((label, unit, str(q), f"{q.lsb:.3g}", f"+-{q.real_max:.4g}"))
     q = q32(tb.f_cov)
     rows.append(("covariance Pn_ij = P_ij / (s_i s_j)", "-", str(q), f"{q.lsb:.3g}", f"+-{q.real_max:.4g}"))
     q = q32(tb.f_gain)
     rows.append(("Kalman gain (normalised)", "-", str(q), f"{q.lsb:.3g}", f"+-{q.real_max:.4g}"))
-    for label, f in (("Phi_n coefficients", tb.f_phi), ("E_n (per rad steering wheel)", tb.f_e),
-                     ("H_n aligning-torque row", tb.f_h), ("D_n (per rad steering wheel)", tb.f_d)):
+    for label, f in (
+        ("Phi_n coefficients", tb.f_phi),
+        ("E_n (per rad steering wheel)", tb.f_e),
+        ("H_n aligning-torque row", tb.f_h),
+        ("D_n (per rad steering wheel)", tb.f_d),
+    ):
         q = q32(f)
         rows.append((label, "-", str(q), f"{q.lsb:.3g}", f"+-{q.real_max:.4g}"))
     rows.append(("innovations, ph = Pn h^T, T = Phi_n Pn", "-", "Q15.16", f"{2**-16:.3g}", "+-32768"))
@@ -106,14 +135,21 @@ def accuracy_rows(vehicle, runs):
         ss = run_batch_steady_state(*(getattr(g, f) for f in FIELDS), vehicle)
         dfw, dmw = np.abs(fx.fw - fl.fw), np.abs(fx.mw - fl.mw)
         sfw, smw = np.abs(ss.fw - fl.fw), np.abs(ss.mw - fl.mw)
-        rows.append(dict(
-            scenario=name, steps=len(fx), fixed_dfw_max=float(dfw.max()), fixed_dmw_max=float(dmw.max()),
-            fixed_dfw_rms=float(np.sqrt(np.mean(dfw**2))),
-            shadow_flags=int(np.count_nonzero(fx.status & 64)),
-            ss_dfw_max=float(sfw.max()), ss_dmw_max=float(smw.max()),
-            ss_dfw_max_after_1s=float(sfw[n1:].max()), ss_dmw_max_after_1s=float(smw[n1:].max()),
-            ss_steps_over_bound=int(np.count_nonzero((sfw > 5.0) | (smw > 2.0))),
-        ))
+        rows.append(
+            dict(
+                scenario=name,
+                steps=len(fx),
+                fixed_dfw_max=float(dfw.max()),
+                fixed_dmw_max=float(dmw.max()),
+                fixed_dfw_rms=float(np.sqrt(np.mean(dfw**2))),
+                shadow_flags=int(np.count_nonzero(fx.status & 64)),
+                ss_dfw_max=float(sfw.max()),
+                ss_dmw_max=float(smw.max()),
+                ss_dfw_max_after_1s=float(sfw[n1:].max()),
+                ss_dmw_max_after_1s=float(smw[n1:].max()),
+                ss_steps_over_bound=int(np.count_nonzero((sfw > 5.0) | (smw > 2.0))),
+            )
+        )
     return rows
 
 
@@ -148,17 +184,30 @@ def bench_batch(vehicle, inp, repeat: int) -> dict[str, dict]:
             fn()
             ts.append(time.perf_counter() - t0)
         per = [t / n * 1e9 for t in ts]
-        out[name] = dict(steps=n, ns_per_step_median=statistics.median(per), ns_per_step_min=min(per),
-                         ns_per_step_max=max(per), hour_s=statistics.median(per) * 923_077 * 1e-9)
+        out[name] = dict(
+            steps=n,
+            ns_per_step_median=statistics.median(per),
+            ns_per_step_min=min(per),
+            ns_per_step_max=max(per),
+            hour_s=statistics.median(per) * 923_077 * 1e-9,
+        )
     return out
 
 
 def bench_live(vehicle, inp, ref_steps: int) -> dict[str, dict]:
     n = len(inp["t_ns"])
-    rows = [EstimatorInputs(float(inp["speed"][k]), float(inp["steering_angle"][k]),
-                            float(inp["yaw_rate"][k]), float(inp["column_torque"][k]),
-                            float(inp["assist_torque"][k]), bool(inp["mdps_ok"][k]), bool(inp["esc_ok"][k]))
-            for k in range(n)]
+    rows = [
+        EstimatorInputs(
+            float(inp["speed"][k]),
+            float(inp["steering_angle"][k]),
+            float(inp["yaw_rate"][k]),
+            float(inp["column_torque"][k]),
+            float(inp["assist_torque"][k]),
+            bool(inp["mdps_ok"][k]),
+            bool(inp["esc_ok"][k]),
+        )
+        for k in range(n)
+    ]
     t = [int(x) for x in inp["t_ns"]]
     cases = {
         "float (lde.step.Estimator.step)": (Estimator(vehicle), n),
@@ -177,8 +226,12 @@ def bench_live(vehicle, inp, ref_steps: int) -> dict[str, dict]:
             t0 = pc()
             est.step(t[k], rows[k])
             dts[k] = pc() - t0
-        out[name] = dict(steps=m, ns_median=float(np.median(dts)), ns_p90=float(np.percentile(dts, 90)),
-                         ns_p99=float(np.percentile(dts, 99)))
+        out[name] = dict(
+            steps=m,
+            ns_median=float(np.median(dts)),
+            ns_p90=float(np.percentile(dts, 90)),
+            ns_p99=float(np.percentile(dts, 99)),
+        )
     return out
 
 
@@ -194,8 +247,13 @@ def main(argv: list[str] | None = None) -> int:
     from vcan_sim.scenarios import scenario_list
 
     names = [n for n, _ in scenario_list()]
-    report: dict = dict(machine=dict(python=platform.python_version(),
-                                     cpu=platform.processor() or platform.machine(), cpus=os.cpu_count()))
+    report: dict = dict(
+        machine=dict(
+            python=platform.python_version(),
+            cpu=platform.processor() or platform.machine(),
+            cpus=os.cpu_count(),
+        )
+    )
     print("Q formats (int32 storage; signed QI.F: I integer bits, F fractional bits)")
     for row in qformat_rows(vehicle):
         print(f"  {row[0]:55s} {row[1]:6s} {row[2]:8s} lsb {row[3]:>9s}  range {row[4]}")
@@ -204,28 +262,36 @@ def main(argv: list[str] | None = None) -> int:
     runs = scenario_grids(vehicle, names)
     acc = accuracy_rows(vehicle, runs)
     report["accuracy"] = acc
-    print(f"  {'scenario':16s} {'steps':>6s} {'fix dFw N':>10s} {'fix dMw Nm':>10s} {'shadow':>6s} "
-          f"{'ss dFw N':>9s} {'ss dMw Nm':>9s} {'ss dFw>1s':>9s} {'ss dMw>1s':>9s} {'ss over':>7s}")
+    print(
+        f"  {'scenario':16s} {'steps':>6s} {'fix dFw N':>10s} {'fix dMw Nm':>10s} {'shadow':>6s} "
+        f"{'ss dFw N':>9s} {'ss dMw Nm':>9s} {'ss dFw>1s':>9s} {'ss dMw>1s':>9s} {'ss over':>7s}"
+    )
     for r in acc:
-        print(f"  {r['scenario']:16s} {r['steps']:6d} {r['fixed_dfw_max']:10.3f} "
-              f"{r['fixed_dmw_max']:10.3f} "
-              f"{r['shadow_flags']:6d} {r['ss_dfw_max']:9.1f} {r['ss_dmw_max']:9.1f} "
-              f"{r['ss_dfw_max_after_1s']:9.2f} {r['ss_dmw_max_after_1s']:9.2f} "
-              f"{r['ss_steps_over_bound']:7d}")
+        print(
+            f"  {r['scenario']:16s} {r['steps']:6d} {r['fixed_dfw_max']:10.3f} "
+            f"{r['fixed_dmw_max']:10.3f} "
+            f"{r['shadow_flags']:6d} {r['ss_dfw_max']:9.1f} {r['ss_dmw_max']:9.1f} "
+            f"{r['ss_dfw_max_after_1s']:9.2f} {r['ss_dmw_max_after_1s']:9.2f} "
+            f"{r['ss_steps_over_bound']:7d}"
+        )
     print(f"  (simulation + replays {time.perf_counter() - t0:.1f} s)")
     inp = concat_inputs(runs, args.steps)
     print(f"\nper-step cost, {len(inp['t_ns'])} steps (scenario grids concatenated), same run")
     batch = bench_batch(vehicle, inp, args.repeat)
     report["batch"] = batch
     for name, r in batch.items():
-        print(f"  batch {name:34s} median {r['ns_per_step_median']:7.0f} ns/step "
-              f"(min {r['ns_per_step_min']:.0f}, max {r['ns_per_step_max']:.0f}); "
-              f"one hour of steps {r['hour_s']:.2f} s")
+        print(
+            f"  batch {name:34s} median {r['ns_per_step_median']:7.0f} ns/step "
+            f"(min {r['ns_per_step_min']:.0f}, max {r['ns_per_step_max']:.0f}); "
+            f"one hour of steps {r['hour_s']:.2f} s"
+        )
     live = bench_live(vehicle, inp, args.ref_steps)
     report["live"] = live
     for name, r in live.items():
-        print(f"  live  {name:40s} median {r['ns_median']:8.0f} ns/call  p90 {r['ns_p90']:.0f}  "
-              f"p99 {r['ns_p99']:.0f}  ({r['steps']} steps)")
+        print(
+            f"  live  {name:40s} median {r['ns_median']:8.0f} ns/call  p90 {r['ns_p90']:.0f}  "
+            f"p99 {r['ns_p99']:.0f}  ({r['steps']} steps)"
+        )
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(report, fh, indent=1)

@@ -92,9 +92,29 @@ INT64_MIN = -(2**63)
 INT64_MAX = 2**63 - 1
 
 # --- constants vector layout ------------------------------------------------------------------
-(T_F_STATE, T_F_COV, T_F_SPEED, T_F_STEER, T_F_TORQUE, T_F_W, T_F_GAIN, T_F_PHI, T_F_E, T_F_H, T_F_D,
- T_V_MIN, T_V_MAX, T_N_RAW, T_N_FRAC, T_R0, T_R1, T_QD0, T_P00, T_CONV_NS, T_F_YAW) = (
-    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 21, 25, 26)
+(
+    T_F_STATE,
+    T_F_COV,
+    T_F_SPEED,
+    T_F_STEER,
+    T_F_TORQUE,
+    T_F_W,
+    T_F_GAIN,
+    T_F_PHI,
+    T_F_E,
+    T_F_H,
+    T_F_D,
+    T_V_MIN,
+    T_V_MAX,
+    T_N_RAW,
+    T_N_FRAC,
+    T_R0,
+    T_R1,
+    T_QD0,
+    T_P00,
+    T_CONV_NS,
+    T_F_YAW,
+) = (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 21, 25, 26)
 N_T = 27
 
 # --- aux state slots --------------------------------------------------------------------------
@@ -118,8 +138,8 @@ def tables_vector(tb: FixedTables) -> np.ndarray:
     tv[T_V_MIN], tv[T_V_MAX] = tb.v_min_raw, tb.v_max_raw
     tv[T_N_RAW], tv[T_N_FRAC] = tb.n_over_st
     tv[T_R0], tv[T_R1] = tb.r_n
-    tv[T_QD0:T_QD0 + 4] = tb.qd_n
-    tv[T_P00:T_P00 + 4] = tb.p0_n
+    tv[T_QD0 : T_QD0 + 4] = tb.qd_n
+    tv[T_P00 : T_P00 + 4] = tb.p0_n
     tv[T_CONV_NS] = tb.converge_ns
     tv[T_F_YAW] = tb.yaw_input_frac()
     return tv
@@ -289,8 +309,9 @@ def _predict(tv, x, P, sat, c, delta, T, rk, ra):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def step_kernel(tv, coef, x, P, aux, sat, ws, t_ns, v, steer, yaw, tcol, tas, in_flags, mdps_ok, esc_ok,
-                out):  # pragma: no cover - compiled
+def step_kernel(
+    tv, coef, x, P, aux, sat, ws, t_ns, v, steer, yaw, tcol, tas, in_flags, mdps_ok, esc_ok, out
+):  # pragma: no cover - compiled
     """The twin of :func:`firmware_model.step.step_raw`; fills ``out`` (O_* slots), returns status.
     ``ws`` is an int64 scratch (4, 16)."""
     aux[A_STEPS] += 1
@@ -345,8 +366,9 @@ def step_kernel(tv, coef, x, P, aux, sat, ws, t_ns, v, steer, yaw, tcol, tas, in
     dterm = shift_round(c[C_D1] * delta, tv[T_F_D] + tv[T_F_STEER] - tv[T_F_STATE])
     if mdps_valid:
         tsum = sat32(sat, tcol + tas, S_IN_TORQUE)
-        z_t = sat32(sat, shift_round(tv[T_N_RAW] * tsum, tv[T_N_FRAC] + tv[T_F_TORQUE] - tv[T_F_STATE]),
-                    S_INNOV)
+        z_t = sat32(
+            sat, shift_round(tv[T_N_RAW] * tsum, tv[T_N_FRAC] + tv[T_F_TORQUE] - tv[T_F_STATE]), S_INNOV
+        )
         _scalar_update(tv, x, P, sat, c[C_H10], c[C_H11], False, z_t, dterm, tv[T_R1], ph, g)
     aux[A_UPDATES] += 1
 
@@ -420,24 +442,58 @@ def quantise_kernel(tv, speed, steer, yaw, tcol, tas):  # pragma: no cover - com
 
 
 @njit(cache=True)
-def step_si_kernel(tv, coef, x, P, aux, sat, ws, t_ns, speed, steering_angle, yaw_rate, column_torque,
-                   assist_torque, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
+def step_si_kernel(
+    tv,
+    coef,
+    x,
+    P,
+    aux,
+    sat,
+    ws,
+    t_ns,
+    speed,
+    steering_angle,
+    yaw_rate,
+    column_torque,
+    assist_torque,
+    mdps_ok,
+    esc_ok,
+    out,
+):  # pragma: no cover - compiled
     """Quantise SI inputs and step (one compiled call per live step); returns the status."""
     v, s, y, c, a, flags = quantise_kernel(tv, speed, steering_angle, yaw_rate, column_torque, assist_torque)
     return step_kernel(tv, coef, x, P, aux, sat, ws, t_ns, v, s, y, c, a, flags, mdps_ok, esc_ok, out)
 
 
 @njit(cache=True, nogil=True)  # nogil: the float shadow runs beside it in a second thread
-def batch_kernel(tv, coef, x, P, aux, sat, t_ns, speed, steering_angle, yaw_rate, column_torque,
-                 assist_torque, mdps_ok, esc_ok, outs, status):  # pragma: no cover - compiled
+def batch_kernel(
+    tv,
+    coef,
+    x,
+    P,
+    aux,
+    sat,
+    t_ns,
+    speed,
+    steering_angle,
+    yaw_rate,
+    column_torque,
+    assist_torque,
+    mdps_ok,
+    esc_ok,
+    outs,
+    status,
+):  # pragma: no cover - compiled
     """Quantise and step every row; ``outs`` (n, N_OUT) int64 raw, ``status`` (n,) uint8."""
     ws = np.zeros((4, 16), dtype=np.int64)
     out = np.zeros(N_OUT, dtype=np.int64)
     for k in range(t_ns.shape[0]):
-        v, s, y, c, a, flags = quantise_kernel(tv, speed[k], steering_angle[k], yaw_rate[k],
-                                               column_torque[k], assist_torque[k])
-        st = step_kernel(tv, coef, x, P, aux, sat, ws, t_ns[k], v, s, y, c, a, flags, mdps_ok[k],
-                         esc_ok[k], out)
+        v, s, y, c, a, flags = quantise_kernel(
+            tv, speed[k], steering_angle[k], yaw_rate[k], column_torque[k], assist_torque[k]
+        )
+        st = step_kernel(
+            tv, coef, x, P, aux, sat, ws, t_ns[k], v, s, y, c, a, flags, mdps_ok[k], esc_ok[k], out
+        )
         for j in range(N_OUT):
             outs[k, j] = out[j]
         status[k] = st
@@ -470,8 +526,12 @@ class FastState:
 
     @classmethod
     def initial(cls, tv: np.ndarray) -> FastState:
-        st = cls(np.zeros(4, np.int64), np.zeros(16, np.int64), np.zeros(N_AUX, np.int64),
-                 np.zeros(N_SAT, np.int64))
+        st = cls(
+            np.zeros(4, np.int64),
+            np.zeros(16, np.int64),
+            np.zeros(N_AUX, np.int64),
+            np.zeros(N_SAT, np.int64),
+        )
         reset_kernel(tv, st.x, st.P, st.aux, st.sat)
         return st
 
@@ -486,8 +546,13 @@ def _dt_ns(dt: float) -> int:
 
 def _to_si(tb: FixedTables, outs: np.ndarray) -> tuple[np.ndarray, ...]:
     """Raw normalised outputs -> SI float arrays (beta, r, Fw, Mw, T_align): exact power-of-2 scalings."""
-    return (outs[:, O_XB] * tb.state_lsb(0), outs[:, O_XR] * tb.state_lsb(1), outs[:, O_XF] * tb.state_lsb(2),
-            outs[:, O_XM] * tb.state_lsb(3), outs[:, O_TA] * tb.t_align_lsb())
+    return (
+        outs[:, O_XB] * tb.state_lsb(0),
+        outs[:, O_XR] * tb.state_lsb(1),
+        outs[:, O_XF] * tb.state_lsb(2),
+        outs[:, O_XM] * tb.state_lsb(3),
+        outs[:, O_TA] * tb.t_align_lsb(),
+    )
 
 
 def _conditioned(vehicle: Vehicle, t_ns, steering_angle, steering_rate, yaw_rate, column_torque):
@@ -504,8 +569,18 @@ def _conditioned(vehicle: Vehicle, t_ns, steering_angle, steering_rate, yaw_rate
     )
 
 
-def run_batch_raw(tb: FixedTables, state: FastState, t_ns, speed, steering_angle, yaw_rate, column_torque,
-                  assist_torque, mdps_ok, esc_ok) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def run_batch_raw(
+    tb: FixedTables,
+    state: FastState,
+    t_ns,
+    speed,
+    steering_angle,
+    yaw_rate,
+    column_torque,
+    assist_torque,
+    mdps_ok,
+    esc_ok,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The compiled loop on checked arrays: (t_ns int64, outs int64 (n, 5) raw, status uint8)."""
     t = np.ascontiguousarray(t_ns, dtype=np.int64)
     if t.ndim != 1:
@@ -514,11 +589,24 @@ def run_batch_raw(tb: FixedTables, state: FastState, t_ns, speed, steering_angle
 
     outs = np.empty((n, N_OUT), dtype=np.int64)
     status = np.empty(n, dtype=np.uint8)
-    batch_kernel(tables_vector(tb), tb.coef_array(), state.x, state.P, state.aux, state.sat, t,
-                 as_f64("speed", speed, n), as_f64("steering_angle", steering_angle, n),
-                 as_f64("yaw_rate", yaw_rate, n), as_f64("column_torque", column_torque, n),
-                 as_f64("assist_torque", assist_torque, n), as_bool("mdps_ok", mdps_ok, n),
-                 as_bool("esc_ok", esc_ok, n), outs, status)
+    batch_kernel(
+        tables_vector(tb),
+        tb.coef_array(),
+        state.x,
+        state.P,
+        state.aux,
+        state.sat,
+        t,
+        as_f64("speed", speed, n),
+        as_f64("steering_angle", steering_angle, n),
+        as_f64("yaw_rate", yaw_rate, n),
+        as_f64("column_torque", column_torque, n),
+        as_f64("assist_torque", assist_torque, n),
+        as_bool("mdps_ok", mdps_ok, n),
+        as_bool("esc_ok", esc_ok, n),
+        outs,
+        status,
+    )
     return t, outs, status
 
 
@@ -552,8 +640,9 @@ def run_batch(
     term) are applied once, in float before the quantisation, and both filters see the same
     conditioned inputs.
     """
-    steering_angle, yaw_rate, column_torque = _conditioned(vehicle, t_ns, steering_angle, steering_rate,
-                                                          yaw_rate, column_torque)
+    steering_angle, yaw_rate, column_torque = _conditioned(
+        vehicle, t_ns, steering_angle, steering_rate, yaw_rate, column_torque
+    )
     vehicle = without_corrections(vehicle)
     tb = tables_for(vehicle, _dt_ns(dt))
     st = FastState.initial(tables_vector(tb)) if state is None else state
@@ -569,17 +658,30 @@ def run_batch(
 
         def _float() -> None:
             try:
-                box.append(float_run_batch(t_ns, speed, steering_angle, yaw_rate, column_torque,
-                                           assist_torque, mdps_ok, esc_ok, vehicle,
-                                           state=st.shadow_state, dt=dt))
+                box.append(
+                    float_run_batch(
+                        t_ns,
+                        speed,
+                        steering_angle,
+                        yaw_rate,
+                        column_torque,
+                        assist_torque,
+                        mdps_ok,
+                        esc_ok,
+                        vehicle,
+                        state=st.shadow_state,
+                        dt=dt,
+                    )
+                )
             except BaseException as exc:  # noqa: BLE001 - re-raised in the calling thread below
                 errs.append(exc)
 
         shadow_thread = threading.Thread(target=_float, name="lde-float-shadow")
         shadow_thread.start()
     try:
-        t, outs, status = run_batch_raw(tb, st, t_ns, speed, steering_angle, yaw_rate, column_torque,
-                                        assist_torque, mdps_ok, esc_ok)
+        t, outs, status = run_batch_raw(
+            tb, st, t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok, esc_ok
+        )
     finally:
         if shadow_thread is not None:
             shadow_thread.join()
@@ -642,18 +744,43 @@ class FixedEstimator:
         """The raw inputs (an EstimatorInputs or the receiver's InputSample) after the corrections."""
         if not self._corrects:
             return inputs
-        angle, yaw, col = condition_kernel(self._c, float(inputs.steering_angle),
-                                           float(getattr(inputs, "steering_rate", math.nan)),
-                                           float(inputs.yaw_rate), float(inputs.column_torque))
-        return EstimatorInputs(float(inputs.speed), angle, yaw, col, float(inputs.assist_torque),
-                               bool(inputs.mdps_ok), bool(inputs.esc_ok))
+        angle, yaw, col = condition_kernel(
+            self._c,
+            float(inputs.steering_angle),
+            float(getattr(inputs, "steering_rate", math.nan)),
+            float(inputs.yaw_rate),
+            float(inputs.column_torque),
+        )
+        return EstimatorInputs(
+            float(inputs.speed),
+            angle,
+            yaw,
+            col,
+            float(inputs.assist_torque),
+            bool(inputs.mdps_ok),
+            bool(inputs.esc_ok),
+        )
 
     def _step_ints(self, t_ns: int, inputs: EstimatorInputs) -> tuple[int, ...]:
         st = self.state
-        status = step_si_kernel(self._tv, self._coef, st.x, st.P, st.aux, st.sat, self._ws, np.int64(t_ns),
-                                float(inputs.speed), float(inputs.steering_angle), float(inputs.yaw_rate),
-                                float(inputs.column_torque), float(inputs.assist_torque),
-                                bool(inputs.mdps_ok), bool(inputs.esc_ok), self._out)
+        status = step_si_kernel(
+            self._tv,
+            self._coef,
+            st.x,
+            st.P,
+            st.aux,
+            st.sat,
+            self._ws,
+            np.int64(t_ns),
+            float(inputs.speed),
+            float(inputs.steering_angle),
+            float(inputs.yaw_rate),
+            float(inputs.column_torque),
+            float(inputs.assist_torque),
+            bool(inputs.mdps_ok),
+            bool(inputs.esc_ok),
+            self._out,
+        )
         o = self._out
         return (int(status), int(o[0]), int(o[1]), int(o[2]), int(o[3]), int(o[4]))
 
@@ -663,20 +790,49 @@ class FixedEstimator:
         inputs = self._condition(inputs)
         s, xb, xr, xf, xm, ta = self._step_ints(t_ns, inputs)
         tb = self.tables
-        out = EstimatorOutput(int(t_ns), xf * tb.state_lsb(2), xm * tb.state_lsb(3), ta * tb.t_align_lsb(),
-                              xb * tb.state_lsb(0), xr * tb.state_lsb(1), Status(s))
+        out = EstimatorOutput(
+            int(t_ns),
+            xf * tb.state_lsb(2),
+            xm * tb.state_lsb(3),
+            ta * tb.t_align_lsb(),
+            xb * tb.state_lsb(0),
+            xr * tb.state_lsb(1),
+            Status(s),
+        )
         if self._float is None or self.shadow is None:
             return out
         status = self.shadow.check(out, self._float.step(t_ns, inputs))
         return replace(out, status=status)
 
-    def run_batch(self, t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok,
-                  esc_ok, steering_rate=None) -> BatchResult:
+    def run_batch(
+        self,
+        t_ns,
+        speed,
+        steering_angle,
+        yaw_rate,
+        column_torque,
+        assist_torque,
+        mdps_ok,
+        esc_ok,
+        steering_rate=None,
+    ) -> BatchResult:
         """:func:`run_batch` continuing from (and advancing) this estimator's state, the float
         shadow's included (``step`` and ``run_batch`` calls can be mixed)."""
-        return run_batch(t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok, esc_ok,
-                         self.vehicle, state=self.state, dt=self.dt, shadow=self._float is not None,
-                         steering_rate=steering_rate)
+        return run_batch(
+            t_ns,
+            speed,
+            steering_angle,
+            yaw_rate,
+            column_torque,
+            assist_torque,
+            mdps_ok,
+            esc_ok,
+            self.vehicle,
+            state=self.state,
+            dt=self.dt,
+            shadow=self._float is not None,
+            steering_rate=steering_rate,
+        )
 
     def saturations(self) -> dict[str, int]:
         return self.state.saturations()

@@ -28,8 +28,9 @@ from .tables import tables_for
 
 
 @njit(cache=True)
-def _ss_kernel(p, speeds, gains, min_speed, t_ns, speed, steer, yaw, tcol, tas, mdps_ok, esc_ok,
-               outs):  # pragma: no cover - compiled
+def _ss_kernel(
+    p, speeds, gains, min_speed, t_ns, speed, steer, yaw, tcol, tas, mdps_ok, esc_ok, outs
+):  # pragma: no cover - compiled
     x = np.zeros(4)
     Phi = np.zeros((4, 4))
     E = np.zeros(4)
@@ -80,8 +81,19 @@ def _ss_kernel(p, speeds, gains, min_speed, t_ns, speed, steer, yaw, tcol, tas, 
         x[:] = xn
 
 
-def run_batch_steady_state(t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok,
-                           esc_ok, vehicle: Vehicle, *, dt: float = STEP_S) -> BatchResult:
+def run_batch_steady_state(
+    t_ns,
+    speed,
+    steering_angle,
+    yaw_rate,
+    column_torque,
+    assist_torque,
+    mdps_ok,
+    esc_ok,
+    vehicle: Vehicle,
+    *,
+    dt: float = STEP_S,
+) -> BatchResult:
     """The steady-state-gain filter over a batch (float); ``status`` is all zeros (not computed)."""
     tb = tables_for(vehicle, int(round(dt * 1e9)))
     ss = tb.raw["ss_table"]
@@ -92,9 +104,28 @@ def run_batch_steady_state(t_ns, speed, steering_angle, yaw_rate, column_torque,
     n = t.shape[0]
     outs = np.zeros((n, 3))
     f = np.ascontiguousarray
-    _ss_kernel(p, speeds, gains, vehicle.estimator.min_speed, t, f(speed, np.float64),
-               f(steering_angle, np.float64), f(yaw_rate, np.float64), f(column_torque, np.float64),
-               f(assist_torque, np.float64), f(mdps_ok, np.bool_), f(esc_ok, np.bool_), outs)
+    _ss_kernel(
+        p,
+        speeds,
+        gains,
+        vehicle.estimator.min_speed,
+        t,
+        f(speed, np.float64),
+        f(steering_angle, np.float64),
+        f(yaw_rate, np.float64),
+        f(column_torque, np.float64),
+        f(assist_torque, np.float64),
+        f(mdps_ok, np.bool_),
+        f(esc_ok, np.bool_),
+        outs,
+    )
     nan = np.full(n, np.nan)
-    return BatchResult(t.copy(), outs[:, 0].copy(), outs[:, 1].copy(), outs[:, 2].copy(), nan, nan.copy(),
-                       np.zeros(n, dtype=np.uint8))
+    return BatchResult(
+        t.copy(),
+        outs[:, 0].copy(),
+        outs[:, 1].copy(),
+        outs[:, 2].copy(),
+        nan,
+        nan.copy(),
+        np.zeros(n, dtype=np.uint8),
+    )

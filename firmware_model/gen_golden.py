@@ -40,9 +40,20 @@ def golden_inputs(seed: int = 20261121) -> list[tuple[int, EstimatorInputs]]:
         for _ in range(n):
             k = len(seq)
             nz = rng.normal(size=3) if noise else np.zeros(3)
-            seq.append((t0 + k * STEP_NS, EstimatorInputs(
-                float(speed), float(steer + 0.01 * DEG * nz[0]), float(yaw + 0.05 * DEG * nz[1]),
-                float(tcol + 0.05 * nz[2]), float(tas), mdps, esc)))
+            seq.append(
+                (
+                    t0 + k * STEP_NS,
+                    EstimatorInputs(
+                        float(speed),
+                        float(steer + 0.01 * DEG * nz[0]),
+                        float(yaw + 0.05 * DEG * nz[1]),
+                        float(tcol + 0.05 * nz[2]),
+                        float(tas),
+                        mdps,
+                        esc,
+                    ),
+                )
+            )
 
     add(10, 20 * KMH, 0.0, 0.0, 0.0, 0.0)  # below min speed: held
     add(270, 100 * KMH, 1 * DEG, 0.2 * DEG, 0.3, 0.9)  # start-up (converged after 1 s: VALID)
@@ -72,8 +83,18 @@ def generate() -> dict[str, Any]:
     ref = ReferenceEstimator(vehicle, tb)
     rows_in, rows_out = [], []
     for t_ns, u in golden_inputs():
-        rows_in.append([t_ns, _hex(u.speed), _hex(u.steering_angle), _hex(u.yaw_rate), _hex(u.column_torque),
-                        _hex(u.assist_torque), int(u.mdps_ok), int(u.esc_ok)])
+        rows_in.append(
+            [
+                t_ns,
+                _hex(u.speed),
+                _hex(u.steering_angle),
+                _hex(u.yaw_rate),
+                _hex(u.column_torque),
+                _hex(u.assist_torque),
+                int(u.mdps_ok),
+                int(u.esc_ok),
+            ]
+        )
         rows_out.append(list(ref.step_ints(t_ns, u)))
     s = ref.state
     return {

@@ -225,8 +225,9 @@ def generate(vehicle: Vehicle, dt_ns: int = STEP_NS) -> dict[str, Any]:
             # term j is c_j * w^j: raw Q(f) times Q(f_w) (j >= 1) -> shift right to Q(f_c)
             shift = (f + (f_w if j > 0 else 0) - f_c) if raw != 0 else 0
             terms.append([raw, f, shift])
-        coefs.append({"name": name, "group": COEF_GROUP[name], "n_frac": f_c, "terms": terms,
-                      "real": list(c)})
+        coefs.append(
+            {"name": name, "group": COEF_GROUP[name], "n_frac": f_c, "terms": terms, "real": list(c)}
+        )
 
     # measurement noise, process noise, initial covariance, in normalised Q15.16
     q_cov = QFormat(32, F_COV)
@@ -265,8 +266,16 @@ def generate(vehicle: Vehicle, dt_ns: int = STEP_NS) -> dict[str, Any]:
     physical = []
     for i, e in enumerate(e_state):
         fmt = QFormat(32, F_STATE - e)
-        physical.append({"state": STATE_NAMES[i], "unit": STATE_UNITS[i], "sigma_exp": e, "q": str(fmt),
-                         "lsb": fmt.lsb, "max": fmt.real_max})
+        physical.append(
+            {
+                "state": STATE_NAMES[i],
+                "unit": STATE_UNITS[i],
+                "sigma_exp": e,
+                "q": str(fmt),
+                "lsb": fmt.lsb,
+                "max": fmt.real_max,
+            }
+        )
 
     return {
         "schema": GENERATOR_VERSION,
@@ -274,8 +283,14 @@ def generate(vehicle: Vehicle, dt_ns: int = STEP_NS) -> dict[str, Any]:
         "vehicle": vehicle.name,
         "dt_ns": dt_ns,
         "formats": {
-            "state": F_STATE, "cov": F_COV, "speed": F_SPEED, "steer": F_STEER, "torque": F_TORQUE,
-            "w": f_w, "gain": f_gain, "coef_groups": group_frac,
+            "state": F_STATE,
+            "cov": F_COV,
+            "speed": F_SPEED,
+            "steer": F_STEER,
+            "torque": F_TORQUE,
+            "w": f_w,
+            "gain": f_gain,
+            "coef_groups": group_frac,
         },
         "sigma_exp": {"state": e_state, "t_align": e_t},
         "state_formats": physical,
@@ -306,11 +321,13 @@ def dumps(tables: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m firmware_model.gen_tables",
-                                 description=(__doc__ or "").split("\n")[0])
+    ap = argparse.ArgumentParser(
+        prog="python -m firmware_model.gen_tables", description=(__doc__ or "").split("\n")[0]
+    )
     ap.add_argument("--vehicle", default="reference", help="shipped vehicle name or TOML file")
-    ap.add_argument("--out", type=Path, default=None,
-                    help="output file (default: firmware_model/tables_<name>.json)")
+    ap.add_argument(
+        "--out", type=Path, default=None, help="output file (default: firmware_model/tables_<name>.json)"
+    )
     ap.add_argument("--check", action="store_true", help="exit 1 if the file on disk is stale")
     args = ap.parse_args(argv)
     vehicle = load_vehicle(args.vehicle)

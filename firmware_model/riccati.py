@@ -29,8 +29,9 @@ class RiccatiError(ArithmeticError):
     """The doubling iteration did not converge (the pair is not stabilisable/detectable)."""
 
 
-def solve_dare(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, tol: float = 1e-13,
-               max_iter: int = 100) -> np.ndarray:
+def solve_dare(
+    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, tol: float = 1e-13, max_iter: int = 100
+) -> np.ndarray:
     """X of the control DARE ``X = A'XA - A'XB (R + B'XB)^-1 B'XA + Q`` by SDA (symmetric result)."""
     n = A.shape[0]
     Ak = np.array(A, dtype=np.float64)
@@ -44,7 +45,7 @@ def solve_dare(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, tol: 
         H_next = Hk + Ak.T @ Hk @ WiA
         G_next = Gk + Ak @ WiG @ Ak.T
         A_next = Ak @ WiA
-        done = np.linalg.norm(H_next - Hk) <= tol * max(1.0, np.linalg.norm(H_next))
+        done = float(np.linalg.norm(H_next - Hk)) <= tol * max(1.0, float(np.linalg.norm(H_next)))
         Ak, Gk, Hk = A_next, 0.5 * (G_next + G_next.T), 0.5 * (H_next + H_next.T)
         if done:
             return Hk

@@ -44,8 +44,9 @@ class ShadowReport:
     status: np.ndarray
 
 
-def shadow_check(fixed: BatchResult, flt: BatchResult, fw_bound: float = FW_BOUND_N,
-                 mw_bound: float = MW_BOUND_NM) -> ShadowReport:
+def shadow_check(
+    fixed: BatchResult, flt: BatchResult, fw_bound: float = FW_BOUND_N, mw_bound: float = MW_BOUND_NM
+) -> ShadowReport:
     """Compare two batch results step by step (same grid). A non-finite difference deviates."""
     if fixed.t_ns.shape != flt.t_ns.shape or not np.array_equal(fixed.t_ns, flt.t_ns):
         raise ValueError("shadow_check needs the two results on the same step grid")
@@ -53,13 +54,23 @@ def shadow_check(fixed: BatchResult, flt: BatchResult, fw_bound: float = FW_BOUN
     dmw = np.abs(fixed.mw - flt.mw)
     dev = ~((dfw <= fw_bound) & (dmw <= mw_bound))
     status = fixed.status.astype(np.uint8) | np.where(dev, SHADOW_DEVIATION, 0).astype(np.uint8)
-    return ShadowReport(dev, int(dev.sum()), float(np.max(dfw, initial=0.0)), float(np.max(dmw, initial=0.0)),
-                        status)
+    return ShadowReport(
+        dev, int(dev.sum()), float(np.max(dfw, initial=0.0)), float(np.max(dmw, initial=0.0)), status
+    )
 
 
 def run_batch_with_shadow(
-    t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok, esc_ok,
-    vehicle: Vehicle, *, dt: float = STEP_S,
+    t_ns,
+    speed,
+    steering_angle,
+    yaw_rate,
+    column_torque,
+    assist_torque,
+    mdps_ok,
+    esc_ok,
+    vehicle: Vehicle,
+    *,
+    dt: float = STEP_S,
 ) -> tuple[BatchResult, ShadowReport]:
     """The fixed backend from a fresh state with the float filter as shadow: (fixed result with
     bit 6 set where it deviates, report)."""
@@ -68,8 +79,20 @@ def run_batch_with_shadow(
     from .tables import tables_for
 
     state = FastState.initial(tables_vector(tables_for(vehicle, int(round(dt * 1e9)))))
-    fixed = fixed_run_batch(t_ns, speed, steering_angle, yaw_rate, column_torque, assist_torque, mdps_ok,
-                            esc_ok, vehicle, state=state, dt=dt, shadow=True)
+    fixed = fixed_run_batch(
+        t_ns,
+        speed,
+        steering_angle,
+        yaw_rate,
+        column_torque,
+        assist_torque,
+        mdps_ok,
+        esc_ok,
+        vehicle,
+        state=state,
+        dt=dt,
+        shadow=True,
+    )
     assert state.last_report is not None
     return fixed, state.last_report
 

@@ -85,8 +85,25 @@ SAT_NAMES = (
     "s_nonpos",  # innovation variance <= 0: update skipped
     "t_align",  # the T_align_hat output
 )
-(S_IN_SPEED, S_IN_STEER, S_IN_YAW, S_IN_TORQUE, S_SPEED_CLAMP, S_COEF, S_X0, S_X1, S_X2, S_X3, S_COV,
- S_INNOV, S_GAIN, S_ACC64, S_P_FLOOR, S_S_NONPOS, S_T_ALIGN) = range(len(SAT_NAMES))
+(
+    S_IN_SPEED,
+    S_IN_STEER,
+    S_IN_YAW,
+    S_IN_TORQUE,
+    S_SPEED_CLAMP,
+    S_COEF,
+    S_X0,
+    S_X1,
+    S_X2,
+    S_X3,
+    S_COV,
+    S_INNOV,
+    S_GAIN,
+    S_ACC64,
+    S_P_FLOOR,
+    S_S_NONPOS,
+    S_T_ALIGN,
+) = range(len(SAT_NAMES))
 N_SAT = len(SAT_NAMES)
 
 # --- input flags from the boundary (bit mask) -------------------------------------------------
@@ -129,8 +146,17 @@ class FixedState:
         return st
 
     def copy(self) -> FixedState:
-        return FixedState(list(self.x), list(self.P), self.delta, self.t_align, self.steps, self.held,
-                          self.conv_start, self.updates, list(self.sat))
+        return FixedState(
+            list(self.x),
+            list(self.P),
+            self.delta,
+            self.t_align,
+            self.steps,
+            self.held,
+            self.conv_start,
+            self.updates,
+            list(self.sat),
+        )
 
 
 def reset(tb: FixedTables, st: FixedState) -> None:
@@ -200,8 +226,9 @@ def schedule(tb: FixedTables, st: FixedState, v: int) -> list[int]:
     return c
 
 
-def _scalar_update(tb: FixedTables, st: FixedState, h0: int, h1: int, unit_row: bool, z: int,
-                   dterm: int, r: int) -> None:
+def _scalar_update(
+    tb: FixedTables, st: FixedState, h0: int, h1: int, unit_row: bool, z: int, dterm: int, r: int
+) -> None:
     """Scalar measurement update (module docstring, step 4). ``unit_row``: h = [0, 1, 0, 0]
     (the yaw rate; no multiplication), else h = [h0, h1, 0, 0] in Q f_h."""
     P, X = st.P, st.x
@@ -245,8 +272,10 @@ def _predict(tb: FixedTables, st: FixedState, c: list[int], delta: int) -> None:
     fp = tb.f_phi
     sh_e = tb.f_e + tb.f_steer - tb.f_state
     # Phi_n rows 0 and 1 as (column, coefficient) pairs
-    rows = (((0, c[C_PHI00]), (1, c[C_PHI01]), (2, c[C_PHI02])),
-            ((0, c[C_PHI10]), (1, c[C_PHI11]), (3, c[C_PHI13])))
+    rows = (
+        ((0, c[C_PHI00]), (1, c[C_PHI01]), (2, c[C_PHI02])),
+        ((0, c[C_PHI10]), (1, c[C_PHI11]), (3, c[C_PHI13])),
+    )
     e = (c[C_E0], c[C_E1])
     # X = Phi_n X + e delta
     x_new = list(X)
@@ -281,8 +310,19 @@ def _predict(tb: FixedTables, st: FixedState, c: list[int], delta: int) -> None:
             P[4 * j + i] = v
 
 
-def step_raw(tb: FixedTables, st: FixedState, t_ns: int, v: int, steer: int, yaw: int, tcol: int,
-             tas: int, in_flags: int, mdps_ok: bool, esc_ok: bool) -> tuple[int, int, int, int, int, int]:
+def step_raw(
+    tb: FixedTables,
+    st: FixedState,
+    t_ns: int,
+    v: int,
+    steer: int,
+    yaw: int,
+    tcol: int,
+    tas: int,
+    in_flags: int,
+    mdps_ok: bool,
+    esc_ok: bool,
+) -> tuple[int, int, int, int, int, int]:
     """One integer step. Inputs are raw (:func:`quantise_inputs`); returns
     (status, X_beta, X_r, X_Fw, X_Mw, T_align_hat) with the estimates normalised Q15.16."""
     st.steps += 1
@@ -380,8 +420,14 @@ def _q(value: float, n_frac: int) -> tuple[int, bool]:
     return r, False
 
 
-def quantise_inputs(tb: FixedTables, speed: float, steering_angle: float, yaw_rate: float,
-                    column_torque: float, assist_torque: float) -> tuple[int, int, int, int, int, int]:
+def quantise_inputs(
+    tb: FixedTables,
+    speed: float,
+    steering_angle: float,
+    yaw_rate: float,
+    column_torque: float,
+    assist_torque: float,
+) -> tuple[int, int, int, int, int, int]:
     """(v, steer, yaw, tcol, tas, in_flags): the SI inputs as raw ints, with ``IN_*`` flags."""
     flags = 0
     if math.isfinite(speed):
@@ -419,16 +465,39 @@ class ReferenceEstimator:
         tb = self.tables
         angle, yaw_rate, col = inputs.steering_angle, inputs.yaw_rate, inputs.column_torque
         if not self.vehicle.corrections.is_identity:
-            angle, yaw_rate, col = condition_kernel(self._c, float(angle),
-                                                    float(getattr(inputs, "steering_rate", math.nan)),
-                                                    float(yaw_rate), float(col))
-        v, steer, yaw, tcol, tas, flags = quantise_inputs(tb, inputs.speed, angle, yaw_rate, col,
-                                                          inputs.assist_torque)
-        return step_raw(tb, self.state, int(t_ns), v, steer, yaw, tcol, tas, flags,
-                        bool(inputs.mdps_ok), bool(inputs.esc_ok))
+            angle, yaw_rate, col = condition_kernel(
+                self._c,
+                float(angle),
+                float(getattr(inputs, "steering_rate", math.nan)),
+                float(yaw_rate),
+                float(col),
+            )
+        v, steer, yaw, tcol, tas, flags = quantise_inputs(
+            tb, inputs.speed, angle, yaw_rate, col, inputs.assist_torque
+        )
+        return step_raw(
+            tb,
+            self.state,
+            int(t_ns),
+            v,
+            steer,
+            yaw,
+            tcol,
+            tas,
+            flags,
+            bool(inputs.mdps_ok),
+            bool(inputs.esc_ok),
+        )
 
     def step(self, t_ns: int, inputs: EstimatorInputs) -> EstimatorOutput:
         s, xb, xr, xf, xm, ta = self.step_ints(t_ns, inputs)
         tb = self.tables
-        return EstimatorOutput(int(t_ns), xf * tb.state_lsb(2), xm * tb.state_lsb(3), ta * tb.t_align_lsb(),
-                               xb * tb.state_lsb(0), xr * tb.state_lsb(1), Status(s))
+        return EstimatorOutput(
+            int(t_ns),
+            xf * tb.state_lsb(2),
+            xm * tb.state_lsb(3),
+            ta * tb.t_align_lsb(),
+            xb * tb.state_lsb(0),
+            xr * tb.state_lsb(1),
+            Status(s),
+        )

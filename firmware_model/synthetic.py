@@ -35,8 +35,16 @@ class Drive:
 
     def inputs(self) -> tuple[np.ndarray, ...]:
         """The positional inputs of ``run_batch`` (without the vehicle)."""
-        return (self.t_ns, self.speed, self.steering_angle, self.yaw_rate, self.column_torque,
-                self.assist_torque, self.mdps_ok, self.esc_ok)
+        return (
+            self.t_ns,
+            self.speed,
+            self.steering_angle,
+            self.yaw_rate,
+            self.column_torque,
+            self.assist_torque,
+            self.mdps_ok,
+            self.esc_ok,
+        )
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -46,8 +54,13 @@ def _smooth_step(t: np.ndarray, t0: float, rise: float) -> np.ndarray:
     return np.clip((t - t0) / rise, 0.0, 1.0)
 
 
-def make_drive(vehicle: Vehicle, kind: str, duration_s: float = 20.0, seed: int = 0,
-               t0_ns: int = 1_700_000_000_000_000_000) -> Drive:
+def make_drive(
+    vehicle: Vehicle,
+    kind: str,
+    duration_s: float = 20.0,
+    seed: int = 0,
+    t0_ns: int = 1_700_000_000_000_000_000,
+) -> Drive:
     """A synthetic drive. ``kind``: ``sweep`` (speed 30->180->60 km/h, slalom-free steering,
     Fw/Mw steps), ``gusts`` (gusts of +-6000 N / +-6000 Nm at 100 km/h), ``steer`` (sinusoidal
     steering up to 15 deg at the wheel at 60-120 km/h with a bank force), ``faults`` (like
@@ -92,8 +105,11 @@ def make_drive(vehicle: Vehicle, kind: str, duration_s: float = 20.0, seed: int 
         r_true[k] = x[1]
         t_align[k] = c.H[1, :2] @ x + c.D[1] * df
         for _ in range(sub):
-            xd = c.A[:2, :2] @ x + c.B[:2] * df + np.array([fw[k] / (vehicle.body.mass * speed[k]),
-                                                           mw[k] / vehicle.body.yaw_inertia])
+            xd = (
+                c.A[:2, :2] @ x
+                + c.B[:2] * df
+                + np.array([fw[k] / (vehicle.body.mass * speed[k]), mw[k] / vehicle.body.yaw_inertia])
+            )
             x = x + xd * (dt / sub)
     yaw = r_true + rng.normal(0.0, 0.05 * DEG, n)
     total = t_align / N + rng.normal(0.0, 2.0 / N, n)  # column-level torque (driver + assist)

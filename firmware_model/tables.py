@@ -77,14 +77,30 @@ class FixedTables:
             raise ValueError(f"tables list coefficients {names}, expected {gen.COEF_NAMES}")
         terms = tuple(tuple((int(t[0]), int(t[2])) for t in c["terms"]) for c in d["coefs"])
         return cls(
-            f_state=f["state"], f_cov=f["cov"], f_speed=f["speed"], f_steer=f["steer"],
-            f_torque=f["torque"], f_w=f["w"], f_gain=f["gain"],
-            f_phi=g["phi"], f_e=g["e"], f_h=g["h"], f_d=g["d"],
-            sigma_exp=tuple(d["sigma_exp"]["state"]), sigma_t_exp=d["sigma_exp"]["t_align"],
-            coef_terms=terms, v_min_raw=d["v_min_raw"], v_max_raw=d["v_max_raw"],
-            n_over_st=tuple(d["n_over_st"]), r_n=tuple(d["r_n"]), qd_n=tuple(d["qd_n"]),
-            p0_n=tuple(d["p0_n"]), converge_ns=d["converge_ns"], dt_ns=d["dt_ns"],
-            inputs_sha256=d["inputs_sha256"], raw=d,
+            f_state=f["state"],
+            f_cov=f["cov"],
+            f_speed=f["speed"],
+            f_steer=f["steer"],
+            f_torque=f["torque"],
+            f_w=f["w"],
+            f_gain=f["gain"],
+            f_phi=g["phi"],
+            f_e=g["e"],
+            f_h=g["h"],
+            f_d=g["d"],
+            sigma_exp=tuple(d["sigma_exp"]["state"]),
+            sigma_t_exp=d["sigma_exp"]["t_align"],
+            coef_terms=terms,
+            v_min_raw=d["v_min_raw"],
+            v_max_raw=d["v_max_raw"],
+            n_over_st=tuple(d["n_over_st"]),
+            r_n=tuple(d["r_n"]),
+            qd_n=tuple(d["qd_n"]),
+            p0_n=tuple(d["p0_n"]),
+            converge_ns=d["converge_ns"],
+            dt_ns=d["dt_ns"],
+            inputs_sha256=d["inputs_sha256"],
+            raw=d,
         )
 
     # --- boundary scalings (float only here and in the input/output conversion) ---------------

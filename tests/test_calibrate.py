@@ -181,8 +181,21 @@ def test_cli_calibrate_writes_a_file_that_replay_uses(tmp_path):
     sim_vehicle = tmp_path / "sticky.toml"
     sim_vehicle.write_text('extends = "reference"\nname = "sticky"\n[sim.steering]\nrack_coulomb_Nm = 0.8\n')
     log = tmp_path / "lc.log"
-    rc, _ = run("sim", "--scenario", "lane_change", "--seed", "5", "--duration", "30",
-                "--vehicle", sim_vehicle, "--log", log, "--truth", tmp_path / "lc.csv")
+    rc, _ = run(
+        "sim",
+        "--scenario",
+        "lane_change",
+        "--seed",
+        "5",
+        "--duration",
+        "30",
+        "--vehicle",
+        sim_vehicle,
+        "--log",
+        log,
+        "--truth",
+        tmp_path / "lc.csv",
+    )
     assert rc == 0
     rc, text = run("calibrate", log, "-o", tmp_path / "cal.toml", "--keep-tires")
     assert rc == 0, text

@@ -77,8 +77,14 @@ def test_corrections_table_in_a_vehicle_file():
     v = vehicle_from_dict(
         {
             "name": "x",
-            "vehicle": {"mass_kg": 1500, "yaw_inertia_kgm2": 2500, "lf_m": 1.1, "lr_m": 1.7,
-                        "track_front_m": 1.6, "track_rear_m": 1.6},
+            "vehicle": {
+                "mass_kg": 1500,
+                "yaw_inertia_kgm2": 2500,
+                "lf_m": 1.1,
+                "lr_m": 1.7,
+                "track_front_m": 1.6,
+                "track_rear_m": 1.6,
+            },
             "steering": {"ratio": 15.0},
             "tires": {"cf_N_per_rad": 6e4, "cr_N_per_rad": 6e4, "align_rate_Nm_per_rad": 7000},
             "corrections": {"steering_friction_Nm": 0.3, "yaw_rate_bias_deg_s": -0.1},
@@ -122,8 +128,12 @@ def test_live_steps_equal_the_batch_with_corrections(backend):
     mw = np.empty(t.size)
     st = np.empty(t.size, dtype=np.uint8)
     for k in range(t.size):
-        o = live.step(int(t[k]), EstimatorInputs(speed[k], angle[k], yaw[k], col[k], ast[k], bool(mdps[k]),
-                                                 bool(esc[k]), steering_rate=rate[k]))
+        o = live.step(
+            int(t[k]),
+            EstimatorInputs(
+                speed[k], angle[k], yaw[k], col[k], ast[k], bool(mdps[k]), bool(esc[k]), steering_rate=rate[k]
+            ),
+        )
         fw[k], mw[k], st[k] = o.fw, o.mw, int(o.status)
     assert np.array_equal(fw, batch.fw)
     assert np.array_equal(mw, batch.mw)

@@ -83,8 +83,15 @@ def test_live_shadow_checker(vehicle):
     d = make_drive(vehicle, "steer", duration_s=2.0, seed=4)
     fx, fl, chk = FixedEstimator(vehicle), Estimator(vehicle), ShadowChecker()
     for k in range(len(d)):
-        u = EstimatorInputs(d.speed[k], d.steering_angle[k], d.yaw_rate[k], d.column_torque[k],
-                            d.assist_torque[k], bool(d.mdps_ok[k]), bool(d.esc_ok[k]))
+        u = EstimatorInputs(
+            d.speed[k],
+            d.steering_angle[k],
+            d.yaw_rate[k],
+            d.column_torque[k],
+            d.assist_torque[k],
+            bool(d.mdps_ok[k]),
+            bool(d.esc_ok[k]),
+        )
         a, b = fx.step(int(d.t_ns[k]), u), fl.step(int(d.t_ns[k]), u)
         s = chk.check(a, b)
         assert not (s & Status.SHADOW_DEVIATION)
@@ -108,8 +115,15 @@ def test_step_and_run_batch_can_be_mixed_with_the_shadow(vehicle):
     first = est.run_batch(*(x[:k] for x in d.inputs()))
     rest = []
     for i in range(k, len(d)):
-        u = EstimatorInputs(d.speed[i], d.steering_angle[i], d.yaw_rate[i], d.column_torque[i],
-                            d.assist_torque[i], bool(d.mdps_ok[i]), bool(d.esc_ok[i]))
+        u = EstimatorInputs(
+            d.speed[i],
+            d.steering_angle[i],
+            d.yaw_rate[i],
+            d.column_torque[i],
+            d.assist_torque[i],
+            bool(d.mdps_ok[i]),
+            bool(d.esc_ok[i]),
+        )
         rest.append(est.step(int(d.t_ns[i]), u))
     np.testing.assert_array_equal(np.concatenate([first.fw, [o.fw for o in rest]]), whole.fw)
     np.testing.assert_array_equal(np.concatenate([first.status, [int(o.status) for o in rest]]), whole.status)

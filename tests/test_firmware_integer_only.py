@@ -12,11 +12,34 @@ import pytest
 
 from firmware_model import fast, qformat, step
 
-REFERENCE = [step.step_raw, step.schedule, step._scalar_update, step._predict, step._sat32, step._mac,
-             step._add64, step._set_p0, step.reset, qformat.shift_round, qformat.div_round, qformat.add_sat64,
-             qformat.saturate]
-TWIN = [fast.step_kernel, fast.schedule, fast._scalar_update, fast._predict, fast.shift_round, fast.div_round,
-        fast.sat32, fast.add64, fast.mac, fast.reset_kernel, fast._set_p0]
+REFERENCE = [
+    step.step_raw,
+    step.schedule,
+    step._scalar_update,
+    step._predict,
+    step._sat32,
+    step._mac,
+    step._add64,
+    step._set_p0,
+    step.reset,
+    qformat.shift_round,
+    qformat.div_round,
+    qformat.add_sat64,
+    qformat.saturate,
+]
+TWIN = [
+    fast.step_kernel,
+    fast.schedule,
+    fast._scalar_update,
+    fast._predict,
+    fast.shift_round,
+    fast.div_round,
+    fast.sat32,
+    fast.add64,
+    fast.mac,
+    fast.reset_kernel,
+    fast._set_p0,
+]
 FORBIDDEN_NAMES = {"float", "math", "np.float64", "numpy", "round"}
 
 

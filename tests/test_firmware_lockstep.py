@@ -24,8 +24,15 @@ def vehicle():
 
 
 def _inputs(d, k):
-    return EstimatorInputs(float(d[1][k]), float(d[2][k]), float(d[3][k]), float(d[4][k]), float(d[5][k]),
-                           bool(d[6][k]), bool(d[7][k]))
+    return EstimatorInputs(
+        float(d[1][k]),
+        float(d[2][k]),
+        float(d[3][k]),
+        float(d[4][k]),
+        float(d[5][k]),
+        bool(d[6][k]),
+        bool(d[7][k]),
+    )
 
 
 def _lockstep(vehicle, d):

@@ -104,8 +104,9 @@ def test_extremes_saturate_without_wrapping(vehicle, speed, steer, yaw, tcol, ta
     if int(est.state.sat.sum()) > 0:
         return  # the measurement itself was clamped: the estimate may differ from the float one
     cols = [np.full(n, c) for c in (speed, steer, yaw, tcol, tas)]
-    fl = float_run_batch(np.arange(n, dtype=np.int64) * STEP_NS, *cols, np.ones(n, bool), np.ones(n, bool),
-                         vehicle)
+    fl = float_run_batch(
+        np.arange(n, dtype=np.int64) * STEP_NS, *cols, np.ones(n, bool), np.ones(n, bool), vehicle
+    )
     tb = tables_for(vehicle)
     fw = outs[:, O_XF] * tb.state_lsb(2)
     mw = outs[:, O_XM] * tb.state_lsb(3)

@@ -75,8 +75,14 @@ def test_coefficient_polynomials_equal_the_float_model(vehicle, kmh):
     d = discrete_matrices(vehicle, v)
     polys = gen.coefficient_polys(vehicle, e, et, tb.dt_ns * 1e-9)
     val = {k: c[0] + c[1] / v + c[2] / v**2 for k, c in polys.items()}
-    for name, (i, j) in {"phi00": (0, 0), "phi01": (0, 1), "phi02": (0, 2), "phi10": (1, 0),
-                         "phi11": (1, 1), "phi13": (1, 3)}.items():
+    for name, (i, j) in {
+        "phi00": (0, 0),
+        "phi01": (0, 1),
+        "phi02": (0, 2),
+        "phi10": (1, 0),
+        "phi11": (1, 1),
+        "phi13": (1, 3),
+    }.items():
         assert val[name] == pytest.approx(d.Phi[i, j] * s[j] / s[i], rel=1e-12)
     # the structural zeros and ones the step relies on
     assert d.Phi[0, 3] == d.Phi[1, 2] == 0.0

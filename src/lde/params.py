@@ -452,8 +452,12 @@ def validate(v: Vehicle) -> None:
     _check(0.0 <= o.min_speed < o.max_speed, s, "overlay needs 0 <= min_speed_kmh < max_speed_kmh")
     _check(0.0 < o.max_steering_angle <= math.pi, s, "overlay max_steering_angle_deg must lie in (0, 180]")
     _check(o.driver_override_torque > 0.0, s, "overlay driver_override_Nm must be > 0")
-    for key, val in (("hold_off_s", o.hold_off), ("rearm_delay_s", o.rearm_delay),
-                     ("fault_persist_s", o.fault_persist), ("fault_recover_s", o.fault_recover)):
+    for key, val in (
+        ("hold_off_s", o.hold_off),
+        ("rearm_delay_s", o.rearm_delay),
+        ("fault_persist_s", o.fault_persist),
+        ("fault_recover_s", o.fault_recover),
+    ):
         _check(0.0 <= val <= 60.0, s, f"overlay {key} must lie in 0..60 s, got {val}")
     for name in ("q_beta", "q_yaw", "q_fw", "q_mw", "r_yaw", "r_align"):
         _check(getattr(e, name) > 0.0, s, f"estimator {name} must be > 0")

@@ -543,7 +543,7 @@ def write_csv(path: str | Path, res: ReplayResult) -> None:
     try:
         with open(path, "wb") as fh:
             fh.write((",".join(c.name for c in cols) + "\n").encode())
-            fh.write(text)
+            fh.write(text.data)
     except OSError as exc:
         raise LogFormatError(f"{path}: cannot write: {exc}") from exc
 

@@ -111,7 +111,7 @@ def make_estimator(vehicle: Any, backend: str = "fixed") -> Any:
         raise ConfigError(f"unknown backend {backend!r} (choose fixed or float)")
     if backend == "fixed":
         try:
-            from firmware_model import FixedEstimator  # type: ignore[attr-defined]
+            from firmware_model import FixedEstimator
         except ImportError:
             try:
                 from firmware_model.fast import FixedEstimator

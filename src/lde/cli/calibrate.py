@@ -80,8 +80,10 @@ def run(args: argparse.Namespace) -> int:
     if args.corrections:
         torsion = args.torsion == "yes" or (args.torsion == "auto" and profile.name != "lde")
         if not profile.steering_rate_signed:
-            print(f"note: profile {profile.name} carries the steering rate without its sign: "
-                  "friction not identified")
+            print(
+                f"note: profile {profile.name} carries the steering rate without its sign: "
+                "friction not identified"
+            )
         cal = calibrate(drive, base, identify_torsion=torsion, identify_friction=profile.steering_rate_signed)
     else:
         # tires only, for the paper's step: no torsion model, so fit effective values

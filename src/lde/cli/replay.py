@@ -204,6 +204,7 @@ def run(args: argparse.Namespace) -> int:
             write_csv(csv_path, res)
             res.timings["csv"] = time.perf_counter() - t1
         if mcap_path is not None:
+            assert res.profile is not None  # replay_log always sets it
             t1 = time.perf_counter()
             write_recording(
                 mcap_path,

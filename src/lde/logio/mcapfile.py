@@ -56,7 +56,7 @@ from ..frames import FrameBatch
 try:
     import zstandard
 except ImportError:  # pragma: no cover - zstandard is a dependency of mcap's zstd support
-    zstandard = None
+    zstandard = None  # type: ignore[assignment]
 try:
     import lz4.frame as lz4frame
 except ImportError:  # pragma: no cover
@@ -1002,16 +1002,16 @@ def _read_fast(
     skip_chans: list[np.ndarray] = []
     skip_times: list[np.ndarray] = []
     skip_can = np.zeros(65536, np.int64)
-    keep = []
+    keep: list[Any] = []
     for ci in chunks:
         chans = set(ci.message_index_offsets)
-        idx = None if (not chans or chans & needed) else _index_times(raw, ci, kind)
-        if idx is None:
+        found = None if (not chans or chans & needed) else _index_times(raw, ci, kind)
+        if found is None:
             keep.append(ci)
         else:
-            skip_chans += idx[0]
-            skip_times += idx[1]
-            for ch, k in idx[2].items():
+            skip_chans += found[0]
+            skip_times += found[1]
+            for ch, k in found[2].items():
                 skip_can[ch] += k
     n_skipped = len(chunks) - len(keep)
     chunks = keep
