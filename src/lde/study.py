@@ -267,10 +267,9 @@ def simulate_and_estimate(
             )
             status = np.where(ok, int(Status.VALID), 0)
         else:
-            from .replay import estimate
-            from .step import run_batch
+            from .replay import replay
 
-            est = estimate(grid, vehicle, run_batch)  # the product step (the float backend)
+            est = replay(sim.frames, profile, vehicle, "float")  # the product's data path (float)
             t_ns, fw, mw, status = est.t_ns, est.fw, est.mw, est.status
 
     valid = (np.asarray(status) & int(Status.VALID)) != 0

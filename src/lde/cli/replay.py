@@ -128,12 +128,11 @@ def _summary(path: Path, log, res, elapsed: float) -> str:
         f"{path}: {log.format}, {f.total} frames, {len(res)} steps = {res.duration_s:.3f} s stepped"
         f" in {res.segments} segment{'' if res.segments == 1 else 's'}"
         f" ({'recorded step times' if res.recorded_steps else 'grid from the first MDPS frame'})",
-        f"  frames used {f.used}, rejected {f.rejected} ({causes}), ignored ids {f.ignored}, lde's own {f.tx}"
-        + (f"; not read: {', '.join(extra)}" if extra else ""),
+        f"  frames used {f.used}, rejected {f.rejected} ({causes}), re-synchronising {f.resync},"
+        f" ignored ids {f.ignored}, lde's own {f.tx}" + (f"; not read: {', '.join(extra)}" if extra else ""),
         f"  profile {res.profile.name if res.profile else '?'}"
         f"{' (from the recording)' if res.profile_origin == 'recording' else ''},"
-        f" backend {res.backend}, overlay "
-        f"{'lde.overlay' if res.overlay else 'not available (T_overlay = 0)'};"
+        f" backend {res.backend};"
         f" took {elapsed:.3f} s (" + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in res.timings.items()) + ")",
     ]
     if len(res) == 0:
