@@ -42,7 +42,7 @@ def motorola_shift(start: int, length: int) -> int:
     return (7 - start // 8) * 8 + start % 8 - length + 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def byteswap64(w):  # pragma: no cover - compiled
     """The 64-bit word with its bytes reversed (``w_le`` <-> ``w_be``)."""
     w = np.uint64(w)
@@ -52,7 +52,7 @@ def byteswap64(w):  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def get_field(w, shift, length):  # pragma: no cover - compiled
     """Unsigned value of the ``length``-bit field at ``shift`` of the uint64 word ``w``."""
     w = np.uint64(w)
@@ -61,7 +61,7 @@ def get_field(w, shift, length):  # pragma: no cover - compiled
     return (w >> np.uint64(shift)) & ((np.uint64(1) << np.uint64(length)) - np.uint64(1))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def put_field(w, shift, length, value):  # pragma: no cover - compiled
     """``w`` with the field at ``shift`` set to the low ``length`` bits of ``value`` (uint64)."""
     w = np.uint64(w)
@@ -69,7 +69,7 @@ def put_field(w, shift, length, value):  # pragma: no cover - compiled
     return (w & ~mask) | ((np.uint64(value) << np.uint64(shift)) & mask)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def get_parts(w, parts):  # pragma: no cover - compiled
     """Value of a multi-part field: ``parts`` int64 [k, 2] of (shift, length), LSB part first;
     rows with length 0 are unused."""
@@ -84,7 +84,7 @@ def get_parts(w, parts):  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def put_parts(w, parts, value):  # pragma: no cover - compiled
     """``w`` with the multi-part field ``parts`` (see :func:`get_parts`) set to ``value``."""
     w = np.uint64(w)
@@ -97,7 +97,7 @@ def put_parts(w, parts, value):  # pragma: no cover - compiled
     return w
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def bytes_to_word(data, length):  # pragma: no cover - compiled
     """``w_le`` of the first ``min(length, 8)`` bytes of ``data`` (uint8 array); the rest is zero."""
     w = np.uint64(0)
@@ -107,7 +107,7 @@ def bytes_to_word(data, length):  # pragma: no cover - compiled
     return w
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def word_to_bytes(w, out):  # pragma: no cover - compiled
     """Write ``w_le`` into the 8 bytes of ``out`` (uint8 [8])."""
     w = np.uint64(w)

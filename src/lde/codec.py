@@ -67,7 +67,7 @@ class EncodeError(LdeError, ValueError):
 # ------------------------------------------------------------------------- compiled conversions
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def raw_value(w_le, w_be, shift, nbits, little_endian, signed):  # pragma: no cover - compiled
     """Raw integer value of one signal (sign-extended) from the frame's two words."""
     w = w_le if little_endian else w_be
@@ -77,7 +77,7 @@ def raw_value(w_le, w_be, shift, nbits, little_endian, signed):  # pragma: no co
     return raw
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def phys_to_raw(x, lo, hi, scale, offset, nbits, signed):  # pragma: no cover - compiled
     """Physical (finite) -> raw int64, saturated at the DBC range [lo, hi] (ignored unless lo < hi)
     and then at the bit range; rounding half to even."""
@@ -97,7 +97,7 @@ def phys_to_raw(x, lo, hi, scale, offset, nbits, signed):  # pragma: no cover - 
     return np.int64(np.rint(r))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def encode_word(
     values,
     shift,

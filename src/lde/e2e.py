@@ -202,7 +202,7 @@ P01_SCHEME = IntegrityScheme(IntegrityKind.P01, counter_fields=((8, 4),), checks
 _WHL_SPD_MASK = np.uint64(0x3FFF3FFF3FFF3FFF)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def p01_crc_word(data_id, w, length):  # pragma: no cover - compiled
     """Profile 1 CRC of the frame ``w`` (``w_le``, ``length`` bytes):
     crc = 0; for b in [id_lo, id_hi, byte 1, ..., byte length-1]: crc = T[crc ^ b]."""
@@ -214,7 +214,7 @@ def p01_crc_word(data_id, w, length):  # pragma: no cover - compiled
     return crc
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def whl_spd11_checksum_word(w):  # pragma: no cover - compiled
     """hyundai WHL_SPD11 checksum (SPEC 3): ``(popcount(w masked) ^ 9) & 15``."""
     v = np.uint64(w) & _WHL_SPD_MASK
@@ -225,7 +225,7 @@ def whl_spd11_checksum_word(w):  # pragma: no cover - compiled
     return (count ^ 9) & 15
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def integrity_ok(kind, data_id, w, length, chk_parts):  # pragma: no cover - compiled
     """The frame's CRC / checksum verdict (True where the scheme verifies nothing)."""
     if kind == K_P01:
@@ -235,7 +235,7 @@ def integrity_ok(kind, data_id, w, length, chk_parts):  # pragma: no cover - com
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def protect_word(kind, data_id, w, length, ctr_parts, chk_parts, counter):  # pragma: no cover - compiled
     """``w`` with ``counter`` and the CRC / checksum written (COUNTER schemes: the counter only;
     their checksum field, algorithm unknown, is left as is)."""
@@ -247,7 +247,7 @@ def protect_word(kind, data_id, w, length, ctr_parts, chk_parts, counter):  # pr
     return w
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def advance_counter(counter, modulus, invalid):  # pragma: no cover - compiled
     """+1 modulo ``modulus``, skipping ``invalid`` (the sender's counter rule, once)."""
     c = (counter + 1) % modulus
@@ -403,7 +403,7 @@ def new_state() -> np.ndarray:
     return s
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def receive_frame(
     state: np.ndarray, cfg: np.ndarray, t_ns: np.int64, counter: np.int64, check_ok: bool
 ) -> np.int64:

@@ -14,12 +14,13 @@ give the same rows whichever way they are cut: the live service and replay are t
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
 
 import numpy as np
 
 from .backends import BackendState, get_backend
-from .codec import MessageCodec
+from .codec import MessageCodec, words_le
 from .conditioning import check_profile, corrections_vector, is_active
 from .e2e import ReceiverStats
 from .frames import FrameBatch
@@ -217,6 +218,10 @@ class StepBlock:
         return self.ok[:, 1]
 
 
+#: a batch longer than this runs the backend's shadow in a second thread (:meth:`Engine.feed`)
+_SHADOW_MIN_FRAMES = 50_000
+_SHADOW_CHUNK = 65_536
+_NO_PRE = np.zeros((0, 2))
 _NO_TIMES = np.zeros(0, np.int64)
 _NO_BOOL = np.zeros(0, np.bool_)
 _NO_U8 = np.zeros(0, np.uint8)
@@ -233,6 +238,8 @@ class Engine:
         explicit: step times are given with each :meth:`feed` (live, a recording's steps); else the
             anchored grid (:mod:`lde.grid`).
         dt: the model period [s] (the grid period).
+        encode_outputs: encode the output frames (``StepBlock.frames``); False for a replay whose
+            output is only a CSV (the frames are then zeros).
     """
 
     def __init__(
@@ -243,12 +250,14 @@ class Engine:
         *,
         explicit: bool = False,
         dt: float = STEP_S,
+        encode_outputs: bool = True,
     ) -> None:
         check_profile(vehicle, profile.steering_rate_signed, profile.name)
         self.profile = profile
         self.vehicle = vehicle
         self.backend = get_backend(backend)
         self.explicit = explicit
+        self.encode_outputs = encode_outputs
         self.rx_tables = RxTables.of(profile)
         self.outputs = OutputTable.of(profile)
         self._dt = dt
@@ -270,6 +279,7 @@ class Engine:
         self._tb, self._st = self.rx_tables.kernel_args(), self.rx.kernel_args()
         self.frames_fed = 0
         self.est = self.backend.make(vehicle, self._dt)
+        self._shadow: Engine | None = None
 
     @property
     def steps(self) -> int:
@@ -296,7 +306,7 @@ class Engine:
         can_id: np.ndarray,
         is_extended: np.ndarray,
         dlc: np.ndarray,
-        data: np.ndarray,
+        words: np.ndarray,
         is_rx: np.ndarray,
         out: StepBlock,
         *,
@@ -307,7 +317,8 @@ class Engine:
         final: bool = True,
         t_end_ns: int | None = None,
     ) -> tuple[int, int]:
-        """The compiled loop on raw frame columns from frame ``i0`` (the live hot path: no copies).
+        """The compiled loop on raw frame columns from frame ``i0`` (the live hot path: no copies);
+        ``words`` are the frames' first 8 bytes as little-endian uint64 (:func:`lde.codec.words_le`).
         Fills ``out`` from row 0; returns (next frame index, rows written).
 
         ``final``: no frame follows these (live: every frame up to the step times has been given;
@@ -337,6 +348,7 @@ class Engine:
             self.lsf,
             self.outputs.args,
             self.counters,
+            self.encode_outputs,
             self.used_since,
             final,
             np.int64(t_end_ns or 0),
@@ -346,7 +358,7 @@ class Engine:
             can_id,
             is_extended,
             dlc,
-            data,
+            words,
             is_rx,
             self.rx_tables.anchor,
             out.t_ns,
@@ -399,7 +411,13 @@ class Engine:
             self._steps = np.concatenate([self._steps, t])
             self._enable = np.concatenate([self._enable, en])
             self._extra = np.concatenate([self._extra, ex])
+        if self.est.shadow is not None and len(frames) > _SHADOW_MIN_FRAMES:
+            return self._feed_with_shadow(frames, final, t_end_ns, block_rows)
+        return self._feed(frames, final, t_end_ns, block_rows)
+
+    def _feed(self, frames: FrameBatch, final: bool, t_end_ns: int | None, block_rows: int) -> StepBlock:
         blocks: list[StepBlock] = []
+        words = words_le(frames.data)
         i = 0
         while True:
             out = StepBlock.empty(block_rows, len(self.outputs.names))
@@ -408,7 +426,7 @@ class Engine:
                 frames.can_id,
                 frames.is_extended,
                 frames.dlc,
-                frames.data,
+                words,
                 frames.is_rx,
                 out,
                 i0=i,
@@ -425,6 +443,53 @@ class Engine:
                 break
         self.frames_fed = i
         return StepBlock.concat(blocks) if len(blocks) > 1 else blocks[0]
+
+    def _feed_with_shadow(
+        self, frames: FrameBatch, final: bool, t_end_ns: int | None, block_rows: int
+    ) -> StepBlock:
+        """:meth:`_feed` with the backend's shadow (the float step) computed by a shadow engine on
+        the other core: the frames go in sub-chunks; while this engine runs sub-chunk j with the
+        shadow's estimates of j, the shadow engine runs j + 1. The same kernels on the same inputs
+        as the inline shadow: the same rows."""
+        sh = self._shadow_engine()
+        parts = [
+            frames.take(np.arange(a, min(a + _SHADOW_CHUNK, len(frames))))
+            for a in range(0, len(frames), _SHADOW_CHUNK)
+        ]
+        blocks: list[StepBlock] = []
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="lde-shadow") as pool:
+
+            def shadow_run(k: int) -> StepBlock:
+                last = k == len(parts) - 1
+                return sh._feed(parts[k], final and last, t_end_ns, block_rows)
+
+            ahead = pool.submit(shadow_run, 0)
+            for k, part in enumerate(parts):
+                ref = ahead.result()
+                if k + 1 < len(parts):
+                    ahead = pool.submit(shadow_run, k + 1)
+                self.est.with_shadow(np.ascontiguousarray(ref.est[:, :2]))
+                last = k == len(parts) - 1
+                blocks.append(self._feed(part, final and last, t_end_ns, max(block_rows, len(ref) + 1)))
+                if len(blocks[-1]) != len(ref):  # the two engines step on the same grid
+                    raise RuntimeError("shadow engine out of step")
+        self.est.with_shadow(_NO_PRE)
+        self.frames_fed = len(frames)
+        return StepBlock.concat(blocks) if len(blocks) > 1 else blocks[0]
+
+    def _shadow_engine(self) -> Engine:
+        """The engine of the backend's shadow, at the same point of the data path as this one."""
+        if self._shadow is None:
+            if self.steps or self.frames_fed:
+                raise RuntimeError("a shadow engine can only join an engine before its first frame")
+            shadow = self.est.shadow
+            assert shadow is not None
+            self._shadow = Engine(
+                self.profile, self.vehicle, shadow, explicit=self.explicit, dt=self._dt, encode_outputs=False
+            )
+        sh = self._shadow
+        sh._steps, sh._enable, sh._extra = self._steps, self._enable, self._extra
+        return sh
 
     def finish(self, t_end_ns: int | None = None) -> StepBlock:
         """The log has ended: the remaining steps run (anchored: up to ``t_end_ns`` or the last frame;

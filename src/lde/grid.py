@@ -33,7 +33,7 @@ import numba as nb
 import numpy as np
 from numba import njit
 
-from .bitfield import bytes_to_word
+from .codec import words_le
 from .e2e import S_ACCEPTED
 from .errors import LogFormatError
 from .frames import FrameBatch
@@ -100,7 +100,7 @@ def new_grid(
     return g
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def grid_due(g, explicit, have_next, t_next, next_is_input):  # pragma: no cover - compiled
     """Is a step due before the next frame (time ``t_next``; ``have_next`` False: no frame is
     available now)? Returns (due, t_k). Sets ``G_OVERFLOW`` instead when the step budget is spent."""
@@ -127,14 +127,14 @@ def grid_due(g, explicit, have_next, t_next, next_is_input):  # pragma: no cover
     return tk < t_next and tk <= g[G_LAST_INPUT], tk
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def grid_step_done(g):  # pragma: no cover - compiled
     """The due step has run."""
     g[G_K] += 1
     g[G_NSTEPS] += 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def grid_frame(g, t_ns, is_input, accepted_anchor):  # pragma: no cover - compiled
     """A frame at ``t_ns`` was fed (``is_input``: an input message's id, any status;
     ``accepted_anchor``: an anchor-message frame whose values were accepted)."""
@@ -153,7 +153,7 @@ def grid_frame(g, t_ns, is_input, accepted_anchor):  # pragma: no cover - compil
     g[G_LAST_RX] = t_ns
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def grid_finish(g, t_end, have_end):  # pragma: no cover - compiled
     """The log has ended; the remaining steps run up to ``t_end`` (default: the last frame fed;
     the last segment ends at its last input frame when the end is further than the gap limit)."""
@@ -243,7 +243,7 @@ def _inputs_kernel(
     can_id,
     is_ext,
     dlc,
-    data,
+    words,
     anchor,
     out_t,
     out_v,
@@ -278,8 +278,7 @@ def _inputs_kernel(
             continue
         if not have:
             break
-        w = bytes_to_word(data[i], 8)
-        m, code = rx_feed(tb, st, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), w)
+        m, code = rx_feed(tb, st, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), words[i])
         grid_frame(g, t[i], m >= 0, m == anchor and code >= 0 and e2e[m, S_ACCEPTED] != 0)
         i += 1
     return i, n
@@ -339,6 +338,7 @@ def _sample_frames(
     st = RxState.initial(tb)
     tba, sta = tb.kernel_args(), st.kernel_args()
     chunks: list[tuple[np.ndarray, ...]] = []
+    words = words_le(frames.data)
     cap = 1 << 16
     i = 0
     while True:
@@ -362,7 +362,7 @@ def _sample_frames(
             frames.can_id,
             frames.is_extended,
             frames.dlc,
-            frames.data,
+            words,
             tb.anchor,
             *out,
         )

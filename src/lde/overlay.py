@@ -226,7 +226,7 @@ def new_limiter_state() -> tuple[np.ndarray, np.ndarray]:
 # --- the one per-step function ------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def overlay_kernel(p, si, sf, t_ns, fw, mw, status, speed, steer, col_tq, enable):  # pragma: no cover
     """One limiter step at ``t_ns`` [ns]; updates ``si``/``sf`` in place, returns the torque [Nm].
 

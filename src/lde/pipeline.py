@@ -12,6 +12,7 @@ For the frames handed in (time order) and the step times the grid makes due (:mo
            -> finalise: a non-finite Fw, Mw, T_align or T_overlay is sent as 0 with VALID cleared
               and DEGRADED set (never NaN on the bus)
            -> output frames LDE_Estimate, LDE_Overlay (counters, CRCs)   lde.codec.encode_word
+              (``encode`` False: a replay whose frames nobody reads; the counters then stay put)
            -> one row of every output column
 
 The live service calls it once per step with the frames drained so far and one explicit step time;
@@ -37,7 +38,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from .bitfield import bytes_to_word, word_to_bytes
+from .bitfield import word_to_bytes
 from .codec import encode_word
 from .conditioning import condition_kernel
 from .e2e import S_ACCEPTED, S_N_REPEATED, S_N_WRONGCRC, S_N_WRONGSEQ, advance_counter
@@ -87,7 +88,7 @@ V_FW, V_MW, V_T_ALIGN, V_STATUS, V_T_OVERLAY, V_ACTIVE, V_STATE, V_ZERO = range(
 N_V = 8
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def finalise(est, torque, status):  # pragma: no cover - compiled
     """The one output finalisation: a non-finite Fw, Mw, T_align or T_overlay becomes 0, VALID is
     cleared and DEGRADED set. Mutates ``est``; returns (torque, status)."""
@@ -104,7 +105,7 @@ def finalise(est, torque, status):  # pragma: no cover - compiled
     return torque, status
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _rejects(e2e, malformed):  # pragma: no cover - compiled
     """Frames rejected so far: E2E (repeated, wrong sequence, wrong CRC) plus malformed."""
     n = 0
@@ -113,10 +114,10 @@ def _rejects(e2e, malformed):  # pragma: no cover - compiled
     return n
 
 
-@njit(cache=True)
-def _encode_outputs(otab, vals, counters, frames_row):  # pragma: no cover - compiled
+@njit(cache=True, inline="always")
+def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cover - compiled
     """Encode every output message (``otab``: lde.engine.OutputTable.kernel_args) from ``vals``
-    into ``frames_row`` (n_msg, 8); advances the counters."""
+    into ``frames_row`` (n_msg, 8); advances the counters. ``values``: scratch, one slot per signal."""
     (
         m_start,
         m_stop,
@@ -140,11 +141,10 @@ def _encode_outputs(otab, vals, counters, frames_row):  # pragma: no cover - com
     ) = otab
     for j in range(m_start.shape[0]):
         a, b = m_start[j], m_stop[j]
-        values = np.empty(b - a)
         for k in range(a, b):
             values[k - a] = vals[source[k]]
         w = encode_word(
-            values,
+            values[: b - a],
             shift[a:b],
             nbits[a:b],
             le[a:b],
@@ -185,6 +185,7 @@ def _run_loop(
     lsf,
     otab,
     counters,
+    encode,
     used_since,
     final,
     t_end,
@@ -194,7 +195,7 @@ def _run_loop(
     can_id,
     is_ext,
     dlc,
-    data,
+    words,
     is_rx,
     anchor,
     o_t,
@@ -225,6 +226,7 @@ def _run_loop(
     nf = t.shape[0]
     cap = o_t.shape[0]
     vals = np.zeros(N_V)
+    scratch = np.empty(otab[9].shape[0])
     i = i0
     n = 0
     while n < cap:
@@ -294,7 +296,8 @@ def _run_loop(
             vals[V_T_OVERLAY] = torque
             vals[V_ACTIVE] = 1.0 if (state == 1 or state == 2) else 0.0
             vals[V_STATE] = state
-            _encode_outputs(otab, vals, counters, o_frames[n])
+            if encode:
+                _encode_outputs(otab, vals, counters, o_frames[n], scratch)
             o_t[n] = tk
             o_status[n] = status
             o_tov[n] = torque
@@ -313,9 +316,7 @@ def _run_loop(
             break
         if g[G_MODE] == MODE_EXPLICIT and g[G_K] >= explicit.shape[0]:
             break  # no step left: later frames wait for the steps they belong to (time order)
-        m, code = rx_feed(
-            tb, st, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), bytes_to_word(data[i], 8)
-        )
+        m, code = rx_feed(tb, st, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), words[i])
         accepted = code >= 0 and e2e[m, S_ACCEPTED] != 0
         if accepted:
             used_since[0] += 1
@@ -326,7 +327,7 @@ def _run_loop(
 
 def make_loop(step: Any, name: str) -> Any:
     """The compiled loop (:func:`_run_loop`) with ``step`` bound as its backend step, under its own
-    name (its own on-disk cache entry)."""
+    name (its own on-disk cache entry). It releases the GIL: a batch runs a shadow engine beside it."""
     code = _run_loop.__code__.replace(co_name=name)
     if sys.version_info >= (3, 11):  # numba caches by qualified name
         code = code.replace(co_qualname=name)
@@ -335,4 +336,4 @@ def make_loop(step: Any, name: str) -> Any:
     fn.__module__ = _run_loop.__module__
     fn.__qualname__ = name
     fn.__doc__ = _run_loop.__doc__
-    return njit(cache=True)(fn)
+    return njit(cache=True, nogil=True)(fn)

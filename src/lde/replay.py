@@ -57,6 +57,12 @@ __all__ = [
     "resolve_backend",
     "write_csv",
     "write_recording",
+    "run_replay",
+    "read_inputs",
+    "LogInputs",
+    "ReplaySummary",
+    "CsvWriter",
+    "RecordingWriter",
     "output_frames",
     "CSV_COLUMNS",
     "DEFAULT_BACKEND",
@@ -219,6 +225,107 @@ def resolve_backend(backend: str | None) -> tuple[str, Callable[..., Any], str]:
 
 
 # ----------------------------------------------------------------------------- the path
+#: frames per call of the engine: bounds the memory of a replay, whatever the log's length
+CHUNK_FRAMES = 1 << 18
+
+Sink = Callable[[FrameBatch, StepBlock], None]
+
+
+@dataclass
+class ReplaySummary:
+    """What a streamed replay reports (its rows went to the sinks).
+
+    Attributes:
+        steps: rows produced; valid_steps: rows with the VALID bit; segments: runs of steps without a
+            gap longer than :data:`lde.grid.MAX_GAP_NS`; frames: frame counts; backend; recorded_steps;
+            timings [s]; profile, profile_origin (as :class:`ReplayResult`).
+    """
+
+    steps: int
+    valid_steps: int
+    segments: int
+    frames: FrameCounts
+    backend: str
+    recorded_steps: bool = False
+    timings: dict[str, float] = field(default_factory=dict)
+    profile: Profile | None = None
+    profile_origin: str = ""
+
+    def __len__(self) -> int:
+        return self.steps
+
+    @property
+    def duration_s(self) -> float:
+        """Stepped time [s]: steps x STEP_NS."""
+        return self.steps * STEP_NS * 1e-9
+
+
+def run_replay(
+    frames: FrameBatch,
+    profile: Profile,
+    vehicle: Vehicle,
+    backend: str | None = "float",
+    *,
+    sinks: tuple[Sink, ...] = (),
+    step_times_ns: np.ndarray | None = None,
+    tx_frames: int | None = None,
+    overlay_enable: np.ndarray | None = None,
+    extra_status: np.ndarray | None = None,
+    output_frames: bool = True,
+    chunk_frames: int = CHUNK_FRAMES,
+) -> ReplaySummary:
+    """Stream ``frames`` (any order) through the data path in chunks; every chunk's rows go to each
+    sink as ``sink(chunk_frames, rows)``. Arguments as :func:`replay`."""
+    name = DEFAULT_BACKEND if backend is None else backend
+    t0 = time.perf_counter()
+    explicit = step_times_ns is not None
+    engine = Engine(profile, vehicle, name, explicit=explicit, encode_outputs=output_frames)
+    fs = frames.sort()
+    n_tx = int(np.count_nonzero(~fs.is_rx))
+    steps = valid = gaps = 0
+    last_t: int | None = None
+    t_sinks = 0.0
+    n = len(fs)
+    starts = range(0, max(n, 1), chunk_frames)
+    for k, a in enumerate(starts):
+        chunk = fs if n <= chunk_frames else fs.take(np.arange(a, min(a + chunk_frames, n)))
+        kw: dict[str, Any] = {}
+        if explicit and k == 0:
+            times = np.ascontiguousarray(step_times_ns, np.int64)
+            en = overlay_enable if overlay_enable is not None and len(overlay_enable) == len(times) else None
+            ex = extra_status if extra_status is not None and len(extra_status) == len(times) else None
+            kw = {"step_times": times, "enable": en, "extra_status": ex}
+        block = engine.feed(chunk, final=k == len(starts) - 1, **kw)
+        m = len(block)
+        if m:
+            steps += m
+            valid += int(np.count_nonzero(block.status & VALID))
+            t = block.t_ns
+            gaps += int(np.count_nonzero(np.diff(t) > MAX_GAP_NS))
+            if last_t is not None and int(t[0]) - last_t > MAX_GAP_NS:
+                gaps += 1
+            last_t = int(t[-1])
+        ts = time.perf_counter()
+        for sink in sinks:
+            sink(chunk, block)
+        t_sinks += time.perf_counter() - ts
+    counts = FrameCounts(
+        total=n,
+        tx=n_tx if tx_frames is None else tx_frames,
+        ignored=engine.n_ignored,
+        messages=engine.stats(),
+    )
+    return ReplaySummary(
+        steps=steps,
+        valid_steps=valid,
+        segments=(gaps + 1) if steps else 0,
+        frames=counts,
+        backend=engine.backend.name,
+        recorded_steps=explicit,
+        timings={"engine": time.perf_counter() - t0 - t_sinks, "outputs": t_sinks},
+    )
+
+
 def replay(
     frames: FrameBatch,
     profile: Profile,
@@ -229,8 +336,9 @@ def replay(
     tx_frames: int | None = None,
     overlay_enable: np.ndarray | None = None,
     extra_status: np.ndarray | None = None,
+    output_frames: bool = True,
 ) -> ReplayResult:
-    """Replay ``frames`` (any order) through the data path.
+    """Replay ``frames`` (any order) through the data path; every row is kept (:class:`ReplayResult`).
 
     Args:
         frames: the log's frames; only received ones (``is_rx``) are inputs.
@@ -242,34 +350,25 @@ def replay(
         overlay_enable: the overlay limiter's enable input per step of ``step_times_ns`` (a
             recording's, so that a run ended by a signal replays exactly); default all on.
         extra_status: status bits to add per step of ``step_times_ns`` (a recording's DEADLINE_MISS).
+        output_frames: encode lde's output frames (needed by :func:`write_recording`).
     """
-    name = DEFAULT_BACKEND if backend is None else backend
-    t0 = time.perf_counter()
-    engine = Engine(profile, vehicle, name, explicit=step_times_ns is not None)
-    fs = frames.sort()
-    n_tx = int(np.count_nonzero(~fs.is_rx))
-    if step_times_ns is not None:
-        steps = np.ascontiguousarray(step_times_ns, np.int64)
-        if overlay_enable is not None and len(overlay_enable) != len(steps):
-            overlay_enable = None  # not these steps: all on
-        if extra_status is not None and len(extra_status) != len(steps):
-            extra_status = None
-        block = engine.feed(
-            fs, step_times=steps, enable=overlay_enable, extra_status=extra_status, final=True
-        )
-    else:
-        block = engine.feed(fs, final=True)
-    t1 = time.perf_counter()
-    counts = FrameCounts(
-        total=len(fs),
-        tx=n_tx if tx_frames is None else tx_frames,
-        ignored=engine.n_ignored,
-        messages=engine.stats(),
+    blocks: list[StepBlock] = []
+    summary = run_replay(
+        frames,
+        profile,
+        vehicle,
+        backend,
+        sinks=(lambda _frames, rows: blocks.append(rows),),
+        step_times_ns=step_times_ns,
+        tx_frames=tx_frames,
+        overlay_enable=overlay_enable,
+        extra_status=extra_status,
+        output_frames=output_frames,
     )
+    block = StepBlock.concat(blocks) if len(blocks) != 1 else blocks[0]
     return ReplayResult.of(
-        block, counts, engine.backend.name, recorded_steps=step_times_ns is not None,
-        timings={"engine": t1 - t0},
-    )  # fmt: skip
+        block, summary.frames, summary.backend, recorded_steps=summary.recorded_steps, timings=summary.timings
+    )
 
 
 def recorded_step_times(log: LogData) -> np.ndarray | None:
@@ -343,10 +442,13 @@ def recorded_profile(log: LogData) -> str | None:
     return None
 
 
-def no_valid_note(res: ReplayResult) -> str | None:
+def no_valid_note(res: ReplayResult | ReplaySummary) -> str | None:
     """A one-line explanation when a replay has steps but not one VALID estimate (all zeros: most
     often the wrong CAN profile), else None."""
-    if len(res) == 0 or np.any(res.status & VALID):
+    if isinstance(res, ReplaySummary):
+        if res.steps == 0 or res.valid_steps:
+            return None
+    elif len(res) == 0 or np.any(res.status & VALID):
         return None
     anchor = res.profile.anchor_message if res.profile is not None else ""
     m = res.frames.messages.get(anchor)
@@ -363,20 +465,31 @@ def no_valid_note(res: ReplayResult) -> str | None:
     return f"no valid estimate: {why} — wrong --profile? (used {res.profile.name}, {origin})"
 
 
-def replay_log(
+@dataclass
+class LogInputs:
+    """A log read for a replay: the frames and what an lde recording adds (step times, events)."""
+
+    log: LogData
+    profile: Profile
+    profile_origin: str
+    step_times_ns: np.ndarray | None
+    overlay_enable: np.ndarray | None
+    extra_status: np.ndarray | None
+    tx_frames: int | None
+    read_s: float
+
+
+def read_inputs(
     path: str | Path,
     profile: Profile | None,
-    vehicle: Vehicle,
-    backend: str | None = "float",
     *,
     use_recorded_steps: bool = True,
     profiles: dict[str, Profile] | None = None,
-) -> tuple[LogData, ReplayResult]:
-    """Read a log (any format of :func:`lde.logio.read_log`) and replay it.
-
-    An lde recording is replayed on its recorded step times unless ``use_recorded_steps`` is False.
-    ``profile`` None: the profile the log names (:func:`recorded_profile`), else ``lde``;
-    ``profiles`` caches loaded profiles by name across calls.
+) -> LogInputs:
+    """Read a log (any format of :func:`lde.logio.read_log`) for a replay. ``profile`` None: the
+    profile the log names (:func:`recorded_profile`), else ``lde``; ``profiles`` caches loaded
+    profiles by name across calls. An lde recording's step times are used unless
+    ``use_recorded_steps`` is False.
 
     Raises:
         LogFormatError: unreadable log. ConfigError: a recorded profile that cannot be loaded.
@@ -397,65 +510,140 @@ def replay_log(
     n_tx = None
     if log.mcap is not None and "/can/tx" in log.mcap.topics:
         n_tx = log.mcap.topics["/can/tx"].count
-    t1 = time.perf_counter()
+    return LogInputs(log, profile, origin, steps, enable, extra, n_tx, time.perf_counter() - t0)
+
+
+def replay_log(
+    path: str | Path,
+    profile: Profile | None,
+    vehicle: Vehicle,
+    backend: str | None = "float",
+    *,
+    use_recorded_steps: bool = True,
+    profiles: dict[str, Profile] | None = None,
+    output_frames: bool = True,
+) -> tuple[LogData, ReplayResult]:
+    """Read a log (:func:`read_inputs`) and replay it, every row kept (:func:`replay`).
+
+    Raises:
+        LogFormatError: unreadable log. ConfigError: a recorded profile that cannot be loaded.
+    """
+    li = read_inputs(path, profile, use_recorded_steps=use_recorded_steps, profiles=profiles)
     res = replay(
-        log.frames,
-        profile,
+        li.log.frames,
+        li.profile,
         vehicle,
         backend,
-        step_times_ns=steps,
-        tx_frames=n_tx,
-        overlay_enable=enable,
-        extra_status=extra,
+        step_times_ns=li.step_times_ns,
+        tx_frames=li.tx_frames,
+        overlay_enable=li.overlay_enable,
+        extra_status=li.extra_status,
+        output_frames=output_frames,
     )
-    res.timings = {"read": t1 - t0, **res.timings}
-    res.profile, res.profile_origin = profile, origin
-    return log, res
+    res.timings = {"read": li.read_s, **res.timings}
+    res.profile, res.profile_origin = li.profile, li.profile_origin
+    return li.log, res
 
 
 # ----------------------------------------------------------------------------- outputs
-def _csv_columns(res: ReplayResult) -> list[Column]:
+def _csv_columns(b: StepBlock) -> list[Column]:
     data: dict[str, np.ndarray] = {
-        "Fw": res.fw,
-        "Mw": res.mw,
-        "T_overlay": res.t_overlay,
-        "T_align": res.t_align,
-        "status": res.status,
-        "overlay_state": res.overlay_state,
-        "beta": res.beta,
-        "yaw_rate": res.yaw_rate,
-        "speed": res.grid.speed,
-        "mdps_ok": res.grid.mdps_ok,
-        "esc_ok": res.grid.esc_ok,
+        "Fw": b.fw,
+        "Mw": b.mw,
+        "T_overlay": b.t_overlay,
+        "T_align": b.t_align,
+        "status": b.status,
+        "overlay_state": b.overlay_state,
+        "beta": b.beta,
+        "yaw_rate": b.yaw_rate,
+        "speed": b.input("speed"),
+        "mdps_ok": b.mdps_ok,
+        "esc_ok": b.esc_ok,
     }
-    cols = [time_column("t", res.t_ns)]
+    cols = [time_column("t", b.t_ns)]
     cols += [Column(name, data[name], dec) for name, dec, _ in CSV_COLUMNS[1:]]
     return cols
 
 
+class CsvWriter:
+    """The replay CSV (:data:`CSV_COLUMNS`; NaN as ``nan``) written block by block: a sink of
+    :func:`run_replay`. ``t`` is the step time in seconds in the log's own time base, printed exactly
+    from the integer ns (6 decimals when every step time of a block is a whole microsecond, else 9)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        try:
+            self._fh = open(self.path, "wb")  # noqa: SIM115 - closed by close()
+            self._fh.write((",".join(name for name, _, _ in CSV_COLUMNS) + "\n").encode())
+        except OSError as exc:
+            raise LogFormatError(f"{path}: cannot write: {exc}") from exc
+
+    def write(self, block: StepBlock) -> None:
+        if len(block) == 0:
+            return
+        cols = _csv_columns(block)
+        text, _ = format_rows(cols, [""] + [","] * (len(cols) - 1), "\n")
+        try:
+            self._fh.write(text.data)
+        except OSError as exc:
+            raise LogFormatError(f"{self.path}: cannot write: {exc}") from exc
+
+    def __call__(self, _frames: FrameBatch, block: StepBlock) -> None:
+        self.write(block)
+
+    def close(self) -> None:
+        try:
+            self._fh.close()
+        except OSError as exc:
+            raise LogFormatError(f"{self.path}: cannot write: {exc}") from exc
+
+    def __enter__(self) -> CsvWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def write_csv(path: str | Path, res: ReplayResult) -> None:
-    """CSV with a header and one row per step (columns :data:`CSV_COLUMNS`; NaN as ``nan``).
-
-    ``t`` is the step time in seconds in the log's own time base, printed exactly from the integer
-    ns (6 decimals when all step times are whole microseconds, else 9).
-    """
-    cols = _csv_columns(res)
-    text, _ = format_rows(cols, [""] + [","] * (len(cols) - 1), "\n")
-    try:
-        with open(path, "wb") as fh:
-            fh.write((",".join(c.name for c in cols) + "\n").encode())
-            fh.write(text.data)
-    except OSError as exc:
-        raise LogFormatError(f"{path}: cannot write: {exc}") from exc
+    """A replay's rows as CSV (:class:`CsvWriter`)."""
+    with CsvWriter(path) as w:
+        w.write(res.block)
 
 
-def output_frames(res: ReplayResult, profile: Profile) -> FrameBatch:
-    """lde's sent frames per step as the engine encoded them (:data:`lde.engine.OUTPUT_MESSAGES`:
-    ``LDE_Estimate`` then ``LDE_Overlay``), stamped with the step time, ``is_rx`` False."""
-    b = res.block
-    n, k = len(b), len(OUTPUT_MESSAGES)
-    ids = np.array([profile.spec(m).frame_id for m in OUTPUT_MESSAGES], np.uint32)
-    lens = np.array([profile.spec(m).length for m in OUTPUT_MESSAGES], np.uint8)
+class RecordingWriter:
+    """An lde MCAP recording of a replay, written block by block (a sink of :func:`run_replay`):
+    the input frames (``/can/rx``), lde's output frames (``/can/tx``, as the engine encoded them) and
+    the step topics (:class:`lde.recording.StepTopicWriter`). It replays to the same estimates."""
+
+    def __init__(self, path: str | Path, profile: Profile, metadata: dict[str, str] | None = None) -> None:
+        self._w = McapWriter(path, metadata=metadata)
+        self._steps = StepTopicWriter(self._w)
+        self._ids = np.array([profile.spec(m).frame_id for m in OUTPUT_MESSAGES], np.uint32)
+        self._lens = np.array([profile.spec(m).length for m in OUTPUT_MESSAGES], np.uint8)
+
+    def __call__(self, frames: FrameBatch, block: StepBlock) -> None:
+        rx = frames.select(frames.is_rx) if not frames.is_rx.all() else frames
+        self._w.write_frames(rx)
+        self.write_block(block)
+
+    def write_block(self, block: StepBlock, extra_frames: FrameBatch | None = None) -> None:
+        self._w.write_frames(_output_frames(block, self._ids, self._lens))
+        if extra_frames is not None:
+            self._w.write_frames(extra_frames)
+        self._steps.write(block)
+
+    def close(self) -> None:
+        self._w.close()
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _output_frames(b: StepBlock, ids: np.ndarray, lens: np.ndarray) -> FrameBatch:
+    n, k = len(b), len(ids)
     return FrameBatch(
         t_ns=np.repeat(b.t_ns, k),
         can_id=np.tile(ids, n),
@@ -464,6 +652,14 @@ def output_frames(res: ReplayResult, profile: Profile) -> FrameBatch:
         data=b.frames.reshape(n * k, 8),
         is_rx=np.zeros(n * k, np.bool_),
     )
+
+
+def output_frames(res: ReplayResult, profile: Profile) -> FrameBatch:
+    """lde's sent frames per step as the engine encoded them (:data:`lde.engine.OUTPUT_MESSAGES`:
+    ``LDE_Estimate`` then ``LDE_Overlay``), stamped with the step time, ``is_rx`` False."""
+    ids = np.array([profile.spec(m).frame_id for m in OUTPUT_MESSAGES], np.uint32)
+    lens = np.array([profile.spec(m).length for m in OUTPUT_MESSAGES], np.uint8)
+    return _output_frames(res.block, ids, lens)
 
 
 def write_recording(
@@ -475,16 +671,9 @@ def write_recording(
     metadata: dict[str, str] | None = None,
     extra_frames: FrameBatch | None = None,
 ) -> None:
-    """An lde MCAP recording of a replay: the input frames (``/can/rx``), the frames lde sends
-    (``/can/tx``), and the recorder's step topics (:class:`lde.recording.StepTopicWriter`).
-
-    Replaying it (:func:`replay_log`) uses the recorded step times and gives the same estimates.
-    ``extra_frames`` are recorded too (``/can/rx`` or ``/can/tx`` by their ``is_rx``).
-    """
-    rx = frames.select(frames.is_rx) if not frames.is_rx.all() else frames
-    with McapWriter(path, metadata=metadata) as w:
-        w.write_frames(rx)
-        w.write_frames(output_frames(res, profile))
-        if extra_frames is not None:
-            w.write_frames(extra_frames)
-        StepTopicWriter(w).write(res.block)
+    """An lde MCAP recording of a replay (:class:`RecordingWriter` over all of it at once).
+    ``extra_frames`` are recorded too (``/can/rx`` or ``/can/tx`` by their ``is_rx``)."""
+    with RecordingWriter(path, profile, metadata) as w:
+        rx = frames.select(frames.is_rx) if not frames.is_rx.all() else frames
+        w._w.write_frames(rx)
+        w.write_block(res.block, extra_frames)

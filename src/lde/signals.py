@@ -244,7 +244,7 @@ class RxState:
 # ------------------------------------------------------------------------------ the kernel
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rx_msg_of(tb, can_id, is_extended):  # pragma: no cover - compiled
     """Row of the input message with this id (-1: ignored: unknown id or a 29-bit frame)."""
     if is_extended or can_id < 0 or can_id >= 2048:
@@ -252,7 +252,7 @@ def rx_msg_of(tb, can_id, is_extended):  # pragma: no cover - compiled
     return tb[0][can_id]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rx_feed(tb, st, t_ns, can_id, is_extended, dlc, w_le):  # pragma: no cover - compiled
     """Feed one frame (time ``t_ns``, id, length ``dlc`` in bytes, ``w_le`` its first 8 bytes as
     the little-endian word). Returns (message row or -1, code): :data:`FEED_IGNORED`,
@@ -313,7 +313,7 @@ def rx_feed(tb, st, t_ns, can_id, is_extended, dlc, w_le):  # pragma: no cover -
     return m, status
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rx_sample(tb, st, t_ns, values, ages):  # pragma: no cover - compiled
     """Sample the inputs at ``t_ns`` (module docstring): fills ``values`` (SI) and ``ages`` [ns] per
     input and returns (valid bit mask over the inputs, mdps_ok, esc_ok)."""

@@ -200,7 +200,7 @@ class BatchResult:
 # --- compiled kernels ---------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _set_p0(p, P):  # pragma: no cover - compiled
     for i in range(4):
         for j in range(4):
@@ -225,7 +225,7 @@ def reset_kernel(p, x, P, fs, ints):  # pragma: no cover - compiled
     ints[I_UPDATES] = 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def step_kernel(
     p,
     x,
