@@ -478,7 +478,7 @@ _LIST += [
     ),
     Scenario(
         "steady_crosswind_10min",
-        "10 minutes of steady 8 m/s crosswind from the right (5 % turbulence), 100 km/h: not to be learned away",
+        "10 min of steady 8 m/s crosswind from the right (5 % turbulence), 100 km/h: not to be learned away",
         duration=600.0,
         speed_kmh=100.0,
         wind_speed=(Step(5.0, 2.0, 8.0),),
@@ -493,7 +493,7 @@ _LIST += [
     ),
     Scenario(
         "prior_drive",
-        "no disturbance: 2 minutes with 6 lane changes and a short weave at 80-120 km/h (a prior drive to learn on)",
+        "no disturbance: 2 min with 6 lane changes and a short weave at 80-120 km/h (a drive to learn on)",
         duration=120.0,
         speed_kmh=90.0,
         speed_steps=(Step(40.0, 10.0, 120.0), Step(85.0, 10.0, 80.0)),
