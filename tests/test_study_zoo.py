@@ -265,3 +265,23 @@ def test_lde_evaluate_zoo_end_to_end(tmp_path, capsys):
     assert table[0]["plant"] == "compact_quick" and float(table[0]["lane_change_fw"]) > 0
     md = (out / "zoo_table.md").read_text()
     assert "lde evaluate --zoo --plants compact_quick" in md and "## backend fixed" in md
+
+
+def test_a_disturbance_free_scenario_is_scored_by_rms_whatever_the_aero_side_force():
+    """A large car's own side slip makes ~20 N of aero side force on a lane change; the run is still
+    scored as disturbance-free (RMS), not as an NRMSE over a 20 N maximum."""
+    from lde.study import Estimate
+    from lde.study.engine import run_one
+
+    def engine(spec):
+        t = np.arange(0.0, 10.0, 0.01)
+        fw = 25.0 * np.sin(t)  # the aero side force of the car's side slip
+        return Estimate(
+            t, fw + 30.0, np.full_like(t, 5.0), np.ones(t.size, bool), metrics.Truth(t, fw, 0 * t, 0 * t)
+        )
+
+    res = run_one(RunSpec("lane_change"), engine=engine)
+    assert res.accuracy.kind is metrics.Kind.UNDISTURBED
+    assert res.accuracy.rms_fw == pytest.approx(30.0) and res.accuracy.rms_mw == pytest.approx(5.0)
+    disturbed = run_one(RunSpec("wind_step"), engine=engine)
+    assert disturbed.accuracy.kind is metrics.Kind.FORCE_ONLY  # decided from the truth (no moment)

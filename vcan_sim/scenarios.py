@@ -151,6 +151,14 @@ class Scenario:
     faults: tuple[Fault, ...] = ()
     driver_style: DriverStyle = field(default_factory=DriverStyle)
 
+    @property
+    def disturbance_free(self) -> bool:
+        """No wind (mean, turbulence floor, gusts) and no bank: the truth's Fw is only the few
+        newtons of aero side force from the car's own side slip."""
+        no_wind = all(s.value == 0.0 for s in self.wind_speed) and self.turbulence_floor == 0.0
+        no_gusts = self.gusts.count == 0 or self.gusts.amplitude == 0.0
+        return no_wind and no_gusts and all(s.value == 0.0 for s in self.bank_deg)
+
     def with_speed(self, speed_kmh: float) -> Scenario:
         """The same drive at another constant speed."""
         return replace(self, speed_kmh=float(speed_kmh), speed_steps=())

@@ -51,6 +51,8 @@ def test_new_scenarios_are_registered_and_old_names_still_work():
     for name in ("heavy_load", "light_load", "lane_change", "payload_full", "bus_faults", "speed_sweep"):
         assert name in SCENARIOS
     assert SCENARIOS["steady_crosswind_10min"].duration == SCENARIOS["banked_road_10min"].duration == 600.0
+    free = {n for n, sc in SCENARIOS.items() if sc.disturbance_free}
+    assert free == {"lane_change", "straight", "overlay_step", "prior_drive"}
     ramp = SCENARIOS["speed_ramp"]
     assert ramp.speed_kmh == 80.0 and max(s.value for s in ramp.speed_steps) == 130.0
 
