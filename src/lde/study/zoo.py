@@ -16,6 +16,7 @@ plant x profile x backend with a "Fw / Mw" cell per scenario, and one line per t
 from __future__ import annotations
 
 import enum
+import functools
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -121,11 +122,16 @@ def _mode(r: RunResult) -> Mode:
     return Mode.WARM if r.spec.est_options.learned_prior else Mode.COLD
 
 
-def has_defects(plant: str) -> bool:
-    """A plant with rack friction >= 0.4 Nm, an angle offset or a gyro bias (its true values)."""
+@functools.lru_cache(maxsize=1)
+def _true_values() -> dict[str, Any]:
     from vcan_sim.zoo import read_true_values
 
-    tv = read_true_values().get(plant)
+    return read_true_values()
+
+
+def has_defects(plant: str) -> bool:
+    """A plant with rack friction >= 0.4 Nm, an angle offset or a gyro bias (its true values)."""
+    tv = _true_values().get(plant)
     if tv is None:
         return False
     return (
@@ -175,9 +181,7 @@ def _rows(results: Sequence[RunResult]) -> tuple[list[tuple[str, str, str, Mode]
 
 
 def _payload_plants(names: Sequence[str]) -> set[str]:
-    from vcan_sim.zoo import read_true_values
-
-    tv = read_true_values()
+    tv = _true_values()
     return {n for n in names if n in tv and tv[n].payload_kg > 0.0}
 
 
