@@ -194,7 +194,11 @@ def write_true_values(values: list[TrueValues], path: Path = TRUE_VALUES_CSV) ->
         for v in values:
             row = []
             for key, val in asdict(v).items():
-                row.append(f"{val:.{_DECIMALS[key]}f}" if key in _DECIMALS else val)
+                if key in _DECIMALS:  # rounded first: no "-0.000" for a CG shift of -1e-16 m
+                    d = _DECIMALS[key]
+                    row.append(f"{round(val, d) + 0.0:.{d}f}")
+                else:
+                    row.append(val)
             w.writerow(row)
     return path
 
