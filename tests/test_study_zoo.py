@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 
 from lde import metrics
+from lde.cli import engine as cli_engine
 from lde.cli import main
 from lde.errors import ConfigError
 from lde.params import load_vehicle
-from lde.study import EstOptions, RunResult, RunSpec, SimOptions, cli_engine, zoo
+from lde.study import EstOptions, RunResult, RunSpec, SimOptions, zoo
 from lde.study.specsheet import SPEC_SHEET_KEYS, spec_sheet_vehicle
 
 vcan_zoo = pytest.importorskip("vcan_sim.zoo")
@@ -113,7 +114,7 @@ def test_cli_engine_scores_exactly_the_users_replay(tmp_path):
     from lde.study.engine import run_one
 
     spec = _zoo_spec(tmp_path, profile="hyundai")
-    res = run_one(spec)
+    res = run_one(spec, cli_engine.engine)
     assert res.ok, res.error
     d = tmp_path / "runs" / "indep_twin" / "hyundai-fixed" / "wind_step-s0"
     assert {p.name for p in d.iterdir()} == {"drive.log", "truth.csv", "spec_sheet.toml", "estimate.csv"}
@@ -139,7 +140,9 @@ def test_cli_engine_scores_exactly_the_users_replay(tmp_path):
 def test_cli_engine_reports_lde_errors_as_a_failed_run(tmp_path):
     from lde.study.engine import run_one
 
-    res = run_one(_zoo_spec(tmp_path, est_vehicle=str(tmp_path / "missing.toml"), work_dir=""))
+    res = run_one(
+        _zoo_spec(tmp_path, est_vehicle=str(tmp_path / "missing.toml"), work_dir=""), cli_engine.engine
+    )
     assert not res.ok and "exited with 2" in res.error and "vehicle file not found" in res.error
 
 
@@ -150,7 +153,7 @@ def test_warm_mode_is_one_clear_line_until_replay_has_learned(capsys, tmp_path):
     assert code == 2
     assert err == [f"lde: error: {cli_engine.WARM_UNAVAILABLE}"]
     with pytest.raises(ConfigError, match="--learned"):
-        zoo.zoo_specs(["indep_twin"], mode=zoo.Mode.WARM)
+        cli_engine.require_learned()
 
 
 def test_warm_mode_plumbing_once_replay_takes_learned(tmp_path, monkeypatch):
@@ -172,7 +175,7 @@ def test_warm_mode_plumbing_once_replay_takes_learned(tmp_path, monkeypatch):
     assert spec.est_options.learned_prior == zoo.PRIOR_SCENARIO
     from lde.study.engine import run_one
 
-    res = run_one(RunSpec(**{**spec.__dict__, "duration": 8.0, "work_dir": str(tmp_path)}))
+    res = run_one(RunSpec(**{**spec.__dict__, "duration": 8.0, "work_dir": str(tmp_path)}), cli_engine.engine)
     assert res.ok, res.error
     prior, run = calls
     d = tmp_path / "indep_twin" / "lde-float" / "wind_step-s0-warm"

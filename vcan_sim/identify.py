@@ -37,6 +37,7 @@ from lde.params import Vehicle, load_vehicle
 
 from .config import SimParams, sim_params_from_vehicle
 from .payload import combined, loaded_body, payload_by_name
+from .run import simulate
 from .tires import aligning_slope, force_slope
 
 
@@ -139,7 +140,6 @@ def identify_scenarios(
     duration: float | None = None,
 ) -> dict[str, LinearEquivalent]:
     """:func:`identify` over runs of several scenarios (truth of all seeds pooled per scenario)."""
-    from .run import simulate  # noqa: PLC0415 - run imports this module's siblings
 
     out: dict[str, LinearEquivalent] = {}
     for name in names:

@@ -15,6 +15,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from .errors import LogFormatError
 
@@ -38,7 +39,6 @@ def plot_demo(
     """
     # a Figure with its own canvas, not pyplot: no global backend is selected (matplotlib.use would
     # change every caller's backend) and no figure stays in pyplot's registry
-    from matplotlib.figure import Figure
 
     on = with_overlay
     off = without_overlay

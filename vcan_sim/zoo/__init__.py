@@ -24,9 +24,17 @@ import sys
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
+import numpy as np
+
 from lde.errors import ConfigError
 from lde.params import Vehicle, load_vehicle
 from lde.units import DEG
+
+from ..config import sim_params_from_vehicle
+from ..identify import identify, static_stiffness
+from ..payload import combined, loaded_body, payload_by_name
+from ..run import simulate
+from ..sensors import angle_below_torsion_bar
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -113,13 +121,6 @@ def identify_plant(
     name: str, scenarios: tuple[str, ...] = IDENTIFY_SCENARIOS, seeds: tuple[int, ...] = IDENTIFY_SEEDS
 ) -> TrueValues:
     """Fit the plant's true linear-equivalent values to its truth (``scenarios`` x ``seeds`` pooled)."""
-    import numpy as np
-
-    from ..config import sim_params_from_vehicle
-    from ..identify import identify, static_stiffness
-    from ..payload import combined, loaded_body, payload_by_name
-    from ..run import simulate
-    from ..sensors import angle_below_torsion_bar
 
     vehicle = load_plant(name)
     sp = sim_params_from_vehicle(vehicle)

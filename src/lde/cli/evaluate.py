@@ -24,6 +24,11 @@ from pathlib import Path
 
 from .. import study
 from ..errors import ConfigError
+from ..study import zoo
+from ..study.engine import load_sim_vehicle
+from ..study.specsheet import write_spec_sheet
+from ..study.tables import write_rows
+from .engine import engine, require_learned
 from .study import add_cluster_arguments, add_run_arguments, cluster_config, est_options, sim_options
 
 
@@ -111,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
         est_options=est_options(args),
         trace=args.plot is not None,
     )
-    results = study.run_specs(specs, cluster_config(args), progress=not args.no_progress)
+    results = study.run_specs(specs, cluster_config(args), progress=not args.no_progress, engine=engine)
     print(study.table(results))
     if args.csv:
         study.write_csv(results, args.csv)
@@ -122,9 +127,6 @@ def run(args: argparse.Namespace) -> int:
 
 def run_zoo(args: argparse.Namespace) -> int:
     """``lde evaluate --zoo``: see the module docstring."""
-    from ..study import zoo
-    from ..study.specsheet import write_spec_sheet
-    from ..study.tables import write_rows
 
     for flag, given in (
         ("--vehicle", args.vehicle),
@@ -144,6 +146,8 @@ def run_zoo(args: argparse.Namespace) -> int:
     if args.workers is None:
         args.workers = 2
     mode = zoo.Mode.WARM if args.warm else zoo.Mode.COLD
+    if args.warm:
+        require_learned()
     profiles = args.profiles or ((args.profile,) if args.profile else zoo.PROFILES)
     backends = args.backends or ((args.backend,) if args.backend else zoo.BACKENDS)
     for b in backends:
@@ -160,7 +164,6 @@ def run_zoo(args: argparse.Namespace) -> int:
         duration=args.duration,
         work_dir=str((out / "runs").resolve()) if args.keep_logs else "",
     )
-    from ..study.engine import load_sim_vehicle
 
     for plant in dict.fromkeys(s.group for s in specs):
         write_spec_sheet(load_sim_vehicle(f"zoo:{plant}"), out / "spec_sheets" / f"{plant}.toml")
@@ -171,7 +174,9 @@ def run_zoo(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     t0 = time.perf_counter()
-    results = study.run_specs(specs, cluster_config(args), progress=not args.no_progress, desc="lde zoo")
+    results = study.run_specs(
+        specs, cluster_config(args), progress=not args.no_progress, desc="lde zoo", engine=engine
+    )
     wall = time.perf_counter() - t0
     study.write_csv(results, out / "zoo_runs.csv")
     write_rows(zoo.plant_table_rows(results), out / "zoo_table.csv")

@@ -31,6 +31,7 @@ from pathlib import Path
 
 from .. import study
 from ..errors import ConfigError
+from .engine import engine
 
 
 def add_cluster_arguments(p: argparse.ArgumentParser) -> None:
@@ -286,7 +287,7 @@ def _fig12(ctx: _Ctx, candidates) -> dict[str, str]:
 
 def _run(specs, name: str, ctx: _Ctx):
     print(f"lde study: {name}: {len(specs)} runs", file=sys.stderr)
-    results = study.run_specs(specs, ctx.cluster, progress=ctx.progress)
+    results = study.run_specs(specs, ctx.cluster, progress=ctx.progress, engine=engine)
     bad = [r for r in results if not r.ok]
     for r in bad[:10]:
         print(f"FAILED {r.spec.label}: {r.error}", file=sys.stderr)

@@ -12,7 +12,6 @@ Modules, one idea each:
 - :mod:`~lde.study.spec`: :class:`RunSpec`, :class:`SimOptions`, :class:`EstOptions`,
   :class:`RunResult`, :class:`Estimate`;
 - :mod:`~lde.study.engine`: simulate + estimate + score (:func:`run_one`), in process;
-- :mod:`~lde.study.cli_engine`: the same through ``lde replay`` on a written log, as a user runs it;
 - :mod:`~lde.study.runner`: the Dask runner (:func:`run_specs`, :class:`ClusterConfig`);
 - :mod:`~lde.study.presets`: the paper's study, ``lde evaluate``'s set, the ladder, the faults;
 - :mod:`~lde.study.zoo`: the zoo evaluation (cars the estimator was not fitted to) and its tables;

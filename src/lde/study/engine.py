@@ -8,7 +8,7 @@ failure becomes ``RunResult.error`` (a sweep must survive one bad case). The eng
   with the input corrections or calibration of ``spec.est_options``;
 - ``adaptive``: the prototype extensions of :mod:`lde.adaptive`;
 - ``cli``: exactly what a user runs, ``lde replay LOG ... --csv OUT`` through :func:`lde.cli.main` on a
-  written candump log (:mod:`lde.study.cli_engine`; the zoo evaluation).
+  written candump log (:mod:`lde.cli.engine`, passed in by the CLI; the zoo evaluation).
 
 A run in which the simulated driver loses control is discarded (:func:`check_plant`), not scored.
 """
@@ -18,13 +18,23 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .. import metrics
+from vcan_sim.config import sim_params_from_vehicle
+from vcan_sim.run import scenario_with, simulate
+from vcan_sim.scenarios import SCENARIOS, get_scenario
+from vcan_sim.zoo import load_plant
+
+from .. import adaptive, metrics
+from ..calibrate import calibrate
 from ..errors import ConfigError, LdeError
 from ..params import Vehicle, load_vehicle, with_corrections
+from ..profiles import load_profile
+from ..replay import replay
+from ..step import Status
 from ..units import DEG
 from .spec import Estimate, Estimator, EstOptions, RunResult, RunSpec, SimOptions
 
@@ -52,17 +62,12 @@ SIM_OPTION_FIELDS: dict[str, tuple[str, str, float]] = {
 def load_sim_vehicle(name: str) -> Vehicle:
     """A simulated vehicle: ``zoo:NAME`` (a zoo plant), a shipped name or a TOML path."""
     if name.startswith(ZOO_PREFIX):
-        try:
-            from vcan_sim.zoo import load_plant
-        except ImportError as exc:
-            raise LdeError("the simulator package vcan_sim is not importable") from exc
         return load_plant(name[len(ZOO_PREFIX) :])
     return load_vehicle(name)
 
 
 def sim_params(vehicle: Vehicle, options: SimOptions) -> Any:
     """The vehicle's ``[sim]`` parameters with the run's simulator options applied."""
-    from vcan_sim.config import sim_params_from_vehicle
 
     if options.unknown:
         raise ConfigError(
@@ -81,12 +86,6 @@ def sim_params(vehicle: Vehicle, options: SimOptions) -> Any:
 def simulate_run(spec: RunSpec, scenario: str, seed: int) -> Any:
     """Simulate ``scenario`` with the run's simulated vehicle, payload and options (a
     :class:`vcan_sim.run.SimResult`). The run's ``duration`` applies to its own scenario only."""
-    try:
-        from vcan_sim.run import scenario_with, simulate
-    except ImportError as exc:
-        raise LdeError("the simulator package vcan_sim is not importable") from exc
-    from vcan_sim.scenarios import get_scenario
-
     vehicle = load_sim_vehicle(spec.sim_vehicle)
     # another drive of the run (calibration, prior) carries the same payload as the run
     payload = spec.payload or get_scenario(spec.scenario).payload
@@ -123,8 +122,6 @@ def check_plant(truth: dict[str, np.ndarray]) -> None:
 def calibrate_on(spec: RunSpec, scenario: str, vehicle: Vehicle, profile: Any, identify_torsion: bool) -> Any:
     """Calibrate on an undisturbed drive of the same simulated car (another seed), as
     ``lde calibrate`` does (friction only where the profile's steering rate is signed)."""
-    from .. import adaptive
-    from ..calibrate import calibrate
 
     cal_sim = simulate_run(spec, scenario, spec.seed + CALIBRATION_SEED_OFFSET)
     grid = adaptive.grid_from_frames(cal_sim.frames, profile)
@@ -170,8 +167,6 @@ def estimator_vehicle(spec: RunSpec, sim: Any, profile: Any) -> tuple[Vehicle, A
 
 def simulate_and_estimate(spec: RunSpec) -> Estimate:
     """The in-process engines (``replay``, ``adaptive``): :mod:`vcan_sim` -> CAN frames -> estimator."""
-    from ..profiles import load_profile
-    from ..step import Status
 
     opts = spec.est_options
     if opts.unknown:
@@ -188,16 +183,12 @@ def simulate_and_estimate(spec: RunSpec) -> Estimate:
     profile = load_profile(spec.profile)
     vehicle, cal = estimator_vehicle(spec, sim, profile)
     if spec.estimator == Estimator.REPLAY.value:
-        from ..replay import replay
-
         proto = [k for k in EstOptions.ADAPTIVE_ONLY if dict(opts).get(k) not in (None, 0)]
         if proto:
             raise ConfigError(f"estimator options {sorted(proto)} need --estimator adaptive")
         out = replay(sim.frames, profile, vehicle, spec.backend)
         t_ns, fw, mw, status = out.t_ns, out.fw, out.mw, out.status
     else:
-        from .. import adaptive
-
         grid = adaptive.grid_from_frames(sim.frames, profile)
         if opts.lat_accel:
             ay_kw: dict[str, Any] = {}
@@ -210,8 +201,6 @@ def simulate_and_estimate(spec: RunSpec) -> Estimate:
             )
             status = np.where(ok, int(Status.VALID), 0)
         else:
-            from ..replay import replay
-
             est = replay(sim.frames, profile, vehicle, "float")  # the product's data path (float)
             t_ns, fw, mw, status = est.t_ns, est.fw, est.mw, est.status
     valid = (np.asarray(status) & int(Status.VALID)) != 0
@@ -219,22 +208,28 @@ def simulate_and_estimate(spec: RunSpec) -> Estimate:
 
 
 def default_engine(spec: RunSpec) -> Estimate:
-    """The engine ``spec.estimator`` names."""
+    """The in-process engine (``replay``, ``adaptive``). The ``cli`` estimator runs the command
+    line, which sits above the study: ``lde evaluate`` / ``lde study`` pass
+    :func:`lde.cli.engine.engine` as the engine."""
     if spec.estimator == Estimator.CLI.value:
-        from .cli_engine import estimate_with_cli
-
-        return estimate_with_cli(spec)
+        raise ConfigError(
+            "the cli estimator runs `lde replay` in process: give engine=lde.cli.engine.engine "
+            "(lde evaluate / lde study do)"
+        )
     return simulate_and_estimate(spec)
+
+
+def plant_name(sim_vehicle: str) -> str:
+    """A short name of the simulated vehicle (a zoo plant's name, a file's stem)."""
+    if sim_vehicle.startswith(ZOO_PREFIX):
+        return sim_vehicle[len(ZOO_PREFIX) :]
+    return Path(sim_vehicle).stem
 
 
 def scenario_kind(name: str) -> metrics.Kind | None:
     """UNDISTURBED for a simulator scenario without wind and bank (scored by the RMS of the
     estimate whatever the few newtons of aero side force from the car's side slip: a large car's
     exceeds the truth-based threshold); None (decided from the truth) otherwise."""
-    try:
-        from vcan_sim.scenarios import SCENARIOS
-    except ImportError:
-        return None
     sc = SCENARIOS.get(name)
     return metrics.Kind.UNDISTURBED if sc is not None and sc.disturbance_free else None
 

@@ -15,7 +15,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from ..errors import ConfigError, LdeError
+from vcan_sim.payload import PAYLOADS
+
+from ..errors import ConfigError
 from .spec import EstOptions, RunSpec, SimOptions
 
 #: no simulator / estimator options (the vehicle files as they are)
@@ -91,10 +93,6 @@ def candidate_specs(
 
 def all_payloads() -> tuple[str, ...]:
     """The simulator's payload case names (``vcan_sim.payload.PAYLOADS``)."""
-    try:
-        from vcan_sim.payload import PAYLOADS
-    except ImportError as exc:
-        raise LdeError("the simulator package vcan_sim is not importable") from exc
     return tuple(PAYLOADS)
 
 

@@ -8,9 +8,13 @@ order of the specs. ``n_workers=0`` runs in this process (debugging).
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
+
+from distributed import Client, LocalCluster, as_completed
+from tqdm import tqdm
 
 from ..errors import LdeError
 from .engine import Engine, run_one
@@ -44,9 +48,6 @@ def run_specs(
     if cfg.scheduler is None and cfg.n_workers == 0:
         it: Iterable[RunSpec] = _progress(specs, progress, len(specs), desc)
         return [run_one(s, engine) for s in it]
-    import logging
-
-    from distributed import Client, LocalCluster, as_completed
 
     # the scheduler and nanny INFO lines would drown the progress bar (-v shows them)
     if logging.getLogger().getEffectiveLevel() >= logging.WARNING:
@@ -86,6 +87,5 @@ def run_specs(
 def _progress(it: Iterable[Any], enabled: bool, total: int, desc: str) -> Iterable[Any]:
     if not enabled:
         return it
-    from tqdm import tqdm
 
     return tqdm(it, total=total, unit="run", desc=desc)

@@ -13,6 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from vcan_sim.identify import identify_scenarios
+from vcan_sim.run import simulate
+
 from .presets import PAPER_SCENARIOS
 
 
@@ -33,7 +36,6 @@ def identify_tires(
     scenarios: Sequence[str] = PAPER_SCENARIOS, seeds: Sequence[int] = (0, 1)
 ) -> list[TireIdentification]:
     """The paper's Fig. 12 question on the simulator: Cf, Cr, K per load level (truth-based fit)."""
-    from vcan_sim.identify import identify_scenarios
 
     out = identify_scenarios(list(scenarios), seeds=tuple(seeds))
     return [
@@ -51,7 +53,6 @@ def identify_curvature(
     and ``T_align/2 = K alpha_f (1 - kappa_K alpha_f^2)``: how fast the secant stiffnesses fall with
     slip (the heavy load reaches alpha_f ~ 0.02 rad).
     """
-    from vcan_sim.run import simulate
 
     runs = [simulate(scenario, seed=s) for s in seeds]
     col = {

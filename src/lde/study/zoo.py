@@ -2,11 +2,11 @@
 
 For every plant of :mod:`vcan_sim.zoo` x scenario x profile (``lde``, ``hyundai``) x backend
 (``fixed``, ``float``): simulate (seeded), write the log, ``lde replay`` it with only the plant's
-spec-sheet vehicle file (:mod:`lde.study.cli_engine`), score the CSV against the truth
+spec-sheet vehicle file (:mod:`lde.cli.engine`), score the CSV against the truth
 (:mod:`lde.metrics`: NRMSE after 2 s; RMS on a disturbance-free drive; Mw about the true CG and
 about the spec sheet's CG). Cold: ``lde replay LOG``; warm: after ``lde replay PRIOR --learned S``
 on the plant's :data:`PRIOR_SCENARIO` with another seed (needs ``--learned``; until then a one-line
-error, :data:`lde.study.cli_engine.WARM_UNAVAILABLE`).
+error, :data:`lde.cli.engine.WARM_UNAVAILABLE`).
 
 Outputs (:func:`plant_table_markdown`, :func:`plant_table_rows`, :func:`summary_lines`): one row per
 plant x profile x backend with a "Fw / Mw" cell per scenario, and one line per target of
@@ -21,10 +21,12 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from vcan_sim.scenarios import SCENARIOS
+from vcan_sim.zoo import plant_names, read_true_values
+
 from .. import metrics
 from ..errors import ConfigError
-from .cli_engine import plant_name, require_learned
-from .engine import ZOO_PREFIX
+from .engine import ZOO_PREFIX, plant_name
 from .spec import SPEC_SHEET, Estimator, EstOptions, RunResult, RunSpec
 
 #: the zoo evaluation's scenarios: crosswind steps, gusts, banks, the paper's loads, slalom, an
@@ -60,14 +62,12 @@ class Mode(str, enum.Enum):
 
 def plants() -> tuple[str, ...]:
     """The zoo's plant names."""
-    from vcan_sim.zoo import plant_names
 
     return plant_names()
 
 
 def check_selection(plant_list: Sequence[str], scenarios: Sequence[str], profiles: Sequence[str]) -> None:
     """ConfigError naming what does not exist (before any run starts)."""
-    from vcan_sim.scenarios import SCENARIOS
 
     known = plants()
     bad = [p for p in plant_list if p not in known]
@@ -94,8 +94,6 @@ def zoo_specs(
     """One ``cli`` run per plant x scenario x profile x backend (group = plant name)."""
     names = tuple(plant_list or plants())
     check_selection(names, scenarios, profiles)
-    if mode is Mode.WARM:
-        require_learned()
     est = EstOptions(learned_prior=PRIOR_SCENARIO) if mode is Mode.WARM else EstOptions()
     return [
         RunSpec(
@@ -124,7 +122,6 @@ def _mode(r: RunResult) -> Mode:
 
 @functools.lru_cache(maxsize=1)
 def _true_values() -> dict[str, Any]:
-    from vcan_sim.zoo import read_true_values
 
     return read_true_values()
 

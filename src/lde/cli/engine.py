@@ -1,4 +1,8 @@
-"""The ``cli`` engine: score exactly what a user runs, ``lde replay`` on a log file (issue 11).
+"""The study's ``cli`` engine: score exactly what a user runs, ``lde replay`` on a log file.
+
+It lives in the CLI layer because it runs the command line in process (:func:`lde.cli.main`); the
+study (:mod:`lde.study`, below the CLI) receives it as the ``engine`` of
+:func:`lde.study.run_specs` from ``lde evaluate`` / ``lde study`` (:func:`engine`).
 
 For one :class:`~lde.study.spec.RunSpec` (on a worker):
 
@@ -31,9 +35,21 @@ from pathlib import Path
 
 import numpy as np
 
+from vcan_sim.output import write_outputs
+
 from ..errors import ConfigError, LdeError, LogFormatError
-from .engine import ZOO_PREFIX, check_plant, load_sim_vehicle, simulate_run, truth_of
-from .spec import SPEC_SHEET, Estimate, RunSpec
+from ..status import VALID
+from ..study.engine import (
+    check_plant,
+    load_sim_vehicle,
+    plant_name,
+    simulate_and_estimate,
+    simulate_run,
+    truth_of,
+)
+from ..study.spec import SPEC_SHEET, Estimate, Estimator, RunSpec
+from ..study.specsheet import write_spec_sheet
+from . import main
 
 #: the prior drive of a warm run uses the run's seed + this (another drive of the same car)
 PRIOR_SEED_OFFSET = 500
@@ -60,8 +76,6 @@ class CliRun:
 def run_cli(argv: list[str]) -> CliRun:
     """``lde ARGV`` in this process (:func:`lde.cli.main`), stdout and stderr captured; LdeError on a
     non-zero exit status (with the command's error line)."""
-    from ..cli import main
-
     err = io.StringIO()
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
         try:
@@ -95,8 +109,6 @@ def replay_argv(
 def learned_available() -> bool:
     """Whether ``lde replay --help`` lists ``--learned`` (the warm mode's prerequisite)."""
     out = io.StringIO()
-    from ..cli import main
-
     quiet = contextlib.redirect_stderr(io.StringIO())
     with contextlib.redirect_stdout(out), quiet, contextlib.suppress(SystemExit):
         main(["replay", "--help"])
@@ -107,13 +119,6 @@ def require_learned() -> None:
     """ConfigError (:data:`WARM_UNAVAILABLE`) unless ``lde replay`` takes ``--learned``."""
     if not learned_available():
         raise ConfigError(WARM_UNAVAILABLE)
-
-
-def plant_name(sim_vehicle: str) -> str:
-    """A short name of the simulated vehicle (a zoo plant's name, a file's stem)."""
-    if sim_vehicle.startswith(ZOO_PREFIX):
-        return sim_vehicle[len(ZOO_PREFIX) :]
-    return Path(sim_vehicle).stem
 
 
 def run_dir_name(spec: RunSpec) -> Path:
@@ -157,11 +162,6 @@ def read_estimate_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
 
 def estimate_with_cli(spec: RunSpec) -> Estimate:
     """The ``cli`` engine (see the module docstring)."""
-    from vcan_sim.output import write_outputs
-
-    from ..step import Status
-    from .specsheet import write_spec_sheet
-
     opts = spec.est_options
     rejected = [k for k, v in opts if k != "learned_prior"]
     if rejected:
@@ -190,5 +190,13 @@ def estimate_with_cli(spec: RunSpec) -> Estimate:
         out = d / "estimate.csv"
         run_cli(replay_argv(log, spec.profile, spec.backend, vehicle, csv=out, learned=learned))
         t, fw, mw, status = read_estimate_csv(out)
-    valid = (status & int(Status.VALID)) != 0
+    valid = (status & int(VALID)) != 0
     return Estimate(t, fw, mw, valid, truth_of(sim))
+
+
+def engine(spec: RunSpec) -> Estimate:
+    """The engine of ``lde evaluate`` / ``lde study``: the ``cli`` estimator runs the command line
+    (:func:`estimate_with_cli`), the others the in-process study engine."""
+    if spec.estimator == Estimator.CLI.value:
+        return estimate_with_cli(spec)
+    return simulate_and_estimate(spec)
