@@ -9,6 +9,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from mcap_util import chunk_spans
 
 from lde.errors import LogFormatError
 from lde.frames import FrameBatch
@@ -124,9 +125,13 @@ def test_candump_sniffed_without_suffix(tmp_path: Path):
 
 # ----------------------------------------------------------------------------- MCAP
 def write_recording(
-    path: Path, frames: FrameBatch, compression: str = "zstd", chunk_size: int = 64 << 10
+    path: Path,
+    frames: FrameBatch,
+    compression: str = "zstd",
+    chunk_size: int = 64 << 10,
+    indexed: bool = False,
 ) -> None:
-    with McapWriter(path, compression=compression, chunk_size=chunk_size) as w:
+    with McapWriter(path, compression=compression, chunk_size=chunk_size, indexed=indexed) as w:
         w.write_frames(frames)
         est = w.add_json_channel("/lde/estimate", {"Fw": {"type": "number"}, "Mw": {"type": "number"}})
         t = frames.t_ns[::7]
@@ -134,11 +139,12 @@ def write_recording(
         w.write_json(est, int(frames.t_ns[3]) + 1, {"Fw": 1.25, "Mw": float("nan")})
 
 
+@pytest.mark.parametrize("indexed", [False, True])
 @pytest.mark.parametrize("compression", ["zstd", "lz4", ""])
-def test_mcap_fast_path_equals_library_reader(tmp_path: Path, compression: str):
+def test_mcap_fast_path_equals_library_reader(tmp_path: Path, compression: str, indexed: bool):
     frames = random_frames(5000, seed=3)
     path = tmp_path / "x.mcap"
-    write_recording(path, frames, compression)
+    write_recording(path, frames, compression, indexed=indexed)
     fast = read_mcap(path, json_topics="all", validate_crcs=True)
     lib = read_mcap(path, json_topics="all", force_library=True)
     assert fast.fast_path and not lib.fast_path
@@ -157,11 +163,12 @@ def test_mcap_fast_path_equals_library_reader(tmp_path: Path, compression: str):
     assert lean.topics == fast.topics
     np.testing.assert_array_equal(lean.times["/lde/estimate"], fast.times["/lde/estimate"])
     assert_frames_equal(lean.frames, frames)
-    # replay's read: the /can/tx chunks are only counted
+    # replay's read: only the received frames; the /can/tx chunks stay compressed when message
+    # indexes say which they are (compact files: read, their frames left out)
     rx_only = read_mcap(path, skip_tx=True)
     assert rx_only.topics == fast.topics
-    assert rx_only.chunks_skipped > lean.chunks_skipped
     assert_frames_equal(rx_only.frames, frames[frames.is_rx])
+    assert (rx_only.chunks_skipped > lean.chunks_skipped) == indexed
     assert np.isnan(fast.json["/lde/estimate"]["Mw"][1])  # the single write_json record, sorted in at t[3]+1
 
 
@@ -226,10 +233,7 @@ def test_mcap_cut_recording_is_recovered_up_to_its_last_chunk(tmp_path: Path):
         w.sync()  # what the live recorder does every 0.25 s
     size = path.stat().st_size
     w.close()
-    from mcap.reader import make_reader
-
-    with path.open("rb") as fh:
-        last = max(make_reader(fh).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    last = chunk_spans(path)[-1]
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(path.read_bytes()[: last.chunk_start_offset + last.chunk_length // 2])  # crash
     log = read_log(cut)
@@ -307,10 +311,7 @@ def _bad_files(tmp: Path) -> dict[str, Path]:
     good = tmp / "good.mcap"
     write_recording(good, random_frames(2000, seed=9))
     raw = good.read_bytes()
-    from mcap.reader import make_reader
-
-    with good.open("rb") as fh:
-        c0 = make_reader(fh).get_summary().chunk_indexes[1]
+    c0 = chunk_spans(good)[1]
     g = c0.chunk_start_offset + c0.chunk_length // 2  # inside the compressed records of chunk 1
     files = {
         "empty.log": b"",
@@ -515,10 +516,7 @@ def test_mcap_cut_inside_or_before_its_first_chunk_says_so(tmp_path: Path):
     path = tmp_path / "a.mcap"
     with McapWriter(path) as w:  # one chunk of frames
         w.write_frames(frames)
-    from mcap.reader import make_reader
-
-    with path.open("rb") as fh:
-        first = min(make_reader(fh).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    first = chunk_spans(path)[0]
     raw = path.read_bytes()
     for name, end, where in (
         ("in.mcap", first.chunk_start_offset + first.chunk_length // 2, "inside its first chunk"),

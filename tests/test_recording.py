@@ -20,7 +20,7 @@ from lde.diagnostics import StepTiming
 from lde.engine import StepBlock
 from lde.errors import LogFormatError
 from lde.frames import seconds_to_ns
-from lde.logio.mcapfile import read_mcap
+from lde.logio import read_mcap
 from lde.profiles import INPUT_NAMES
 from lde.recording import DIAG_TOPIC, ESTIMATE_TOPIC, INPUTS_TOPIC, Recorder, Timing, read_recording
 from lde.service import StepResult

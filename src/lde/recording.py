@@ -39,27 +39,21 @@ complete chunk.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
-import struct
 import threading
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import can
 import numpy as np
-from mcap.exceptions import McapError
-from mcap.records import Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 
 from .engine import StepBlock
-from .errors import LogFormatError
 from .frames import FrameBatch, seconds_to_ns
-from .logio.mcapfile import CAN_PAYLOAD_SIZE, TOPIC_RX, TOPIC_TX, McapWriter
+from .logio import TOPIC_RX, TOPIC_TX, McapLog, McapWriter
 from .logio.textfmt import EXACT, Column, format_rows, time_column
 from .profiles import INPUT_NAMES
 from .status import DEADLINE_MISS, STATUS_BITS
@@ -68,7 +62,6 @@ __all__ = [
     "Recorder",
     "Recording",
     "read_recording",
-    "iter_records",
     "ESTIMATE_TOPIC",
     "INPUTS_TOPIC",
     "DIAG_TOPIC",
@@ -500,101 +493,23 @@ class Recording:
         return self.estimate.get("t_ns", np.zeros(0, np.int64))
 
 
-def iter_records(path: str | Path) -> Iterator[Any]:
-    """MCAP records of ``path`` in file order; stops silently at a truncated or corrupt tail."""
-    try:
-        fh = Path(path).open("rb")  # noqa: SIM115 - closed by the with below (a generator)
-    except OSError as exc:
-        raise LogFormatError(f"cannot read {path}: {exc}") from exc
-    with fh:
-        reader = StreamReader(fh, record_size_limit=1 << 28)
-        it = reader.records
-        while True:
-            try:
-                rec = next(it)
-            except StopIteration:
-                return
-            except (McapError, struct.error, EOFError, ValueError, MemoryError) as exc:
-                log.info("%s: stopped at a truncated/corrupt record (%s)", path, type(exc).__name__)
-                return
-            yield rec
-
-
-def _columns(rows: list[tuple[int, dict[str, Any]]]) -> dict[str, np.ndarray]:
-    """Per-field columns; ``t_ns`` (int64) is each message's log time."""
-    if not rows:
-        return {}
-    rows = sorted(rows, key=lambda r: r[0])
-    out: dict[str, np.ndarray] = {"t_ns": np.array([t for t, _ in rows], np.int64)}
-    keys: dict[str, None] = {}
-    for _, r in rows:
-        for k in r:
-            keys.setdefault(k, None)
-    for k in keys:
-        vals = [r.get(k) for _, r in rows]
-        if all(isinstance(v, int) and not isinstance(v, bool) for v in vals):
-            out[k] = np.array(vals, dtype=np.int64)
-        else:
-            out[k] = np.array([np.nan if v is None else v for v in vals], dtype=np.float64)
-    return out
-
-
-def _frames(payloads: list[tuple[int, bytes]]) -> FrameBatch:
-    """CAN frames from (log_time, CDR payload) pairs (layout: :mod:`lde.logio.mcapfile`)."""
-    good = [(t, p) for t, p in payloads if len(p) == CAN_PAYLOAD_SIZE]
-    if not good:
-        return FrameBatch.empty()
-    n = len(good)
-    p = np.frombuffer(b"".join(pl for _, pl in good), np.uint8).reshape(n, CAN_PAYLOAD_SIZE)
-    return FrameBatch(
-        t_ns=np.array([t for t, _ in good], np.int64),
-        can_id=p[:, 4:8].copy().view("<u4").reshape(n),
-        is_extended=p[:, 8] != 0,
-        dlc=p[:, 10],
-        data=p[:, 11:19],
-        is_rx=p[:, 9] != 0,
-    ).sort()
-
-
 def read_recording(path: str | Path) -> Recording:
-    """Read a recording written by :class:`Recorder`, recovering a file that has no footer.
+    """Read a recording written by :class:`Recorder` (or any lde MCAP file) with the logio reader
+    (:class:`lde.logio.McapLog`), recovering a file that has no footer: everything up to its last
+    complete chunk.
 
-    Raises :class:`LogFormatError` when the file is not MCAP at all.
+    Raises:
+        LogFormatError: not an MCAP file, or cut before its first complete chunk.
     """
-    channels: dict[int, str] = {}
-    can_rows: dict[str, list[tuple[int, bytes]]] = {CAN_RX_TOPIC: [], CAN_TX_TOPIC: []}
-    topics = (ESTIMATE_TOPIC, INPUTS_TOPIC, DIAG_TOPIC)
-    rows: dict[str, list[tuple[int, dict[str, Any]]]] = {t: [] for t in topics}
-    meta: dict[str, str] = {}
-    complete = False
-    n = 0
-    for rec in iter_records(path):
-        n += 1
-        if isinstance(rec, Channel):
-            channels[rec.id] = rec.topic
-        elif isinstance(rec, Message):
-            topic = channels.get(rec.channel_id)
-            if topic in can_rows:
-                can_rows[topic].append((rec.log_time, bytes(rec.data)))
-            elif topic in rows:
-                try:
-                    rows[topic].append((rec.log_time, json.loads(rec.data)))
-                except ValueError:
-                    continue
-        elif isinstance(rec, Metadata) and rec.name == "lde":
-            meta = dict(rec.metadata)
-        elif isinstance(rec, Schema):
-            continue
-        elif type(rec).__name__ == "Footer":
-            complete = True
-    if n == 0:
-        raise LogFormatError(f"{path}: not an MCAP file (no readable records)")
-    return Recording(
-        rx=_frames(can_rows[CAN_RX_TOPIC]),
-        tx=_frames(can_rows[CAN_TX_TOPIC]),
-        estimate=_columns(rows[ESTIMATE_TOPIC]),
-        inputs=_columns(rows[INPUTS_TOPIC]),
-        diag=_columns(rows[DIAG_TOPIC]),
-        metadata=meta,
-        complete=complete,
-    )
+    with McapLog(path) as m:
+        frames = FrameBatch.concat(list(m.iter_frames()), sort=False)
+        cols = {t: m.json(t) for t in (ESTIMATE_TOPIC, INPUTS_TOPIC, DIAG_TOPIC) if t in m.topics}
+        return Recording(
+            rx=frames.select(frames.is_rx),
+            tx=frames.select(~frames.is_rx),
+            estimate=cols.get(ESTIMATE_TOPIC, {}),
+            inputs=cols.get(INPUTS_TOPIC, {}),
+            diag=cols.get(DIAG_TOPIC, {}),
+            metadata=dict(m.metadata.get("lde", {})),
+            complete=m.complete,
+        )

@@ -22,8 +22,9 @@ the live recorder's topic definitions, :class:`lde.recording.StepTopicWriter`).
 
 from __future__ import annotations
 
+import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,19 @@ from .engine import OUTPUT_MESSAGES, Engine, StepBlock
 from .errors import ConfigError, LogFormatError
 from .frames import FrameBatch
 from .grid import MAX_GAP_NS, InputGrid
-from .logio import LogData, McapWriter, read_log
+from .logio import (
+    CHUNK_FRAMES,
+    REORDER_WINDOW_NS,
+    TOPIC_TX,
+    LogData,
+    LogStream,
+    McapData,
+    McapLog,
+    McapWriter,
+    ReadStats,
+    open_log,
+)
+from .logio.stream import split
 from .logio.textfmt import Column, format_rows, time_column
 from .params import Vehicle
 from .profiles import PROFILE_NAMES, Profile, load_profile
@@ -54,6 +67,7 @@ __all__ = [
     "recorded_profile",
     "profile_metadata",
     "no_valid_note",
+    "late_note",
     "resolve_backend",
     "write_csv",
     "write_recording",
@@ -225,9 +239,6 @@ def resolve_backend(backend: str | None) -> tuple[str, Callable[..., Any], str]:
 
 
 # ----------------------------------------------------------------------------- the path
-#: frames per call of the engine: bounds the memory of a replay, whatever the log's length
-CHUNK_FRAMES = 1 << 18
-
 Sink = Callable[[FrameBatch, StepBlock], None]
 
 
@@ -261,41 +272,55 @@ class ReplaySummary:
 
 
 def run_replay(
-    frames: FrameBatch,
+    frames: FrameBatch | Iterable[FrameBatch],
     profile: Profile,
     vehicle: Vehicle,
     backend: str | None = "float",
     *,
     sinks: tuple[Sink, ...] = (),
     step_times_ns: np.ndarray | None = None,
-    tx_frames: int | None = None,
+    tx_frames: int | Callable[[], int | None] | None = None,
     overlay_enable: np.ndarray | None = None,
     extra_status: np.ndarray | None = None,
     output_frames: bool = True,
     chunk_frames: int = CHUNK_FRAMES,
 ) -> ReplaySummary:
-    """Stream ``frames`` (any order) through the data path in chunks; every chunk's rows go to each
-    sink as ``sink(chunk_frames, rows)``. Arguments as :func:`replay`."""
+    """Stream frames through the data path; every piece's rows go to each sink as
+    ``sink(piece, rows)``, the steps after the log's last frame with an empty piece.
+
+    ``frames``: one batch (any order: sorted here, then cut in pieces of ``chunk_frames``) or an
+    iterable of pieces already in time order (a :class:`lde.logio.LogStream`), read one at a time.
+    ``tx_frames``: the log's count of frames lde sent when the pieces do not hold them all (or a
+    function giving it once the pieces are read). Other arguments as :func:`replay`.
+    """
     name = DEFAULT_BACKEND if backend is None else backend
     t0 = time.perf_counter()
     explicit = step_times_ns is not None
     engine = Engine(profile, vehicle, name, explicit=explicit, encode_outputs=output_frames)
-    fs = frames.sort()
-    n_tx = int(np.count_nonzero(~fs.is_rx))
+    pieces = split(frames.sort(), chunk_frames) if isinstance(frames, FrameBatch) else frames
+    n = n_tx = 0
     steps = valid = gaps = 0
     last_t: int | None = None
-    t_sinks = 0.0
-    n = len(fs)
-    starts = range(0, max(n, 1), chunk_frames)
-    for k, a in enumerate(starts):
-        chunk = fs if n <= chunk_frames else fs.take(np.arange(a, min(a + chunk_frames, n)))
+    t_sinks = t_read = 0.0
+    first = True
+    it = iter(pieces)
+    while True:
+        tr = time.perf_counter()
+        chunk = next(it, None)
+        t_read += time.perf_counter() - tr
+        final = chunk is None
+        if chunk is None:
+            chunk = FrameBatch.empty()
+        n += len(chunk)
+        n_tx += int(np.count_nonzero(~chunk.is_rx))
         kw: dict[str, Any] = {}
-        if explicit and k == 0:
+        if explicit and first:
             times = np.ascontiguousarray(step_times_ns, np.int64)
             en = overlay_enable if overlay_enable is not None and len(overlay_enable) == len(times) else None
             ex = extra_status if extra_status is not None and len(extra_status) == len(times) else None
             kw = {"step_times": times, "enable": en, "extra_status": ex}
-        block = engine.feed(chunk, final=k == len(starts) - 1, **kw)
+        first = False
+        block = engine.feed(chunk, final=final, **kw)
         m = len(block)
         if m:
             steps += m
@@ -306,12 +331,16 @@ def run_replay(
                 gaps += 1
             last_t = int(t[-1])
         ts = time.perf_counter()
-        for sink in sinks:
-            sink(chunk, block)
+        if m or len(chunk):
+            for sink in sinks:
+                sink(chunk, block)
         t_sinks += time.perf_counter() - ts
+        if final:
+            break
+    known_tx = tx_frames() if callable(tx_frames) else tx_frames
     counts = FrameCounts(
         total=n,
-        tx=n_tx if tx_frames is None else tx_frames,
+        tx=n_tx if known_tx is None else known_tx,
         ignored=engine.n_ignored,
         messages=engine.stats(),
     )
@@ -322,7 +351,11 @@ def run_replay(
         frames=counts,
         backend=engine.backend.name,
         recorded_steps=explicit,
-        timings={"engine": time.perf_counter() - t0 - t_sinks, "outputs": t_sinks},
+        timings={
+            "read": t_read,
+            "engine": time.perf_counter() - t0 - t_sinks - t_read,
+            "outputs": t_sinks,
+        },
     )
 
 
@@ -371,28 +404,36 @@ def replay(
     )
 
 
-def recorded_step_times(log: LogData) -> np.ndarray | None:
+def _mcap_of(log: LogData | LogStream) -> McapData | McapLog | None:
+    return log.mcap
+
+
+def recorded_step_times(log: LogData | LogStream) -> np.ndarray | None:
     """Step times of an lde recording: the log times of ``/lde/estimate`` (the recorders' contract:
     log time = the step time t_k, exact in ns), when the file has ``/can/tx`` and a non-empty
     ``/lde/estimate``; None for any other log."""
-    m = log.mcap
-    if m is None or ESTIMATE_TOPIC not in m.topics or "/can/tx" not in m.topics:
+    m = _mcap_of(log)
+    if m is None or ESTIMATE_TOPIC not in m.topics or TOPIC_TX not in m.topics:
         return None
-    if m.topics[ESTIMATE_TOPIC].count == 0:
-        return None
-    return np.asarray(m.times[ESTIMATE_TOPIC], np.int64)
+    times = m.times[ESTIMATE_TOPIC] if isinstance(m, McapData) else m.times(ESTIMATE_TOPIC)
+    return np.asarray(times, np.int64) if len(times) else None
 
 
 def recorded_events(
-    log: LogData, step_times_ns: np.ndarray | None
+    log: LogData | LogStream, step_times_ns: np.ndarray | None
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """(overlay enable, extra status) at each recorded step from the sparse ``/lde/events`` channel:
     the limiter's enable input sample-and-hold (an event at t_k applies from step t_k on) and
     DEADLINE_MISS at the steps whose event says so. (None, None) when the log has no events."""
-    m = log.mcap
-    if m is None or step_times_ns is None or EVENTS_TOPIC not in m.json:
+    m = _mcap_of(log)
+    if m is None or step_times_ns is None or EVENTS_TOPIC not in m.topics:
         return None, None
-    ev = m.json[EVENTS_TOPIC]
+    if isinstance(m, McapData):
+        if EVENTS_TOPIC not in m.json:
+            return None, None
+        ev = m.json[EVENTS_TOPIC]
+    else:
+        ev = m.json(EVENTS_TOPIC)
     t_ev = np.asarray(ev.get("log_time", []), np.int64)
     val = np.asarray(ev.get("overlay_enable", []))
     if len(t_ev) == 0 or len(val) != len(t_ev):
@@ -418,7 +459,7 @@ def profile_metadata(profile: Profile) -> dict[str, str]:
     return out
 
 
-def recorded_profile(log: LogData) -> str | None:
+def recorded_profile(log: LogData | LogStream) -> str | None:
     """The CAN profile an MCAP log says it was made with, as :func:`lde.profiles.load_profile`
     takes it: ``profile_dbc`` of its ``lde`` metadata record when that file exists, else the shipped
     profile named ``profile``; None when the log names none (candump, ASC, ... or a foreign MCAP).
@@ -465,18 +506,36 @@ def no_valid_note(res: ReplayResult | ReplaySummary) -> str | None:
     return f"no valid estimate: {why} — wrong --profile? (used {res.profile.name}, {origin})"
 
 
+def late_note(stats: ReadStats, window_ns: int | None) -> str | None:
+    """A one-line warning when a streamed log had frames too far out of time order, else None."""
+    if not stats.late_frames:
+        return None
+    w = "" if window_ns is None else f" by more than {window_ns / 1e9:g} s"
+    return (
+        f"{stats.late_frames} frames were out of time order{w} and were skipped: "
+        "sort the log or give --reorder-window 0 (sorts the whole log in memory)"
+    )
+
+
 @dataclass
 class LogInputs:
-    """A log read for a replay: the frames and what an lde recording adds (step times, events)."""
+    """A log opened for a replay: its frame stream and what an lde recording adds (step times,
+    events). ``read_s``: the time taken to open it (the frames are read while replaying)."""
 
-    log: LogData
+    stream: LogStream
     profile: Profile
     profile_origin: str
     step_times_ns: np.ndarray | None
     overlay_enable: np.ndarray | None
     extra_status: np.ndarray | None
-    tx_frames: int | None
     read_s: float
+
+    def tx_frames(self) -> int | None:
+        """The count of frames lde sent (``/can/tx``) of an MCAP log, else None."""
+        m = self.stream.mcap
+        if m is not None and TOPIC_TX in m.topics:
+            return m.topics[TOPIC_TX].count
+        return None
 
 
 def read_inputs(
@@ -485,32 +544,38 @@ def read_inputs(
     *,
     use_recorded_steps: bool = True,
     profiles: dict[str, Profile] | None = None,
+    reorder_window_ns: int | None = REORDER_WINDOW_NS,
+    chunk_frames: int = CHUNK_FRAMES,
 ) -> LogInputs:
-    """Read a log (any format of :func:`lde.logio.read_log`) for a replay. ``profile`` None: the
-    profile the log names (:func:`recorded_profile`), else ``lde``; ``profiles`` caches loaded
-    profiles by name across calls. An lde recording's step times are used unless
-    ``use_recorded_steps`` is False.
+    """Open a log (any format of :func:`lde.logio.open_log`) for a replay; its frames are read
+    while replaying. ``profile`` None: the profile the log names (:func:`recorded_profile`), else
+    ``lde``; ``profiles`` caches loaded profiles by name across calls. An lde recording's step times
+    (and ``/lde/events``) are read now, unless ``use_recorded_steps`` is False. Close the stream
+    (``LogInputs.stream.close()``) when done.
 
     Raises:
         LogFormatError: unreadable log. ConfigError: a recorded profile that cannot be loaded.
     """
     t0 = time.perf_counter()
-    log = read_log(Path(path), skip_tx=True, json_topics=[EVENTS_TOPIC], json_optional=True)
-    origin = "given"
-    if profile is None:
-        key = recorded_profile(log)
-        origin = "recording" if key else "default"
-        key = key or "lde"
-        cache = profiles if profiles is not None else {}
-        if key not in cache:
-            cache[key] = load_profile(key)
-        profile = cache[key]
-    steps = recorded_step_times(log) if use_recorded_steps else None
-    enable, extra = recorded_events(log, steps)
-    n_tx = None
-    if log.mcap is not None and "/can/tx" in log.mcap.topics:
-        n_tx = log.mcap.topics["/can/tx"].count
-    return LogInputs(log, profile, origin, steps, enable, extra, n_tx, time.perf_counter() - t0)
+    stream = open_log(
+        Path(path), skip_tx=True, reorder_window_ns=reorder_window_ns, chunk_frames=chunk_frames
+    )
+    try:
+        origin = "given"
+        if profile is None:
+            key = recorded_profile(stream)
+            origin = "recording" if key else "default"
+            key = key or "lde"
+            cache = profiles if profiles is not None else {}
+            if key not in cache:
+                cache[key] = load_profile(key)
+            profile = cache[key]
+        steps = recorded_step_times(stream) if use_recorded_steps else None
+        enable, extra = recorded_events(stream, steps)
+    except BaseException:
+        stream.close()
+        raise
+    return LogInputs(stream, profile, origin, steps, enable, extra, time.perf_counter() - t0)
 
 
 def replay_log(
@@ -523,26 +588,60 @@ def replay_log(
     profiles: dict[str, Profile] | None = None,
     output_frames: bool = True,
 ) -> tuple[LogData, ReplayResult]:
-    """Read a log (:func:`read_inputs`) and replay it, every row kept (:func:`replay`).
+    """Read a log (:func:`read_inputs`) and replay it, every row and every frame kept
+    (:class:`lde.logio.LogData`, :class:`ReplayResult`).
 
     Raises:
         LogFormatError: unreadable log. ConfigError: a recorded profile that cannot be loaded.
     """
     li = read_inputs(path, profile, use_recorded_steps=use_recorded_steps, profiles=profiles)
-    res = replay(
-        li.log.frames,
-        li.profile,
-        vehicle,
-        backend,
-        step_times_ns=li.step_times_ns,
-        tx_frames=li.tx_frames,
-        overlay_enable=li.overlay_enable,
-        extra_status=li.extra_status,
-        output_frames=output_frames,
+    blocks: list[StepBlock] = []
+    pieces: list[FrameBatch] = []
+
+    def keep(frames: FrameBatch, rows: StepBlock) -> None:
+        pieces.append(frames)
+        blocks.append(rows)
+
+    with li.stream as stream:
+        summary = run_replay(
+            stream,
+            li.profile,
+            vehicle,
+            backend,
+            sinks=(keep,),
+            step_times_ns=li.step_times_ns,
+            tx_frames=li.tx_frames,
+            overlay_enable=li.overlay_enable,
+            extra_status=li.extra_status,
+            output_frames=output_frames,
+        )
+        frames = FrameBatch.concat(pieces, sort=False)
+        log = LogData(stream.path, stream.format, frames, stream.stats, mcap=_mcap_data(stream.mcap, frames))
+    block = StepBlock.concat(blocks) if len(blocks) != 1 else blocks[0]
+    res = ReplayResult.of(
+        block, summary.frames, summary.backend, recorded_steps=summary.recorded_steps, timings=summary.timings
     )
-    res.timings = {"read": li.read_s, **res.timings}
+    res.timings["open"] = li.read_s
     res.profile, res.profile_origin = li.profile, li.profile_origin
-    return li.log, res
+    return log, res
+
+
+def _mcap_data(m: McapLog | None, frames: FrameBatch) -> McapData | None:
+    """What a streamed MCAP log was (topics, metadata, times of its other channels)."""
+    if m is None:
+        return None
+    can = set(m.can_topics)
+    return McapData(
+        frames=frames,
+        topics=dict(m.topics),
+        times={t: m.times(t) for t in m.topics if t not in can},
+        bad_can_messages=m.bad_can_messages,
+        fast_path=m.fast_path,
+        chunks_read=m.chunks_read,
+        chunks_skipped=m.chunks_skipped,
+        truncated=m.truncated,
+        metadata=m.metadata,
+    )
 
 
 # ----------------------------------------------------------------------------- outputs
@@ -597,6 +696,12 @@ class CsvWriter:
         except OSError as exc:
             raise LogFormatError(f"{self.path}: cannot write: {exc}") from exc
 
+    def abort(self) -> None:
+        """The replay failed: close and remove the incomplete file."""
+        with contextlib.suppress(OSError):
+            self._fh.close()
+            self.path.unlink()
+
     def __enter__(self) -> CsvWriter:
         return self
 
@@ -615,8 +720,19 @@ class RecordingWriter:
     the input frames (``/can/rx``), lde's output frames (``/can/tx``, as the engine encoded them) and
     the step topics (:class:`lde.recording.StepTopicWriter`). It replays to the same estimates."""
 
-    def __init__(self, path: str | Path, profile: Profile, metadata: dict[str, str] | None = None) -> None:
-        self._w = McapWriter(path, metadata=metadata)
+    def __init__(
+        self,
+        path: str | Path,
+        profile: Profile,
+        metadata: dict[str, str] | None = None,
+        *,
+        compression: str = "zstd",
+        indexed: bool = False,
+    ) -> None:
+        self.path = Path(path)
+        self._w = McapWriter(
+            path, metadata=metadata, compression=compression, indexed=indexed, buffer_bytes=32 << 20
+        )
         self._steps = StepTopicWriter(self._w)
         self._ids = np.array([profile.spec(m).frame_id for m in OUTPUT_MESSAGES], np.uint32)
         self._lens = np.array([profile.spec(m).length for m in OUTPUT_MESSAGES], np.uint8)
@@ -634,6 +750,10 @@ class RecordingWriter:
 
     def close(self) -> None:
         self._w.close()
+
+    def abort(self) -> None:
+        """The replay failed: close and remove the incomplete recording."""
+        self._w.abort()
 
     def __enter__(self) -> RecordingWriter:
         return self

@@ -54,6 +54,19 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         action="store_true",
         help="for lde recordings: use the grid from the frames, not the recorded step times",
     )
+    p.add_argument(
+        "--mcap-index",
+        action="store_true",
+        help="--mcap with message and chunk indexes (random access in Foxglove; about twice the size)",
+    )
+    p.add_argument(
+        "--reorder-window",
+        type=float,
+        default=None,
+        metavar="SEC",
+        help="text and python-can logs: how far (log time) a frame may lag behind an earlier line and "
+        "still be put in time order (default 10; 0 = sort the whole log in memory)",
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="no summary on stderr")
     p.set_defaults(func=run)
     return p
@@ -116,11 +129,19 @@ def _check_paths(logs: list[Path], outputs: list[tuple[str, Path]], many: bool =
 
 
 def _summary(path: Path, log, res, elapsed: float) -> str:
+    """The summary of one replay (``log``: the :class:`lde.logio.LogStream` it read)."""
     f = res.frames
     causes = ", ".join(f"{k} {v}" for k, v in res.frames.rejected_by_cause().items() if v) or "none"
     skipped = log.stats
     extra = []
-    for name in ("error_frames", "remote_frames", "malformed_lines", "truncated_last_line", "bad_messages"):
+    for name in (
+        "error_frames",
+        "remote_frames",
+        "malformed_lines",
+        "truncated_last_line",
+        "bad_messages",
+        "late_frames",
+    ):
         v = getattr(skipped, name)
         if v:
             extra.append(f"{v} {name.replace('_', ' ')}")
@@ -143,11 +164,13 @@ def _summary(path: Path, log, res, elapsed: float) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..logio import REORDER_WINDOW_NS
     from ..params import load_vehicle
     from ..profiles import load_profile
     from ..replay import (
         CsvWriter,
         RecordingWriter,
+        late_note,
         no_valid_note,
         profile_metadata,
         read_inputs,
@@ -156,6 +179,13 @@ def run(args: argparse.Namespace) -> int:
     )
 
     logs = [Path(p) for p in args.logs]
+    if args.reorder_window is not None and not args.reorder_window >= 0:
+        raise ConfigError(f"--reorder-window {args.reorder_window}: give seconds >= 0")
+    window = (
+        REORDER_WINDOW_NS
+        if args.reorder_window is None
+        else (None if args.reorder_window == 0 else int(round(args.reorder_window * 1e9)))
+    )
     many = len(logs) > 1
     for opt in (args.csv, args.mcap):
         if many and opt is not None and opt.exists() and not opt.is_dir():
@@ -190,23 +220,28 @@ def run(args: argparse.Namespace) -> int:
         bar = tqdm(total=len(logs), unit="log", disable=args.quiet or None, file=sys.stderr)
     for path in logs:
         t0 = time.perf_counter()
-        li = read_inputs(path, profile, use_recorded_steps=not args.no_recorded_steps, profiles=profiles)
-        log = li.log
+        li = read_inputs(
+            path,
+            profile,
+            use_recorded_steps=not args.no_recorded_steps,
+            profiles=profiles,
+            reorder_window_ns=window,
+        )
         csv_path, mcap_path = outs[path]
         sinks: list = []
-        if csv_path is not None:
-            sinks.append(CsvWriter(csv_path))
-        if mcap_path is not None:
-            meta = {
-                "source": str(path),
-                **profile_metadata(li.profile),
-                "vehicle": vehicle.name,
-                "backend": backend,
-            }
-            sinks.append(RecordingWriter(mcap_path, li.profile, meta))
         try:
+            if csv_path is not None:
+                sinks.append(CsvWriter(csv_path))
+            if mcap_path is not None:
+                meta = {
+                    "source": str(path),
+                    **profile_metadata(li.profile),
+                    "vehicle": vehicle.name,
+                    "backend": backend,
+                }
+                sinks.append(RecordingWriter(mcap_path, li.profile, meta, indexed=args.mcap_index))
             res = run_replay(
-                log.frames,
+                li.stream,
                 li.profile,
                 vehicle,
                 backend,
@@ -217,23 +252,28 @@ def run(args: argparse.Namespace) -> int:
                 extra_status=li.extra_status,
                 output_frames=mcap_path is not None,
             )
-        finally:
+        except BaseException:
             for sink in sinks:
-                sink.close()
-        res.timings = {"read": li.read_s, **res.timings}
+                sink.abort()
+            raise
+        finally:
+            li.stream.close()
+        for sink in sinks:
+            sink.close()
+        res.timings = {"open": li.read_s, **res.timings}
         res.profile, res.profile_origin = li.profile, li.profile_origin
         elapsed = time.perf_counter() - t0
         if bar is not None:
             bar.update(1)
-        warn = no_valid_note(res)
-        if warn:  # shown even with -q: the CSV is all zeros
-            text = f"lde replay: warning: {path}: {warn}"
-            if bar is not None:
-                bar.write(text, file=sys.stderr)
-            else:
-                print(text, file=sys.stderr)
+        for warn in (no_valid_note(res), late_note(li.stream.stats, window)):
+            if warn:  # shown even with -q
+                text = f"lde replay: warning: {path}: {warn}"
+                if bar is not None:
+                    bar.write(text, file=sys.stderr)
+                else:
+                    print(text, file=sys.stderr)
         if not args.quiet:
-            text = _summary(path, log, res, elapsed)
+            text = _summary(path, li.stream, res, elapsed)
             if bar is not None:
                 bar.write(text, file=sys.stderr)
             else:

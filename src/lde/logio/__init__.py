@@ -1,52 +1,70 @@
 """Log readers and writers: candump ``-L``, MCAP (raw CAN channels + JSON channels), python-can formats.
 
-:func:`read_log` picks the format by suffix (``.mcap``; ``.log``/``.candump``/``.txt`` and unknown
-suffixes sniffed for candump text or the MCAP magic; ASC, BLF, TRC, CSV, ... through python-can) and
-returns a :class:`LogData` whose ``frames`` are stably sorted by time. A gzip-compressed log of any
-of these formats (``x.log.gz``, ``x.asc.gz``, ``x.mcap.gz``, or gzip content under the plain suffix)
-is read the same way: its format comes from the suffix before ``.gz`` and the decompressed content
-(format name ``"<format>.gz"``); candump text is parsed from the decompressed bytes in memory, the
-other formats from a decompressed temporary copy (so that every python-can reader and the MCAP reader
-work, whatever the file name). A gzip stream cut short (a log still being written, a crash) keeps
-what decompressed and counts a cut tail like an uncompressed one. Unreadable, corrupt, empty or
-non-CAN files raise :class:`~lde.errors.LogFormatError` with a one-line message; skipped frames
-(error, remote, malformed lines, a truncated last line) are counted in :class:`ReadStats`.
+Two ways to read a log, both by format (:func:`detect_format`: ``.mcap``; ``.log``/``.candump``/
+``.txt`` and unknown suffixes sniffed for candump text or the MCAP magic; ASC, BLF, TRC, CSV, ...
+through python-can):
+
+* :func:`open_log` streams it: a :class:`LogStream` yields its frames in time order in pieces of
+  at most ``chunk_frames`` (candump text block by block, MCAP chunk by chunk, python-can formats in
+  batches of messages), so memory does not grow with the log's length. Text and python-can logs
+  are put in time order within a window (:class:`lde.logio.stream.Reorder`): a frame more than
+  ``reorder_window_ns`` behind a frame before it in the file is skipped and counted
+  (``ReadStats.late_frames``). MCAP files are merged exactly by their chunks' time ranges.
+* :func:`read_log` reads all of it into one :class:`LogData` whose ``frames`` are stably sorted by
+  time (any disorder).
+
+A gzip-compressed log of any of these formats (``x.log.gz``, ``x.asc.gz``, ``x.mcap.gz``, or gzip
+content under the plain suffix) is read the same way: its format comes from the suffix before
+``.gz`` and the decompressed content (format name ``"<format>.gz"``); candump text is decompressed
+and parsed piece by piece, the other formats are read from a decompressed temporary copy (so that
+every python-can reader and the MCAP reader work, whatever the file name). A gzip stream cut short
+keeps what decompressed and counts a cut tail like an uncompressed one. Unreadable, corrupt, empty
+or non-CAN files raise :class:`~lde.errors.LogFormatError` with a one-line message; skipped frames
+(error, remote, malformed lines, a truncated last line, late frames) are counted in
+:class:`ReadStats`.
 """
 
 from __future__ import annotations
 
+import shutil
 import tempfile
-import zlib
-from collections.abc import Iterable
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import LogFormatError
 from ..frames import FrameBatch
-from .candump import format_candump, looks_like_candump, parse_candump_bytes, write_candump
-from .mcapfile import (
-    CAN_SCHEMA_NAME,
-    CAN_SCHEMA_TEXT,
-    TOPIC_RX,
-    TOPIC_TX,
-    McapData,
-    McapWriter,
-    TopicInfo,
-    can_payload,
-    can_payloads,
-    read_mcap,
+from .candump import (
+    BLOCK_BYTES,
+    C_ERROR,
+    C_FIRST_BAD,
+    C_MALFORMED,
+    C_REMOTE,
+    CandumpBlocks,
+    format_candump,
+    looks_like_candump,
+    parse_candump_bytes,
+    write_candump,
 )
-from .pycan import pycan_suffixes, read_pycan
+from .gz import GZ, GZIP_MAGIC, gunzip_head, gunzip_pieces
+from .mcap_cdr import CAN_SCHEMA_NAME, CAN_SCHEMA_TEXT, TOPIC_RX, TOPIC_TX, can_payload, can_payloads
+from .mcap_read import McapData, McapLog, TopicInfo, check_can_channel, json_wanted, read_mcap
+from .mcap_write import McapWriter
+from .pycan import PycanReader, pycan_suffixes
+from .stream import CHUNK_FRAMES, REORDER_WINDOW_NS, Reorder, split
 
 __all__ = [
     "LogData",
+    "LogStream",
     "ReadStats",
+    "open_log",
     "read_log",
     "detect_format",
     "write_candump",
     "format_candump",
     "parse_candump_bytes",
     "McapWriter",
+    "McapLog",
     "McapData",
     "TopicInfo",
     "read_mcap",
@@ -56,12 +74,12 @@ __all__ = [
     "can_payloads",
     "TOPIC_RX",
     "TOPIC_TX",
+    "CHUNK_FRAMES",
+    "REORDER_WINDOW_NS",
 ]
 
 CANDUMP_SUFFIXES = {".log", ".candump", ".txt"}
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-GZIP_MAGIC = b"\x1f\x8b"
-GZ = ".gz"
 
 
 @dataclass(frozen=True)
@@ -76,6 +94,8 @@ class ReadStats:
         truncated_last_line: 1 if the last line of a text log (or the last record of an MCAP file
             without summary: a recording cut by a crash) was cut off and skipped.
         bad_messages: MCAP CAN-channel messages of the wrong size/encoding (skipped).
+        late_frames: frames more than the reorder window behind a frame before them in the file
+            (a streamed text or python-can log; skipped: see :func:`open_log`).
     """
 
     frames: int
@@ -85,6 +105,7 @@ class ReadStats:
     truncated_last_line: int = 0
     first_malformed_line: int = 0
     bad_messages: int = 0
+    late_frames: int = 0
 
     @property
     def skipped(self) -> int:
@@ -94,12 +115,13 @@ class ReadStats:
             + self.malformed_lines
             + self.truncated_last_line
             + self.bad_messages
+            + self.late_frames
         )
 
 
 @dataclass
 class LogData:
-    """A log read into columns.
+    """A log read into columns (:func:`read_log`).
 
     Attributes:
         path: the file.
@@ -138,7 +160,7 @@ def detect_format(path: str | Path) -> str:
     suffix = p.suffix.lower()
     if suffix == GZ or head.startswith(GZIP_MAGIC):
         inner = Path(p.stem).suffix.lower() if suffix == GZ else suffix
-        return _classify(p, inner, _gunzip_head(p, 4096), compressed=True) + GZ
+        return _classify(p, inner, gunzip_head(p, 4096), compressed=True) + GZ
     return _classify(p, suffix, head)
 
 
@@ -151,73 +173,277 @@ def _classify(p: Path, suffix: str, head: bytes, compressed: bool = False) -> st
         return "mcap"
     if suffix == ".mcap":
         raise LogFormatError(f"{p}: not an MCAP file (no MCAP magic)")
-    if suffix in CANDUMP_SUFFIXES or suffix not in _pycan_suffixes():
+    pycan = pycan_suffixes() - {".mcap"}
+    if suffix in CANDUMP_SUFFIXES or suffix not in pycan:
         if looks_like_candump(head):
             return "candump"
         if suffix in CANDUMP_SUFFIXES:
             raise LogFormatError(f"{p}: not a {what}candump -L log (first line does not parse)")
-    if suffix in _pycan_suffixes():
+    if suffix in pycan:
         return suffix.lstrip(".")
     raise LogFormatError(
         f"{p}: unknown {what}log format (suffix {suffix or 'none'!r}; readable: .mcap, candump -L text, "
-        f"{', '.join(sorted(_pycan_suffixes()))}, each also gzip-compressed as <suffix>.gz)"
+        f"{', '.join(sorted(pycan))}, each also gzip-compressed as <suffix>.gz)"
     )
 
 
-def _gunzip_chunks(p: Path, max_bytes: int | None = None) -> Iterable[tuple[bytes, bool]]:
-    """Decompressed pieces of the gzip file ``p`` (every member of a multi-member file), each with
-    a flag that is True on the last piece when the stream was cut short. Stops after ``max_bytes``.
+# ----------------------------------------------------------------------------- streaming
+class LogStream:
+    """A log opened for reading in time order (:func:`open_log`). Iterate it once for its frames
+    (pieces of at most ``chunk_frames``); :attr:`stats` is final once the iteration has ended.
+    Use as a context manager or call :meth:`close`.
+
+    Attributes:
+        path, format: the file and its format (as :class:`LogData`).
+        mcap: the open MCAP file (topics, metadata, :meth:`McapLog.times`, :meth:`McapLog.json`)
+            for MCAP logs, else None.
+        frames_read: frames yielded so far.
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        fmt: str,
+        pieces: Iterator[FrameBatch],
+        stats: Callable[[], ReadStats],
+        mcap: McapLog | None = None,
+        cleanup: Callable[[], None] | None = None,
+        skip_tx: bool = False,
+    ) -> None:
+        self.path = path
+        self.format = fmt
+        self.mcap = mcap
+        self.frames_read = 0
+        self._pieces = pieces
+        self._stats = stats
+        self._cleanup = cleanup
+        self._skip_tx = skip_tx
+
+    def __iter__(self) -> Iterator[FrameBatch]:
+        for piece in self._pieces:
+            if len(piece):
+                self.frames_read += len(piece)
+                yield piece
+        _require_frames(self.path, self.format, self.frames_read, self.stats, self.mcap)
+
+    @property
+    def stats(self) -> ReadStats:
+        return self._stats()
+
+    def close(self) -> None:
+        if self.mcap is not None:
+            self.mcap.close()
+        if self._cleanup is not None:
+            self._cleanup()
+            self._cleanup = None
+
+    def __enter__(self) -> LogStream:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def open_log(
+    path: str | Path,
+    *,
+    fmt: str | None = None,
+    skip_tx: bool = False,
+    chunk_frames: int = CHUNK_FRAMES,
+    reorder_window_ns: int | None = REORDER_WINDOW_NS,
+    validate_crcs: bool = True,
+) -> LogStream:
+    """Open a log for reading in time order (module doc); ``fmt`` as :func:`detect_format` names
+    it. ``skip_tx``: MCAP chunks that hold only lde's own ``/can/tx`` frames stay compressed (a
+    replay does not use them; they are still counted in ``topics``). ``reorder_window_ns`` None:
+    a text or python-can log is sorted whole (its frames are held until the end).
 
     Raises:
-        LogFormatError: unreadable file or data that is not gzip.
+        LogFormatError: unreadable, corrupt, empty or non-CAN file (here or while iterating: a
+            corrupt chunk, a log without a single data frame).
     """
-    d = zlib.decompressobj(wbits=16 + zlib.MAX_WBITS)
-    fed = False  # the current member's decompressor has had input
-    out_n = 0
+    p = Path(path)
+    fmt = fmt or detect_format(p)
+    if fmt.endswith(GZ):
+        return _open_gzip(p, fmt, skip_tx, chunk_frames, reorder_window_ns, validate_crcs)
+    if fmt == "mcap":
+        m = McapLog(p, validate_crcs=validate_crcs)
+        try:
+            check_can_channel(m)
+            _require_rx(m, skip_tx)
+        except LogFormatError:
+            m.close()
+            raise
+
+        def mcap_stats() -> ReadStats:
+            return ReadStats(frames=0, bad_messages=m.bad_can_messages, truncated_last_line=int(m.truncated))
+
+        it = m.iter_frames(tx=not skip_tx, chunk_frames=chunk_frames)
+        stream = LogStream(p, "mcap", it, mcap_stats, mcap=m, skip_tx=skip_tx)
+        stream._stats = lambda: _with_frames(mcap_stats(), stream.frames_read)
+        return stream
+    reorder = Reorder(reorder_window_ns)
+    if fmt == "candump":
+        parser = CandumpBlocks()
+        pieces = _candump_file_pieces(p, parser)
+        stream = LogStream(p, fmt, _ordered(pieces, reorder, chunk_frames), lambda: ReadStats(0))
+        stream._stats = lambda: _candump_stats(parser, reorder, stream.frames_read)
+        return stream
+    reader = PycanReader(p)
+    stream = LogStream(p, fmt, _ordered(iter(reader), reorder, chunk_frames), lambda: ReadStats(0))
+    stream._stats = lambda: ReadStats(
+        frames=stream.frames_read,
+        error_frames=reader.error_frames,
+        remote_frames=reader.remote_frames,
+        late_frames=reorder.late,
+    )
+    return stream
+
+
+def _with_frames(s: ReadStats, n: int) -> ReadStats:
+    return ReadStats(**{**s.__dict__, "frames": n})
+
+
+def _candump_stats(parser: CandumpBlocks, reorder: Reorder, n: int) -> ReadStats:
+    c = parser.counts
+    return ReadStats(
+        frames=n,
+        error_frames=int(c[C_ERROR]),
+        remote_frames=int(c[C_REMOTE]),
+        malformed_lines=int(c[C_MALFORMED]),
+        truncated_last_line=parser.truncated_last_line,
+        first_malformed_line=int(c[C_FIRST_BAD]),
+        late_frames=reorder.late,
+    )
+
+
+def _candump_file_pieces(
+    p: Path, parser: CandumpBlocks, block_bytes: int = BLOCK_BYTES
+) -> Iterator[FrameBatch]:
     try:
-        with p.open("rb") as fh:
-            while block := fh.read(1 << 20):
-                while block:
-                    try:
-                        piece = d.decompress(block)
-                    except zlib.error as exc:
-                        raise LogFormatError(f"{p}: corrupt gzip data ({exc})") from exc
-                    fed = True
-                    out_n += len(piece)
-                    yield piece, False
-                    if max_bytes is not None and out_n >= max_bytes:
-                        return
-                    block = b""
-                    if d.eof:  # the member ended: another one may follow
-                        block = d.unused_data
-                        if block and not block.startswith(GZIP_MAGIC[: len(block)]):
-                            return  # trailing bytes after the last member: ignored, like gzip -d
-                        d = zlib.decompressobj(wbits=16 + zlib.MAX_WBITS)
-                        fed = False
+        fh = p.open("rb")
     except OSError as exc:
         raise LogFormatError(f"{p}: cannot read: {exc}") from exc
-    yield d.flush(), fed and not d.eof
+    with fh:
+        while True:
+            try:
+                piece = fh.read(block_bytes)
+            except OSError as exc:
+                raise LogFormatError(f"{p}: cannot read: {exc}") from exc
+            if not piece:
+                break
+            yield parser.feed(piece)
+    yield parser.end()
 
 
-def _gunzip_head(p: Path, n: int) -> bytes:
-    head = b"".join(piece for piece, _ in _gunzip_chunks(p, n))
-    return head[:n]
+def _candump_gz_pieces(
+    p: Path, parser: CandumpBlocks, block_bytes: int = BLOCK_BYTES
+) -> Iterator[FrameBatch]:
+    buf: list[bytes] = []
+    k = 0
+    for piece, _cut in gunzip_pieces(p):  # a cut stream ends inside a line: counted by the parser
+        buf.append(piece)
+        k += len(piece)
+        if k >= block_bytes:
+            yield parser.feed(b"".join(buf))
+            buf, k = [], 0
+    if buf:
+        yield parser.feed(b"".join(buf))
+    yield parser.end()
 
 
-def _gunzip(p: Path) -> tuple[bytes, bool]:
-    """The decompressed content of ``p`` and whether the gzip stream was cut short."""
-    pieces, cut = [], False
-    for piece, c in _gunzip_chunks(p):
-        pieces.append(piece)
-        cut = cut or c
-    return b"".join(pieces), cut
+def _ordered(pieces: Iterable[FrameBatch], reorder: Reorder, n: int) -> Iterator[FrameBatch]:
+    """Pieces in file order -> time order (within the window), at most ``n`` frames each."""
+    for piece in pieces:
+        yield from split(reorder.push(piece), n)
+    yield from split(reorder.finish(), n)
 
 
-def _pycan_suffixes() -> set[str]:
+def _require_rx(m: McapLog, skip_tx: bool) -> None:
+    """LogFormatError (before anything is read) for an MCAP recording that holds only the frames
+    lde itself sent, when the counts are known from the statistics and the replay skips them."""
+    n_tx = m.topics[TOPIC_TX].count if TOPIC_TX in m.topics else 0
+    n_rx = m.topics[TOPIC_RX].count if TOPIC_RX in m.topics else 0
+    if skip_tx and n_tx > 0 and n_rx == 0:
+        raise LogFormatError(
+            f"{m.path}: only frames lde sent ({n_tx} on {TOPIC_TX}): no received input frames"
+        )
 
-    return pycan_suffixes() - {".mcap"}
+
+def _require_frames(path: Path, fmt: str, n: int, stats: ReadStats, mcap: McapLog | McapData | None) -> None:
+    """LogFormatError for a log without a single data frame (or, read with ``skip_tx``, an MCAP
+    recording that holds only the frames lde itself sent)."""
+    if n:
+        return
+    topics = mcap.topics if mcap is not None else {}
+    n_tx = topics[TOPIC_TX].count if TOPIC_TX in topics else 0
+    n_rx = topics[TOPIC_RX].count if TOPIC_RX in topics else 0
+    if n_tx > 0 and n_rx == 0:
+        raise LogFormatError(f"{path}: only frames lde sent ({n_tx} on {TOPIC_TX}): no received input frames")
+    raise LogFormatError(f"{path}: no CAN data frames in this {fmt} log ({_describe(stats)})")
 
 
+def _open_gzip(
+    p: Path, fmt: str, skip_tx: bool, chunk_frames: int, window: int | None, validate_crcs: bool
+) -> LogStream:
+    """A gzip-compressed log (``fmt`` = ``"<inner format>.gz"``): candump piece by piece, the
+    others from a decompressed temporary copy named with the inner suffix (removed at close)."""
+    inner = fmt[: -len(GZ)]
+    if inner == "candump":
+        parser = CandumpBlocks()
+        reorder = Reorder(window)
+        pieces = _candump_gz_pieces(p, parser)
+        stream = LogStream(p, fmt, _ordered(pieces, reorder, chunk_frames), lambda: ReadStats(0))
+        stream._stats = lambda: _candump_stats(parser, reorder, stream.frames_read)
+        return stream
+    tmp = tempfile.mkdtemp(prefix="lde-gz-")
+    plain = Path(tmp) / f"log.{inner}"
+    cut = False
+    try:
+        with plain.open("wb") as fh:
+            for piece, c in gunzip_pieces(p):
+                fh.write(piece)
+                cut = cut or c
+        inner_stream = open_log(
+            plain,
+            fmt=inner,
+            skip_tx=skip_tx,
+            chunk_frames=chunk_frames,
+            reorder_window_ns=window,
+            validate_crcs=validate_crcs,
+        )
+    except LogFormatError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        msg = str(exc).replace(str(plain), str(p))
+        if cut:
+            msg += " (the gzip stream is cut short)"
+        raise LogFormatError(msg) from exc
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise LogFormatError(f"{p}: cannot decompress to {tmp}: {exc}") from exc
+
+    def pieces_of() -> Iterator[FrameBatch]:
+        try:
+            yield from inner_stream._pieces
+        except LogFormatError as exc:
+            raise LogFormatError(str(exc).replace(str(plain), str(p))) from exc
+
+    def stats() -> ReadStats:
+        s = inner_stream.stats
+        if cut and not s.truncated_last_line:
+            s = ReadStats(**{**s.__dict__, "truncated_last_line": 1})
+        return _with_frames(s, stream.frames_read)
+
+    def cleanup() -> None:
+        inner_stream.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+
+    stream = LogStream(p, fmt, pieces_of(), stats, mcap=None, cleanup=cleanup, skip_tx=skip_tx)
+    stream.mcap = inner_stream.mcap
+    return stream
+
+
+# ----------------------------------------------------------------------------- whole logs
 def read_log(
     path: str | Path,
     *,
@@ -226,7 +452,8 @@ def read_log(
     skip_tx: bool = False,
     json_optional: bool = False,
 ) -> LogData:
-    """Read a CAN log into a :class:`LogData` (format by :func:`detect_format` unless ``fmt``).
+    """Read a whole log into a :class:`LogData` (format by :func:`detect_format` unless ``fmt``),
+    its frames stably sorted by time whatever their order in the file.
 
     ``json_topics``, ``json_optional`` and ``skip_tx`` apply to MCAP files (see :func:`read_mcap`):
     with ``skip_tx`` the frames lde itself sent (``/can/tx``) are counted but need not be decoded.
@@ -236,107 +463,41 @@ def read_log(
     """
     p = Path(path)
     fmt = fmt or detect_format(p)
-    if fmt.endswith(GZ):
-        return _read_gzip(p, fmt, json_topics=json_topics, skip_tx=skip_tx, json_optional=json_optional)
-    if fmt == "mcap":
-        data = read_mcap(p, json_topics=json_topics, skip_tx=skip_tx, json_optional=json_optional)
-        stats = ReadStats(
-            frames=len(data.frames),
-            bad_messages=data.bad_can_messages,
-            truncated_last_line=int(data.truncated),
-        )
-        out = LogData(p, "mcap", data.frames, stats, mcap=data)
-    elif fmt == "candump":
-        try:
-            raw = p.read_bytes()
-        except OSError as exc:
-            raise LogFormatError(f"{p}: cannot read: {exc}") from exc
-        out = _candump_data(p, raw)
-    else:
-        parsed_pc = read_pycan(p)
-        stats = ReadStats(
-            frames=len(parsed_pc.frames),
-            error_frames=parsed_pc.error_frames,
-            remote_frames=parsed_pc.remote_frames,
-        )
-        out = LogData(p, fmt, parsed_pc.frames.sort(), stats)
-    _require_frames(out)
-    return out
-
-
-def _candump_data(p: Path, raw: bytes, fmt: str = "candump") -> LogData:
-    parsed = parse_candump_bytes(raw)
-    stats = ReadStats(
-        frames=len(parsed.frames),
-        error_frames=parsed.error_frames,
-        remote_frames=parsed.remote_frames,
-        malformed_lines=parsed.malformed_lines,
-        truncated_last_line=parsed.truncated_last_line,
-        first_malformed_line=parsed.first_malformed_line,
-    )
-    return LogData(p, fmt, parsed.frames.sort(), stats)
-
-
-def _require_frames(out: LogData) -> None:
-    """LogFormatError for a log without a single data frame (or, read with ``skip_tx``, an MCAP
-    recording that holds only the frames lde itself sent)."""
-    topics = out.mcap.topics if out.mcap is not None else {}
-    n_tx = topics[TOPIC_TX].count if TOPIC_TX in topics else 0
-    n_rx = topics[TOPIC_RX].count if TOPIC_RX in topics else 0
-    if len(out.frames) == 0 and n_tx > 0 and n_rx == 0:
-        raise LogFormatError(
-            f"{out.path}: only frames lde sent ({n_tx} on {TOPIC_TX}): no received input frames"
-        )
-    if len(out.frames) == 0:
-        raise LogFormatError(
-            f"{out.path}: no CAN data frames in this {out.format} log ({_describe(out.stats)})"
-        )
-
-
-def _read_gzip(
-    p: Path,
-    fmt: str,
-    *,
-    json_topics: Iterable[str] | str | None,
-    skip_tx: bool,
-    json_optional: bool,
-) -> LogData:
-    """A gzip-compressed log (``fmt`` = ``"<inner format>.gz"``): candump in memory, the others
-    from a decompressed temporary copy named with the inner suffix."""
-    inner = fmt[: -len(GZ)]
-    if inner == "candump":
-        raw, _cut = _gunzip(p)  # a cut stream ends inside a line: counted by the parser
-        out = _candump_data(p, raw, fmt)
-        _require_frames(out)
-        return out
-    with tempfile.TemporaryDirectory(prefix="lde-gz-") as tmp:
-        plain = Path(tmp) / f"log.{inner}"
-        cut = False
-        try:
-            with plain.open("wb") as fh:
-                for piece, c in _gunzip_chunks(p):
-                    fh.write(piece)
-                    cut = cut or c
-        except OSError as exc:
-            raise LogFormatError(f"{p}: cannot decompress to {tmp}: {exc}") from exc
-        try:
-            out = read_log(
-                plain, fmt=inner, json_topics=json_topics, skip_tx=skip_tx, json_optional=json_optional
+    if fmt in ("mcap", "mcap.gz"):
+        with open_log(p, fmt=fmt, skip_tx=skip_tx) as s:
+            m = s.mcap
+            assert m is not None
+            frames = FrameBatch.concat(list(s), sort=False)
+            wanted = json_wanted(m, json_topics, json_optional)
+            data = McapData(
+                frames=frames,
+                topics=dict(m.topics),
+                times={t: m.times(t) for t in m.topics if t not in m.can_topics},
+                json={t: m.json(t) for t in wanted},
+                bad_can_messages=m.bad_can_messages,
+                fast_path=m.fast_path,
+                chunks_read=m.chunks_read,
+                chunks_skipped=m.chunks_skipped,
+                truncated=m.truncated,
+                metadata=m.metadata,
             )
-        except LogFormatError as exc:
-            msg = str(exc).replace(str(plain), str(p))
-            if cut:
-                msg += " (the gzip stream is cut short)"
-            raise LogFormatError(msg) from exc
-    out.path, out.format = p, fmt
-    if cut and not out.stats.truncated_last_line:
-        out.stats = replace(out.stats, truncated_last_line=1)
-    return out
+            return LogData(p, fmt, frames, s.stats, mcap=data)
+    with open_log(p, fmt=fmt, reorder_window_ns=None) as s:
+        frames = FrameBatch.concat(list(s), sort=False)
+        return LogData(p, fmt, frames, s.stats)
 
 
 def _describe(s: ReadStats) -> str:
     parts = [f"{s.frames} frames"]
-    for name in ("error_frames", "remote_frames", "malformed_lines", "truncated_last_line", "bad_messages"):
+    names = (
+        "error_frames",
+        "remote_frames",
+        "malformed_lines",
+        "truncated_last_line",
+        "bad_messages",
+        "late_frames",
+    )
+    for name in names:
         v = getattr(s, name)
         if v:
             parts.append(f"{v} {name.replace('_', ' ')}")

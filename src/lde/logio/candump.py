@@ -29,7 +29,14 @@ import numpy as np
 from ..errors import LogFormatError
 from ..frames import FrameBatch
 
-__all__ = ["CandumpParse", "parse_candump_bytes", "looks_like_candump", "write_candump", "format_candump"]
+__all__ = [
+    "CandumpParse",
+    "CandumpBlocks",
+    "parse_candump_bytes",
+    "looks_like_candump",
+    "write_candump",
+    "format_candump",
+]
 
 # per-line status codes of the kernel
 ST_FRAME = 0
@@ -41,170 +48,193 @@ ST_BLANK = 4
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF
 
+# counts of the kernel: lines, error frames, remote frames, malformed lines, first malformed line
+C_LINES, C_ERROR, C_REMOTE, C_MALFORMED, C_FIRST_BAD = range(5)
+
+#: hex digit value of every byte, -1 for the others
+_HEX = np.full(256, -1, np.int64)
+for _i, _c in enumerate(b"0123456789abcdef"):
+    _HEX[_c] = _i
+for _i, _c in enumerate(b"ABCDEF"):
+    _HEX[_c] = 10 + _i
+
+#: bytes read per block of a text log; a block is parsed at once (its frames are one piece)
+BLOCK_BYTES = 8 << 20
+#: the shortest line that holds a frame, ``(0) a 0#\n``: bounds the frames of a block
+_MIN_LINE = 9
+
 
 @numba.njit(cache=True, inline="always")
-def _hexval(c: int) -> int:
-    if 48 <= c <= 57:
-        return c - 48
-    if 65 <= c <= 70:
-        return c - 55
-    if 97 <= c <= 102:
-        return c - 87
-    return -1
-
-
-@numba.njit(cache=True, inline="always")
-def _is_space(c: int) -> bool:
+def _sp(c):  # pragma: no cover - compiled
     return c == 32 or c == 9 or c == 13
 
 
-@numba.njit(cache=True)
-def _parse_line(buf, a, b, out_t, out_id, out_ext, out_dlc, out_data, out_rx, k):  # noqa: C901
-    """Parse buf[a:b] (one line without its newline) into row k. Returns a status code."""
-    i = a
-    while i < b and _is_space(buf[i]):
-        i += 1
-    if i >= b:
-        return ST_BLANK
-    if buf[i] != 40:  # '('
-        return ST_MALFORMED
-    i += 1
-    # seconds: up to 11 digits (int64 ns stays exact up to year 2262)
-    sec = np.int64(0)
-    nd = 0
-    while i < b and 48 <= buf[i] <= 57:
-        if nd >= 11:
-            return ST_MALFORMED
-        sec = sec * 10 + (buf[i] - 48)
-        nd += 1
-        i += 1
-    if nd == 0:
-        return ST_MALFORMED
-    # int64 ns holds 9223372036.854775807 s at most: a larger time would wrap, so the line is bad
-    if sec > 9_223_372_035:
-        return ST_MALFORMED
-    frac = np.int64(0)
-    nf = 0
-    if i < b and buf[i] == 46:  # '.'
-        i += 1
-        while i < b and 48 <= buf[i] <= 57:
-            if nf < 9:
-                frac = frac * 10 + (buf[i] - 48)
-            nf += 1
-            i += 1
-    if i >= b or buf[i] != 41:  # ')'
-        return ST_MALFORMED
-    i += 1
-    for _ in range(9 - min(nf, 9)):
-        frac *= 10
-    t = sec * 1_000_000_000 + frac
-    # interface token
-    if i >= b or not _is_space(buf[i]):
-        return ST_MALFORMED
-    while i < b and _is_space(buf[i]):
-        i += 1
-    n_if = 0
-    while i < b and not _is_space(buf[i]):
-        i += 1
-        n_if += 1
-    if n_if == 0:
-        return ST_MALFORMED
-    while i < b and _is_space(buf[i]):
-        i += 1
-    # id
-    cid = np.int64(0)
-    nh = 0
-    while i < b and buf[i] != 35:  # '#'
-        h = _hexval(buf[i])
-        if h < 0 or nh >= 8:
-            return ST_MALFORMED
-        cid = cid * 16 + h
-        nh += 1
-        i += 1
-    if nh == 0 or i >= b:
-        return ST_MALFORMED
-    i += 1  # past '#'
-    ext = nh > 3
-    if not ext and cid > 0x7FF:
-        return ST_MALFORMED
-    status = ST_FRAME
-    if ext and (cid & CAN_ERR_FLAG) != 0:
-        status = ST_ERROR
-    fd = False
-    if i < b and buf[i] == 35:  # '##': CAN FD, one flags nibble follows
-        fd = True
-        i += 1
-        if i >= b or _hexval(buf[i]) < 0:
-            return ST_MALFORMED
-        i += 1
-    n = 0
-    if not fd and i < b and (buf[i] == 82 or buf[i] == 114):  # 'R' / 'r': remote frame
-        i += 1
-        while i < b and 48 <= buf[i] <= 57:
-            i += 1
-        if status == ST_FRAME:
-            status = ST_REMOTE
-    else:
-        while i + 1 < b and _hexval(buf[i]) >= 0 and _hexval(buf[i + 1]) >= 0:
-            if n < 8:
-                out_data[k, n] = _hexval(buf[i]) * 16 + _hexval(buf[i + 1])
-            n += 1
-            i += 2
-        if n > 64 or (not fd and n > 8):
-            return ST_MALFORMED
-        if i < b and _hexval(buf[i]) >= 0:  # odd number of hex digits
-            return ST_MALFORMED
-        if not fd and i < b and buf[i] == 95:  # '_<dlc>' (python-can len8_dlc)
-            i += 1
-            if i >= b or _hexval(buf[i]) < 0:
-                return ST_MALFORMED
-            i += 1
-    # optional direction token and trailing blanks
-    rx = True
-    if i < b and not _is_space(buf[i]):
-        return ST_MALFORMED
-    while i < b and _is_space(buf[i]):
-        i += 1
-    if i < b:
-        c = buf[i]
-        if c == 84 or c == 116:  # 'T'
-            rx = False
-        elif c != 82 and c != 114:  # 'R'
-            return ST_MALFORMED
-        i += 1
-        while i < b and _is_space(buf[i]):
-            i += 1
-        if i < b:
-            return ST_MALFORMED
-    out_t[k] = t
-    out_id[k] = cid & CAN_EFF_MASK
-    out_ext[k] = ext
-    out_dlc[k] = n
-    out_rx[k] = rx
-    return status
-
-
-@numba.njit(cache=True)
-def _parse_all(buf, out_t, out_id, out_ext, out_dlc, out_data, out_rx, line_status):
-    """Split buf at b'\\n' and parse every line; rows are packed (frames only). Returns n_frames."""
+@numba.njit(cache=True, nogil=True)
+def _parse_block(buf, hexv, t_out, id_out, ext_out, dlc_out, word_out, rx_out, counts):  # pragma: no cover
+    """Parse every line of ``buf`` (which ends with a newline) in one pass; frames are packed into
+    the output rows (payload as a little-endian word), the other line kinds counted in ``counts``
+    (``C_*``; ``C_FIRST_BAD`` numbered from ``counts[C_LINES]`` on). Returns the frames written.
+    The grammar is the module doc's; the kernel never reads past the block's last newline."""
     n = buf.shape[0]
-    a = 0
-    line = 0
+    i = 0
     k = 0
-    while a < n:
-        b = a
-        while b < n and buf[b] != 10:
-            b += 1
-        st = _parse_line(buf, a, b, out_t, out_id, out_ext, out_dlc, out_data, out_rx, k)
-        line_status[line] = st
-        if st == ST_FRAME:
-            k += 1
-        else:
-            for j in range(8):
-                out_data[k, j] = 0
+    line = 0
+    while i < n:
         line += 1
-        a = b + 1
+        st = ST_MALFORMED
+        while _sp(buf[i]):
+            i += 1
+        c = buf[i]
+        if c == 10:
+            st = ST_BLANK
+        elif c == 40:  # '('
+            i += 1
+            # seconds: up to 11 digits (int64 ns holds 9223372036.854775807 s at most)
+            sec = np.int64(0)
+            nd = 0
+            while 48 <= buf[i] <= 57 and nd < 12:
+                sec = sec * 10 + (buf[i] - 48)
+                nd += 1
+                i += 1
+            ok = 0 < nd <= 11 and sec <= 9_223_372_035
+            frac = np.int64(0)
+            nf = 0
+            if ok and buf[i] == 46:  # '.': up to 9 fraction digits kept, more truncated
+                i += 1
+                while 48 <= buf[i] <= 57:
+                    if nf < 9:
+                        frac = frac * 10 + (buf[i] - 48)
+                    nf += 1
+                    i += 1
+            if ok and buf[i] == 41 and _sp(buf[i + 1]):  # ')' and a blank
+                i += 1
+                for _ in range(9 - min(nf, 9)):
+                    frac *= 10
+                t = sec * 1_000_000_000 + frac
+                while _sp(buf[i]):
+                    i += 1
+                n_if = 0  # interface token
+                while buf[i] != 10 and not _sp(buf[i]):
+                    i += 1
+                    n_if += 1
+                while _sp(buf[i]):
+                    i += 1
+                cid = np.int64(0)  # id: 3 (standard) or more (extended) hex digits, at most 8
+                nh = 0
+                while True:
+                    h = hexv[buf[i]]
+                    if h < 0 or nh >= 8:
+                        break
+                    cid = cid * 16 + h
+                    nh += 1
+                    i += 1
+                ext = nh > 3
+                if n_if > 0 and nh > 0 and buf[i] == 35 and (ext or cid <= 0x7FF):  # '#'
+                    i += 1
+                    status = ST_FRAME
+                    if ext and (cid & CAN_ERR_FLAG) != 0:
+                        status = ST_ERROR
+                    fd = False
+                    good = True
+                    if buf[i] == 35:  # '##': CAN FD, one flags nibble follows
+                        fd = True
+                        i += 1
+                        if hexv[buf[i]] < 0:
+                            good = False
+                        else:
+                            i += 1
+                    nb = 0
+                    w = np.uint64(0)
+                    if good:
+                        if not fd and (buf[i] == 82 or buf[i] == 114):  # 'R' / 'r': remote frame
+                            i += 1
+                            while 48 <= buf[i] <= 57:
+                                i += 1
+                            if status == ST_FRAME:
+                                status = ST_REMOTE
+                        else:
+                            while True:
+                                h1 = hexv[buf[i]]
+                                if h1 < 0:
+                                    break
+                                h2 = hexv[buf[i + 1]]
+                                if h2 < 0:  # an odd number of hex digits
+                                    good = False
+                                    break
+                                if nb < 8:
+                                    w |= np.uint64(h1 * 16 + h2) << np.uint64(8 * nb)
+                                nb += 1
+                                i += 2
+                            if nb > 64 or (not fd and nb > 8):
+                                good = False
+                            if good and not fd and buf[i] == 95:  # '_<dlc>' (python-can len8_dlc)
+                                i += 1
+                                if hexv[buf[i]] < 0:
+                                    good = False
+                                else:
+                                    i += 1
+                    rx = True
+                    if good:  # optional direction token (R / T) and trailing blanks
+                        c = buf[i]
+                        if c != 10 and not _sp(c):
+                            good = False
+                        while _sp(buf[i]):
+                            i += 1
+                        c = buf[i]
+                        if good and c != 10:
+                            if c == 84 or c == 116:  # 'T'
+                                rx = False
+                            elif c != 82 and c != 114:
+                                good = False
+                            i += 1
+                            while _sp(buf[i]):
+                                i += 1
+                            if buf[i] != 10:
+                                good = False
+                    if good:
+                        st = status
+                        if status == ST_FRAME:
+                            t_out[k] = t
+                            id_out[k] = cid & CAN_EFF_MASK
+                            ext_out[k] = ext
+                            dlc_out[k] = nb
+                            word_out[k] = w
+                            rx_out[k] = rx
+                            k += 1
+        while buf[i] != 10:  # the rest of the line
+            i += 1
+        i += 1
+        if st == ST_ERROR:
+            counts[C_ERROR] += 1
+        elif st == ST_REMOTE:
+            counts[C_REMOTE] += 1
+        elif st == ST_MALFORMED:
+            counts[C_MALFORMED] += 1
+            if counts[C_FIRST_BAD] == 0:
+                counts[C_FIRST_BAD] = counts[C_LINES] + line
+    counts[C_LINES] += line
     return k
+
+
+def _parse_lines(buf: np.ndarray, counts: np.ndarray) -> FrameBatch:
+    """The frames of ``buf`` (complete lines, ending with a newline), in file order."""
+    cap = buf.shape[0] // _MIN_LINE + 1
+    t = np.empty(cap, np.int64)
+    cid = np.empty(cap, np.uint32)
+    ext = np.empty(cap, np.bool_)
+    dlc = np.empty(cap, np.uint8)
+    words = np.empty(cap, np.uint64)
+    rx = np.empty(cap, np.bool_)
+    k = _parse_block(buf, _HEX, t, cid, ext, dlc, words, rx, counts) if buf.size else 0
+    # copies: the capacity's unused pages are released with the arrays
+    return FrameBatch(
+        t_ns=t[:k].copy(),
+        can_id=cid[:k].copy(),
+        is_extended=ext[:k].copy(),
+        dlc=dlc[:k].copy(),
+        data=words[:k].view(np.uint8).reshape(k, 8).copy(),
+        is_rx=rx[:k].copy(),
+    )
 
 
 @dataclass(frozen=True)
@@ -231,40 +261,60 @@ class CandumpParse:
     first_malformed_line: int
 
 
+class CandumpBlocks:
+    """Parses candump ``-L`` text fed in pieces of any size (a file read block by block, a gzip
+    stream): :meth:`feed` returns the frames of the complete lines so far (file order), :meth:`end`
+    those of a last line without newline (none: such a line is a log cut while being written, it
+    is counted as truncated, see the module doc). The counts accumulate in :attr:`counts` (``C_*``)
+    and :attr:`truncated_last_line`."""
+
+    def __init__(self) -> None:
+        self.counts = np.zeros(5, np.int64)
+        self.truncated_last_line = 0
+        self._carry = b""
+
+    def feed(self, piece: bytes | bytearray | memoryview) -> FrameBatch:
+        data = piece if isinstance(piece, bytes) else bytes(piece)
+        cut = data.rfind(b"\n")
+        if cut < 0:
+            self._carry += data
+            return FrameBatch.empty()
+        if self._carry:
+            block = np.frombuffer(self._carry + data[: cut + 1], np.uint8)
+        else:
+            block = np.frombuffer(data, np.uint8, count=cut + 1)
+        self._carry = data[cut + 1 :]
+        return _parse_lines(block, self.counts)
+
+    def end(self) -> FrameBatch:
+        """The log ended: a last line without newline is counted as truncated unless it is blank
+        (its frame, if it parses, is not used: its payload may be cut)."""
+        rest, self._carry = self._carry, b""
+        if rest:
+            self.counts[C_LINES] += 1
+            if rest.strip(b" \t\r"):
+                self.truncated_last_line = 1
+        return FrameBatch.empty()
+
+    def result(self, frames: FrameBatch) -> CandumpParse:
+        c = self.counts
+        return CandumpParse(
+            frames=frames,
+            lines=int(c[C_LINES]),
+            error_frames=int(c[C_ERROR]),
+            remote_frames=int(c[C_REMOTE]),
+            malformed_lines=int(c[C_MALFORMED]),
+            truncated_last_line=self.truncated_last_line,
+            first_malformed_line=int(c[C_FIRST_BAD]),
+        )
+
+
 def parse_candump_bytes(raw: bytes | bytearray | memoryview) -> CandumpParse:
     """Parse the bytes of a candump ``-L`` log (see the module doc). Never raises on bad lines."""
-    buf = np.frombuffer(raw, dtype=np.uint8)
-    n_lines = int(np.count_nonzero(buf == 10)) + 1
-    t = np.empty(n_lines, np.int64)
-    cid = np.empty(n_lines, np.uint32)
-    ext = np.empty(n_lines, np.bool_)
-    dlc = np.empty(n_lines, np.uint8)
-    data = np.zeros((n_lines, 8), np.uint8)
-    rx = np.empty(n_lines, np.bool_)
-    status = np.full(n_lines, ST_BLANK, np.int8)
-    k = _parse_all(buf, t, cid, ext, dlc, data, rx, status) if buf.size else 0
-    ends_with_newline = buf.size == 0 or buf[-1] == 10
-    # the kernel sees an empty last "line" after a final newline: it is blank
-    truncated = 0
-    bad = status == ST_MALFORMED
-    if not ends_with_newline and status[n_lines - 1] != ST_BLANK:
-        truncated = 1
-        bad[n_lines - 1] = False
-        if status[n_lines - 1] == ST_FRAME:
-            k -= 1  # frames are packed in line order: the last line's frame is the last row
-    bad_idx = np.flatnonzero(bad)
-    frames = FrameBatch(
-        t_ns=t[:k], can_id=cid[:k], is_extended=ext[:k], dlc=dlc[:k], data=data[:k], is_rx=rx[:k]
-    )
-    return CandumpParse(
-        frames=frames,
-        lines=n_lines - (1 if ends_with_newline else 0),
-        error_frames=int(np.count_nonzero(status == ST_ERROR)),
-        remote_frames=int(np.count_nonzero(status == ST_REMOTE)),
-        malformed_lines=int(bad_idx.size),
-        truncated_last_line=truncated,
-        first_malformed_line=int(bad_idx[0]) + 1 if bad_idx.size else 0,
-    )
+    p = CandumpBlocks()
+    frames = p.feed(raw)
+    p.end()
+    return p.result(frames)
 
 
 def looks_like_candump(head: bytes) -> bool:

@@ -1,8 +1,9 @@
 """python-can plugins for ``.mcap`` (entry points ``can.io.message_reader`` / ``message_writer``).
 
 After ``pip install -e .``, ``can.LogReader("x.mcap")`` iterates the CAN frames of an lde recording
-(``/can/rx`` and ``/can/tx``) as :class:`can.Message`, and ``can.Logger("x.mcap")`` records
-messages to ``/can/rx`` (``msg.is_rx`` True) or ``/can/tx``. Layout: :mod:`lde.logio.mcapfile`.
+(``/can/rx`` and ``/can/tx``) as :class:`can.Message` in time order, read chunk by chunk
+(:class:`lde.logio.mcap_read.McapLog`), and ``can.Logger("x.mcap")`` records messages to
+``/can/rx`` (``msg.is_rx`` True) or ``/can/tx`` (:class:`lde.logio.mcap_write.McapWriter`).
 """
 
 from __future__ import annotations
@@ -15,21 +16,22 @@ import can
 from can.io.generic import MessageReader, MessageWriter
 
 from ..frames import seconds_to_ns
-from .mcapfile import McapWriter, read_mcap
+from .mcap_read import McapLog
+from .mcap_write import McapWriter
 
 __all__ = ["McapCanReader", "McapCanWriter"]
 
 
 class McapCanReader(MessageReader):
-    """Iterates the CAN frames of an lde MCAP file in time order (``channel`` = the topic)."""
+    """Iterates the CAN frames of an lde MCAP file in time order."""
 
     def __init__(self, file: Any, **kwargs: Any) -> None:
         self._path = Path(file if not hasattr(file, "name") else file.name)
 
     def __iter__(self) -> Generator[can.Message, None, None]:
-        data = read_mcap(self._path)
-        f = data.frames
-        yield from f.to_messages(channel=None)
+        with McapLog(self._path) as m:
+            for piece in m.iter_frames(chunk_frames=1 << 14):
+                yield from piece.to_messages(channel=None)
         self.stop()
 
     def stop(self) -> None:
@@ -40,12 +42,19 @@ class McapCanWriter(MessageWriter):
     """A ``can.Listener`` that records every message it receives into an lde MCAP file.
 
     Timestamps (float s) are stored as int ns rounded to the microsecond. Error and remote frames
-    are not recorded (counted in :attr:`skipped`).
+    are not recorded (counted in :attr:`skipped`). Keyword arguments: ``buffer_bytes`` (flush
+    threshold), ``compression`` (``zstd``, ``lz4`` or ``""``), ``indexed`` (message and chunk
+    indexes, see :mod:`lde.logio.mcap_write`).
     """
 
     def __init__(self, file: Any, **kwargs: Any) -> None:
         path = Path(file if not hasattr(file, "name") else file.name)
-        self._writer = McapWriter(path, buffer_bytes=int(kwargs.get("buffer_bytes", 8 << 20)))
+        self._writer = McapWriter(
+            path,
+            buffer_bytes=int(kwargs.get("buffer_bytes", 8 << 20)),
+            compression=str(kwargs.get("compression", "zstd")),
+            indexed=bool(kwargs.get("indexed", False)),
+        )
         self.skipped = 0
         self._stopped = False
 

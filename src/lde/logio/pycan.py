@@ -1,13 +1,14 @@
-"""Every log format python-can reads (ASC, BLF, TRC, CSV, SQLite, MF4, ...) -> FrameBatch.
+"""Every log format python-can reads (ASC, BLF, TRC, CSV, SQLite, MF4, ...) -> FrameBatch pieces.
 
-python-can gives float-second timestamps: they are converted with
+The format's ``can.LogReader`` is iterated and its messages are turned into columns in batches of
+:data:`BATCH` (file order). python-can gives float-second timestamps: they are converted with
 :func:`lde.frames.seconds_to_ns` (rounded to the microsecond). Error and remote frames are skipped
 with a count. Any exception of the format's reader becomes a :class:`LogFormatError`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Iterator
 from pathlib import Path
 
 import can
@@ -17,67 +18,96 @@ from can.io import player
 from ..errors import LogFormatError
 from ..frames import FrameBatch, seconds_to_ns
 
-__all__ = ["PycanParse", "read_pycan", "pycan_suffixes"]
+__all__ = ["PycanReader", "pycan_suffixes", "BATCH"]
+
+#: messages per batch
+BATCH = 1 << 16
 
 
 def pycan_suffixes() -> set[str]:
     """File suffixes python-can has a reader for (built-in and plugins)."""
-
     player._update_reader_plugins()
     return set(player.MESSAGE_READERS)
 
 
-@dataclass(frozen=True)
-class PycanParse:
-    frames: FrameBatch
-    error_frames: int
-    remote_frames: int
+class PycanReader:
+    """A python-can log read in batches: iterate for the frames (file order); :attr:`error_frames`
+    and :attr:`remote_frames` count what was skipped (final once the iteration ends).
+
+    Raises:
+        LogFormatError: no reader for the suffix, or the format's reader failed (at open or while
+            iterating).
+    """
+
+    def __init__(self, path: str | Path, batch: int = BATCH) -> None:
+        self.path = Path(path)
+        self.batch = batch
+        self.error_frames = 0
+        self.remote_frames = 0
+
+    def __iter__(self) -> Iterator[FrameBatch]:
+        p = self.path
+        try:
+            reader = can.LogReader(str(p))
+        except ValueError as exc:
+            raise LogFormatError(f"{p}: no reader for this file type ({exc})") from exc
+        except Exception as exc:  # noqa: BLE001 - format readers raise anything on bad input
+            raise LogFormatError(
+                f"{p}: cannot open as a {p.suffix} log ({type(exc).__name__}: {exc})"
+            ) from exc
+        cols = _Columns()
+        try:
+            with reader:
+                for m in reader:
+                    if m.is_error_frame:
+                        self.error_frames += 1
+                        continue
+                    if m.is_remote_frame:
+                        self.remote_frames += 1
+                        continue
+                    cols.add(m)
+                    if cols.n >= self.batch:
+                        yield cols.take()
+        except LogFormatError:
+            raise
+        except Exception as exc:  # noqa: BLE001
+            raise LogFormatError(f"{p}: corrupt {p.suffix} log ({type(exc).__name__}: {exc})") from exc
+        if cols.n:
+            yield cols.take()
 
 
-def read_pycan(path: str | Path) -> PycanParse:
-    """Read ``path`` with ``can.LogReader`` (format by suffix). Frames in file order."""
-    p = Path(path)
-    t: list[int] = []
-    ids: list[int] = []
-    ext: list[bool] = []
-    dlc: list[int] = []
-    rx: list[bool] = []
-    payload = bytearray()
-    n_err = 0
-    n_rtr = 0
-    try:
-        reader = can.LogReader(str(p))
-    except ValueError as exc:
-        raise LogFormatError(f"{p}: no reader for this file type ({exc})") from exc
-    except Exception as exc:  # noqa: BLE001 - format readers raise anything on bad input
-        raise LogFormatError(f"{p}: cannot open as a {p.suffix} log ({type(exc).__name__}: {exc})") from exc
-    try:
-        with reader:
-            for m in reader:
-                if m.is_error_frame:
-                    n_err += 1
-                    continue
-                if m.is_remote_frame:
-                    n_rtr += 1
-                    continue
-                raw = bytes(m.data or b"")
-                t.append(seconds_to_ns(m.timestamp))
-                ids.append(int(m.arbitration_id))
-                ext.append(bool(m.is_extended_id))
-                dlc.append(len(raw))
-                rx.append(bool(m.is_rx))
-                payload += raw[:8].ljust(8, b"\x00")
-    except LogFormatError:
-        raise
-    except Exception as exc:  # noqa: BLE001
-        raise LogFormatError(f"{p}: corrupt {p.suffix} log ({type(exc).__name__}: {exc})") from exc
-    n = len(t)
-    frames = FrameBatch(
-        t_ns=np.array(t, np.int64),
-        can_id=np.array(ids, np.uint32),
-        is_extended=np.array(ext, np.bool_),
-        dlc=np.array(dlc, np.uint8),
-        data=np.frombuffer(bytes(payload), np.uint8).reshape(n, 8),
-        is_rx=np.array(rx, np.bool_),
-    )
-    return PycanParse(frames, n_err, n_rtr)
+class _Columns:
+    def __init__(self) -> None:
+        self.t: list[int] = []
+        self.ids: list[int] = []
+        self.ext: list[bool] = []
+        self.dlc: list[int] = []
+        self.rx: list[bool] = []
+        self.payload = bytearray()
+
+    @property
+    def n(self) -> int:
+        return len(self.t)
+
+    def add(self, m: can.Message) -> None:
+        raw = bytes(m.data or b"")
+        self.t.append(seconds_to_ns(m.timestamp))
+        self.ids.append(int(m.arbitration_id))
+        self.ext.append(bool(m.is_extended_id))
+        self.dlc.append(len(raw))
+        self.rx.append(bool(m.is_rx))
+        self.payload += raw[:8].ljust(8, b"\x00")
+
+    def take(self) -> FrameBatch:
+        n = self.n
+        out = FrameBatch(
+            t_ns=np.array(self.t, np.int64),
+            can_id=np.array(self.ids, np.uint32),
+            is_extended=np.array(self.ext, np.bool_),
+            dlc=np.array(self.dlc, np.uint8),
+            data=np.frombuffer(bytes(self.payload), np.uint8).reshape(n, 8),
+            is_rx=np.array(self.rx, np.bool_),
+        )
+        self.t, self.ids, self.ext, self.dlc, self.rx = [], [], [], [], []
+        self.payload = bytearray()
+        return out
