@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lde import kalman, model
+from lde import kalman, kalman_reference, model
 from lde.params import load_vehicle
 from lde.units import KMH
 
@@ -44,7 +44,7 @@ def test_compiled_filter_matches_filterpy_over_long_sequence(veh):
     vx, delta, zs, use, truth = _sequence(veh, n, seed=1)
     x0, P0 = _x0_P0(veh)
     ours = kalman.KalmanFilter(x0, P0)
-    ref = kalman.FilterpyReference(x0, P0)
+    ref = kalman_reference.FilterpyReference(x0, P0)
     worst_x = worst_p = 0.0
     for k in range(n):
         d = model.discrete_matrices(veh, vx[k])

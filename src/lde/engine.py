@@ -221,6 +221,7 @@ class StepBlock:
 #: a batch longer than this runs the backend's shadow in a second thread (:meth:`Engine.feed`)
 _SHADOW_MIN_FRAMES = 50_000
 _SHADOW_CHUNK = 65_536
+_MAX_HINT_ROWS = 1 << 21
 _NO_PRE = np.zeros((0, 2))
 _NO_TIMES = np.zeros(0, np.int64)
 _NO_BOOL = np.zeros(0, np.bool_)
@@ -240,6 +241,9 @@ class Engine:
         dt: the model period [s] (the grid period).
         encode_outputs: encode the output frames (``StepBlock.frames``); False for a replay whose
             output is only a CSV (the frames are then zeros).
+        shadow_thread: the fixed backend's float shadow of a large batch runs as a second engine in
+            another thread (:meth:`_feed_with_shadow`: less wall time on an idle second core, more
+            CPU time); False: inline, one core (same rows either way).
     """
 
     def __init__(
@@ -251,6 +255,7 @@ class Engine:
         explicit: bool = False,
         dt: float = STEP_S,
         encode_outputs: bool = True,
+        shadow_thread: bool = True,
     ) -> None:
         check_profile(vehicle, profile.steering_rate_signed, profile.name)
         self.profile = profile
@@ -258,6 +263,7 @@ class Engine:
         self.backend = get_backend(backend)
         self.explicit = explicit
         self.encode_outputs = encode_outputs
+        self.shadow_thread = shadow_thread
         self.rx_tables = RxTables.of(profile)
         self.outputs = OutputTable.of(profile)
         self._dt = dt
@@ -411,7 +417,7 @@ class Engine:
             self._steps = np.concatenate([self._steps, t])
             self._enable = np.concatenate([self._enable, en])
             self._extra = np.concatenate([self._extra, ex])
-        if self.est.shadow is not None and len(frames) > _SHADOW_MIN_FRAMES:
+        if self.shadow_thread and self.est.shadow is not None and len(frames) > _SHADOW_MIN_FRAMES:
             return self._feed_with_shadow(frames, final, t_end_ns, block_rows)
         return self._feed(frames, final, t_end_ns, block_rows)
 
@@ -419,8 +425,9 @@ class Engine:
         blocks: list[StepBlock] = []
         words = words_le(frames.data)
         i = 0
+        rows = self._rows_hint(frames, block_rows)
         while True:
-            out = StepBlock.empty(block_rows, len(self.outputs.names))
+            out = StepBlock.empty(rows, len(self.outputs.names))
             i, n = self.run_arrays(
                 frames.t_ns,
                 frames.can_id,
@@ -439,10 +446,23 @@ class Engine:
             if self.explicit:
                 self._steps, self._enable, self._extra = self._steps[n:], self._enable[n:], self._extra[n:]
             blocks.append(out.head(n))
-            if n < block_rows:
+            if n < rows:
                 break
+            rows = block_rows
         self.frames_fed = i
         return StepBlock.concat(blocks) if len(blocks) > 1 else blocks[0]
+
+    def _rows_hint(self, frames: FrameBatch, block_rows: int) -> int:
+        """Rows to allocate for one call: the steps it will most likely run (explicit: the pending
+        step times; anchored: the frames' time span / the period), so that the rows come in one
+        block without a copy; at most :data:`_MAX_HINT_ROWS` (untouched rows cost no memory)."""
+        if self.explicit:
+            hint = len(self._steps) + 1
+        elif len(frames):
+            hint = (int(frames.t_ns[-1]) - int(frames.t_ns[0])) // int(self.grid[G_PERIOD]) + 64
+        else:
+            hint = 0
+        return int(min(max(hint, block_rows), _MAX_HINT_ROWS))
 
     def _feed_with_shadow(
         self, frames: FrameBatch, final: bool, t_end_ns: int | None, block_rows: int

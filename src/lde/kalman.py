@@ -1,4 +1,4 @@
-"""Float Kalman filter: numba-compiled kernels, pure wrappers, a small class, a filterpy reference.
+"""Float Kalman filter: numba-compiled kernels, pure wrappers, a small class.
 
 The model (:mod:`lde.model`) is linear with a direct feedthrough of the input to the measurement:
 
@@ -28,13 +28,14 @@ The kernels are written for the model's 4 states (``NX``) and up to 4 measuremen
 
 Layers: ``*_inplace`` kernels (``@njit``, no allocation in the predict, used by :mod:`lde.step`),
 pure ``kf_predict`` / ``kf_update`` (``@njit``, return new arrays), the :class:`KalmanFilter` class
-around them, and :class:`FilterpyReference` (filterpy's ``KalmanFilter``; used in tests only).
+around them. The same filter on filterpy's ``KalmanFilter`` is :mod:`lde.kalman_reference` (tests and
+the benchmark suite; kept out of this module because importing filterpy pulls in scipy.stats: ~1 s
+of every start-up).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from filterpy.kalman import KalmanFilter as _FpKF
 from numba import njit
 
 #: state dimension of every kernel here (the model's 4 states): a compile-time constant lets LLVM
@@ -258,49 +259,6 @@ class KalmanFilter:
         z = np.asarray(z, dtype=np.float64)
         use_ = np.ones(z.shape[0], dtype=np.bool_) if use is None else np.asarray(use, dtype=np.bool_)
         self.x, self.P, self.nis = kf_update(self.x, self.P, z, H, D, float(u), R, use_)
-
-
-class FilterpyReference:
-    """The same filter on filterpy's ``KalmanFilter`` (a reference for tests, not for speed).
-
-    filterpy has ``B`` for the input in the predict but no feedthrough in the measurement: the
-    feedthrough is handled by updating with ``z - D u``. A left-out row is handled by passing the
-    used rows of H, R and z.
-    """
-
-    def __init__(self, x0: np.ndarray, P0: np.ndarray) -> None:
-
-        x0 = np.asarray(x0, dtype=np.float64)
-        self._kf = _FpKF(dim_x=x0.size, dim_z=2, dim_u=1)
-        self._kf.x = x0.reshape(-1, 1).copy()
-        self._kf.P = np.asarray(P0, dtype=np.float64).copy()
-
-    @property
-    def x(self) -> np.ndarray:
-        return self._kf.x[:, 0].copy()
-
-    @property
-    def P(self) -> np.ndarray:
-        return self._kf.P.copy()
-
-    def predict(self, Phi: np.ndarray, E: np.ndarray, u: float, Qd: np.ndarray) -> None:
-        self._kf.predict(u=np.array([[u]]), B=E.reshape(-1, 1), F=Phi, Q=Qd)
-
-    def update(
-        self,
-        z: np.ndarray,
-        H: np.ndarray,
-        D: np.ndarray,
-        u: float,
-        R: np.ndarray,
-        use: np.ndarray | None = None,
-    ) -> None:
-        z = np.asarray(z, dtype=np.float64)
-        idx = np.arange(z.size) if use is None else np.flatnonzero(use)
-        if idx.size == 0:
-            return
-        zc = (z - D * u)[idx].reshape(-1, 1)
-        self._kf.update(zc, R=R[np.ix_(idx, idx)], H=H[idx])
 
 
 # --- steady-state analysis (tuning; docs/tuning.md) -------------------------------------------

@@ -284,6 +284,7 @@ def run_replay(
     extra_status: np.ndarray | None = None,
     output_frames: bool = True,
     chunk_frames: int = CHUNK_FRAMES,
+    shadow_thread: bool = False,
 ) -> ReplaySummary:
     """Stream frames through the data path; every piece's rows go to each sink as
     ``sink(piece, rows)``, the steps after the log's last frame with an empty piece.
@@ -291,12 +292,16 @@ def run_replay(
     ``frames``: one batch (any order: sorted here, then cut in pieces of ``chunk_frames``) or an
     iterable of pieces already in time order (a :class:`lde.logio.LogStream`), read one at a time.
     ``tx_frames``: the log's count of frames lde sent when the pieces do not hold them all (or a
-    function giving it once the pieces are read). Other arguments as :func:`replay`.
+    function giving it once the pieces are read). ``shadow_thread``: the fixed backend's float
+    shadow in a second thread (:class:`lde.engine.Engine`; default inline: one core). Other
+    arguments as :func:`replay`.
     """
     name = DEFAULT_BACKEND if backend is None else backend
     t0 = time.perf_counter()
     explicit = step_times_ns is not None
-    engine = Engine(profile, vehicle, name, explicit=explicit, encode_outputs=output_frames)
+    engine = Engine(
+        profile, vehicle, name, explicit=explicit, encode_outputs=output_frames, shadow_thread=shadow_thread
+    )
     pieces = split(frames.sort(), chunk_frames) if isinstance(frames, FrameBatch) else frames
     n = n_tx = 0
     steps = valid = gaps = 0

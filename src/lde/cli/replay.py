@@ -15,13 +15,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
-from ..errors import ConfigError
-
-#: a log larger than this gets a progress bar even alone [bytes]
-_LARGE_LOG = 50 << 20
+from ..errors import ConfigError, LdeError
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -66,6 +62,26 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         metavar="SEC",
         help="text and python-can logs: how far (log time) a frame may lag behind an earlier line and "
         "still be put in time order (default 10; 0 = sort the whole log in memory)",
+    )
+    p.add_argument(
+        "--shadow-thread",
+        action="store_true",
+        help="fixed backend: run its float shadow check as a second engine on another core "
+        "(less wall time when a core is idle, more CPU time; the same rows)",
+    )
+    p.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        metavar="N",
+        help="replay the LOGs on a local dask.distributed cluster of N worker processes",
+    )
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDR",
+        help="replay the LOGs on an existing dask.distributed scheduler (tcp://host:8786); its workers "
+        "must see the LOGs, the outputs and lde under the same paths",
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no summary on stderr")
     p.set_defaults(func=run)
@@ -128,35 +144,25 @@ def _check_paths(logs: list[Path], outputs: list[tuple[str, Path]], many: bool =
                 raise ConfigError(f"{opt} {out} and {opt2} {out2} are the same file: give two names")
 
 
-def _summary(path: Path, log, res, elapsed: float) -> str:
-    """The summary of one replay (``log``: the :class:`lde.logio.LogStream` it read)."""
-    f = res.frames
-    causes = ", ".join(f"{k} {v}" for k, v in res.frames.rejected_by_cause().items() if v) or "none"
-    skipped = log.stats
-    extra = []
-    for name in (
-        "error_frames",
-        "remote_frames",
-        "malformed_lines",
-        "truncated_last_line",
-        "bad_messages",
-        "late_frames",
-    ):
-        v = getattr(skipped, name)
-        if v:
-            extra.append(f"{v} {name.replace('_', ' ')}")
+def _summary(rep) -> str:
+    """The summary of one replay (``rep``: its :class:`lde.fleet.LogReport`)."""
+    causes = ", ".join(f"{k} {v}" for k, v in rep.rejected_by_cause.items() if v) or "none"
+    extra = [f"{v} {k.replace('_', ' ')}" for k, v in rep.skipped.items()]
+    not_read = f"; not read: {', '.join(extra)}" if extra else ""
     lines = [
-        f"{path}: {log.format}, {f.total} frames, {len(res)} steps = {res.duration_s:.3f} s stepped"
-        f" in {res.segments} segment{'' if res.segments == 1 else 's'}"
-        f" ({'recorded step times' if res.recorded_steps else 'grid from the first MDPS frame'})",
-        f"  frames used {f.used}, rejected {f.rejected} ({causes}), re-synchronising {f.resync},"
-        f" ignored ids {f.ignored}, lde's own {f.tx}" + (f"; not read: {', '.join(extra)}" if extra else ""),
-        f"  profile {res.profile.name if res.profile else '?'}"
-        f"{' (from the recording)' if res.profile_origin == 'recording' else ''},"
-        f" backend {res.backend};"
-        f" took {elapsed:.3f} s (" + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in res.timings.items()) + ")",
+        f"{rep.log}: {rep.format}, {rep.frames} frames, {rep.steps} steps = {rep.duration_s:.3f} s stepped"
+        f" in {rep.segments} segment{'' if rep.segments == 1 else 's'}"
+        f" ({'recorded step times' if rep.recorded_steps else 'grid from the first MDPS frame'})",
+        f"  frames used {rep.used}, rejected {rep.rejected} ({causes}), re-synchronising {rep.resync},"
+        f" ignored ids {rep.ignored}, lde's own {rep.tx}{not_read}",
+        f"  profile {rep.profile}"
+        f"{' (from the recording)' if rep.profile_origin == 'recording' else ''},"
+        f" backend {rep.backend};"
+        f" took {rep.seconds:.3f} s ("
+        + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in rep.timings.items())
+        + ")",
     ]
-    if len(res) == 0:
+    if rep.steps == 0:
         lines.append(
             "  note: no estimator step: the log has no accepted frame of the profile's anchor (MDPS) message"
         )
@@ -164,23 +170,19 @@ def _summary(path: Path, log, res, elapsed: float) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from ..fleet import ClusterConfig, ReplayJob, run_jobs, summary_table
     from ..logio import REORDER_WINDOW_NS
     from ..params import load_vehicle
     from ..profiles import load_profile
-    from ..replay import (
-        CsvWriter,
-        RecordingWriter,
-        late_note,
-        no_valid_note,
-        profile_metadata,
-        read_inputs,
-        resolve_backend,
-        run_replay,
-    )
+    from ..replay import resolve_backend
 
     logs = [Path(p) for p in args.logs]
     if args.reorder_window is not None and not args.reorder_window >= 0:
         raise ConfigError(f"--reorder-window {args.reorder_window}: give seconds >= 0")
+    if args.jobs is not None and args.jobs < 1:
+        raise ConfigError(f"--jobs {args.jobs}: give 1 or more")
     window = (
         REORDER_WINDOW_NS
         if args.reorder_window is None
@@ -200,9 +202,13 @@ def run(args: argparse.Namespace) -> int:
     }
     planned = [(opt, o) for c, m in outs.values() for opt, o in (("--csv", c), ("--mcap", m)) if o]
     _check_paths(logs, planned, many)
-    profile = load_profile(args.profile) if args.profile is not None else None
-    profiles: dict = {}  # profiles named by recordings, loaded once
-    vehicle = load_vehicle(args.vehicle or "reference")
+    # the options are checked here once (each job loads them again where it runs)
+    if args.profile is not None:
+        load_profile(args.profile)
+    vehicle = args.vehicle or "reference"
+    if Path(vehicle).suffix.lower() == ".toml" or Path(vehicle).exists():
+        vehicle = str(Path(vehicle).resolve())
+    load_vehicle(vehicle)
     backend, _fn, note = resolve_backend(args.backend)
     if note and not args.quiet:
         print(f"lde replay: note: {note}", file=sys.stderr)
@@ -213,71 +219,52 @@ def run(args: argparse.Namespace) -> int:
                     opt.mkdir(parents=True, exist_ok=True)
                 except OSError as exc:
                     raise ConfigError(f"{opt}: cannot create the output directory: {exc}") from exc
-    bar = None
-    if many or any(p.is_file() and p.stat().st_size > _LARGE_LOG for p in logs):
-        from tqdm import tqdm
 
-        bar = tqdm(total=len(logs), unit="log", disable=args.quiet or None, file=sys.stderr)
-    for path in logs:
-        t0 = time.perf_counter()
-        li = read_inputs(
-            path,
-            profile,
+    def absolute(p: Path | None) -> Path | None:
+        return None if p is None else p.resolve()
+
+    profile = args.profile
+    if profile is not None and Path(profile).suffix.lower() == ".dbc":
+        profile = str(Path(profile).resolve())
+    jobs = [
+        ReplayJob(
+            log=p.resolve(),
+            csv=absolute(outs[p][0]),
+            mcap=absolute(outs[p][1]),
+            profile=profile,
+            vehicle=vehicle,
+            backend=backend,
             use_recorded_steps=not args.no_recorded_steps,
-            profiles=profiles,
             reorder_window_ns=window,
+            mcap_index=args.mcap_index,
+            shadow_thread=args.shadow_thread,
         )
-        csv_path, mcap_path = outs[path]
-        sinks: list = []
-        try:
-            if csv_path is not None:
-                sinks.append(CsvWriter(csv_path))
-            if mcap_path is not None:
-                meta = {
-                    "source": str(path),
-                    **profile_metadata(li.profile),
-                    "vehicle": vehicle.name,
-                    "backend": backend,
-                }
-                sinks.append(RecordingWriter(mcap_path, li.profile, meta, indexed=args.mcap_index))
-            res = run_replay(
-                li.stream,
-                li.profile,
-                vehicle,
-                backend,
-                sinks=tuple(sinks),
-                step_times_ns=li.step_times_ns,
-                tx_frames=li.tx_frames,
-                overlay_enable=li.overlay_enable,
-                extra_status=li.extra_status,
-                output_frames=mcap_path is not None,
-            )
-        except BaseException:
-            for sink in sinks:
-                sink.abort()
-            raise
-        finally:
-            li.stream.close()
-        for sink in sinks:
-            sink.close()
-        res.timings = {"open": li.read_s, **res.timings}
-        res.profile, res.profile_origin = li.profile, li.profile_origin
-        elapsed = time.perf_counter() - t0
-        if bar is not None:
-            bar.update(1)
-        for warn in (no_valid_note(res), late_note(li.stream.stats, window)):
-            if warn:  # shown even with -q
-                text = f"lde replay: warning: {path}: {warn}"
-                if bar is not None:
-                    bar.write(text, file=sys.stderr)
-                else:
-                    print(text, file=sys.stderr)
-        if not args.quiet:
-            text = _summary(path, li.stream, res, elapsed)
-            if bar is not None:
-                bar.write(text, file=sys.stderr)
+        for p in logs
+    ]
+    cluster = None
+    if args.scheduler is not None:
+        cluster = ClusterConfig(scheduler=args.scheduler)
+    elif args.jobs is not None and (args.jobs > 1 or many):
+        cluster = ClusterConfig(n_workers=args.jobs)
+    show_bar = (many or cluster is not None) and not args.quiet
+
+    def report(rep) -> None:
+        lines = [f"lde replay: warning: {rep.log}: {w}" for w in rep.warnings]  # even with -q
+        if not args.quiet and rep.ok:
+            lines.append(_summary(rep))
+        if rep.error and many:
+            lines.append(f"lde: error: {rep.log}: {rep.error}")
+        for text in lines:
+            if show_bar:
+                tqdm.write(text, file=sys.stderr)
             else:
                 print(text, file=sys.stderr)
-    if bar is not None:
-        bar.close()
-    return 0
+
+    reports = run_jobs(jobs, cluster, progress=show_bar, on_report=report)
+    if not many:
+        if reports[0].error:
+            raise LdeError(reports[0].error)
+        return 0
+    if not args.quiet:
+        print(summary_table(reports), file=sys.stderr)
+    return 2 if any(not r.ok for r in reports) else 0

@@ -1,0 +1,334 @@
+"""Replays of many logs: one job per log, in this process or on a ``dask.distributed`` cluster.
+
+:func:`replay_job` is what ``lde replay`` runs for one log (open the log, stream it through the
+data path into its CSV / MCAP outputs, report); :func:`run_jobs` runs a list of them in this
+process (``cluster`` None) or maps them on a cluster: a ``LocalCluster`` of ``n_workers``
+processes (``lde replay --jobs N``) or an existing scheduler by address (``--scheduler ADDR``:
+``dask scheduler`` and ``dask worker ADDR`` processes on any machines that see the logs, the
+output directories and lde under the same paths). The same function runs everywhere, so a fleet
+gives the same files as one replay after another. Each job returns a :class:`LogReport` (a failed
+log is a report with its error, the others go on); :func:`summary_table` prints them.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from distributed import Client, LocalCluster, as_completed
+from tqdm import tqdm
+
+from .errors import LdeError
+from .logio import REORDER_WINDOW_NS
+from .params import load_vehicle
+from .profiles import load_profile
+from .replay import (
+    CsvWriter,
+    RecordingWriter,
+    late_note,
+    no_valid_note,
+    profile_metadata,
+    read_inputs,
+    resolve_backend,
+    run_replay,
+)
+from .units import STEP_NS
+
+__all__ = ["ReplayJob", "LogReport", "ClusterConfig", "replay_job", "run_jobs", "summary_table"]
+
+
+@dataclass(frozen=True)
+class ReplayJob:
+    """One log to replay and where its outputs go (paths as the worker sees them).
+
+    ``profile`` None: the profile the log names, else ``lde``; ``vehicle``: a TOML path or a
+    shipped name; ``reorder_window_ns`` None: text logs sorted whole.
+    """
+
+    log: Path
+    csv: Path | None = None
+    mcap: Path | None = None
+    profile: str | None = None
+    vehicle: str = "reference"
+    backend: str | None = None
+    use_recorded_steps: bool = True
+    reorder_window_ns: int | None = REORDER_WINDOW_NS
+    mcap_index: bool = False
+    shadow_thread: bool = False
+
+
+@dataclass
+class LogReport:
+    """What one replay did (``error``: why it failed; the other fields are then empty)."""
+
+    log: Path
+    error: str = ""
+    format: str = ""
+    frames: int = 0
+    used: int = 0
+    rejected: int = 0
+    rejected_by_cause: dict[str, int] = field(default_factory=dict)
+    resync: int = 0
+    ignored: int = 0
+    tx: int = 0
+    steps: int = 0
+    valid_steps: int = 0
+    segments: int = 0
+    recorded_steps: bool = False
+    skipped: dict[str, int] = field(default_factory=dict)
+    profile: str = ""
+    profile_origin: str = ""
+    backend: str = ""
+    seconds: float = 0.0
+    timings: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    host: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.error
+
+    @property
+    def duration_s(self) -> float:
+        """Stepped time [s]."""
+        return self.steps * STEP_NS * 1e-9
+
+
+@dataclass(frozen=True)
+class ClusterConfig:
+    """Where :func:`run_jobs` runs: ``scheduler`` address, else a local cluster of ``n_workers``
+    processes (one thread each: the replay's loop holds one core)."""
+
+    scheduler: str | None = None
+    n_workers: int = 2
+    connect_timeout: float = 10.0  # s, to reach an existing scheduler
+
+
+_SKIPPED = (
+    "error_frames",
+    "remote_frames",
+    "malformed_lines",
+    "truncated_last_line",
+    "bad_messages",
+    "late_frames",
+)
+
+
+def replay_job(job: ReplayJob) -> LogReport:
+    """Replay one log into its outputs (removed again if the replay fails). A user's mistake or
+    a bad log is reported in :attr:`LogReport.error`, never raised."""
+    t0 = time.perf_counter()
+    rep = LogReport(job.log, host=socket.gethostname())
+    try:
+        _replay(job, rep)
+    except LdeError as exc:
+        rep.error = str(exc)
+    rep.seconds = time.perf_counter() - t0
+    return rep
+
+
+#: per process: profiles and vehicles loaded once (a worker replays many logs)
+_PROFILES: dict[str, Any] = {}
+_VEHICLES: dict[str, Any] = {}
+
+
+def _replay(job: ReplayJob, rep: LogReport) -> None:
+    profile = None
+    if job.profile is not None:
+        if job.profile not in _PROFILES:
+            _PROFILES[job.profile] = load_profile(job.profile)
+        profile = _PROFILES[job.profile]
+    if job.vehicle not in _VEHICLES:
+        _VEHICLES[job.vehicle] = load_vehicle(job.vehicle)
+    vehicle = _VEHICLES[job.vehicle]
+    backend, _fn, _note = resolve_backend(job.backend)
+    li = read_inputs(
+        job.log,
+        profile,
+        use_recorded_steps=job.use_recorded_steps,
+        profiles=_PROFILES,
+        reorder_window_ns=job.reorder_window_ns,
+    )
+    sinks: list[Any] = []
+    try:
+        if job.csv is not None:
+            sinks.append(CsvWriter(job.csv))
+        if job.mcap is not None:
+            meta = {
+                "source": str(job.log),
+                **profile_metadata(li.profile),
+                "vehicle": vehicle.name,
+                "backend": backend,
+            }
+            sinks.append(RecordingWriter(job.mcap, li.profile, meta, indexed=job.mcap_index))
+        res = run_replay(
+            li.stream,
+            li.profile,
+            vehicle,
+            backend,
+            sinks=tuple(sinks),
+            step_times_ns=li.step_times_ns,
+            tx_frames=li.tx_frames,
+            overlay_enable=li.overlay_enable,
+            extra_status=li.extra_status,
+            output_frames=job.mcap is not None,
+            shadow_thread=job.shadow_thread,
+        )
+        for sink in sinks:
+            sink.close()
+    except BaseException:
+        for sink in sinks:
+            sink.abort()
+        raise
+    finally:
+        li.stream.close()
+    res.profile, res.profile_origin = li.profile, li.profile_origin
+    stats = li.stream.stats
+    f = res.frames
+    rep.format = li.stream.format
+    rep.frames, rep.used, rep.rejected, rep.resync = f.total, f.used, f.rejected, f.resync
+    rep.rejected_by_cause = f.rejected_by_cause()
+    rep.ignored, rep.tx = f.ignored, f.tx
+    rep.steps, rep.valid_steps, rep.segments = res.steps, res.valid_steps, res.segments
+    rep.recorded_steps = res.recorded_steps
+    rep.skipped = {k: int(getattr(stats, k)) for k in _SKIPPED if getattr(stats, k)}
+    rep.profile, rep.profile_origin, rep.backend = li.profile.name, li.profile_origin, res.backend
+    rep.timings = {"open": li.read_s, **res.timings}
+    rep.warnings = [w for w in (no_valid_note(res), late_note(stats, job.reorder_window_ns)) if w]
+
+
+def run_jobs(
+    jobs: Sequence[ReplayJob],
+    cluster: ClusterConfig | None = None,
+    *,
+    progress: bool = True,
+    on_report: Callable[[LogReport], None] | None = None,
+) -> list[LogReport]:
+    """Every job (this process when ``cluster`` is None, else on Dask); reports in the order of
+    ``jobs``. ``on_report`` sees each report as it arrives (the progress bar's order).
+
+    Raises:
+        LdeError: the scheduler cannot be reached.
+    """
+    if not jobs:
+        return []
+    bar = _bar(progress, len(jobs))
+    try:
+        if cluster is None:
+            out = []
+            for job in jobs:
+                rep = replay_job(job)
+                out.append(rep)
+                _done(bar, rep, on_report)
+            return out
+        return _run_on_dask(jobs, cluster, bar, on_report)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _run_on_dask(
+    jobs: Sequence[ReplayJob],
+    cfg: ClusterConfig,
+    bar: Any,
+    on_report: Callable[[LogReport], None] | None,
+) -> list[LogReport]:
+    # the scheduler's and nannies' INFO lines would drown the progress bar (-v shows them)
+    if logging.getLogger().getEffectiveLevel() >= logging.WARNING:
+        logging.getLogger("distributed").setLevel(logging.WARNING)
+    local = None
+    try:
+        if cfg.scheduler is None:
+            local = LocalCluster(
+                n_workers=cfg.n_workers, threads_per_worker=1, processes=True, dashboard_address=None
+            )
+            client = Client(local)
+        else:
+            client = Client(cfg.scheduler, timeout=cfg.connect_timeout)
+    except (OSError, TimeoutError) as exc:
+        if local is not None:
+            local.close()
+        raise LdeError(f"cannot reach the Dask scheduler {cfg.scheduler!r}: {exc}") from exc
+    try:
+        futures = client.map(replay_job, list(jobs), pure=False)
+        index = {f.key: i for i, f in enumerate(futures)}
+        out: list[LogReport | None] = [None] * len(jobs)
+        for fut in as_completed(futures):
+            i = index[fut.key]
+            try:
+                rep = fut.result()
+            except Exception as exc:  # noqa: BLE001 - a worker died or could not import lde: report it
+                rep = LogReport(jobs[i].log, error=f"worker: {type(exc).__name__}: {exc}")
+            out[i] = rep
+            _done(bar, rep, on_report)
+        return [r for r in out if r is not None]
+    finally:
+        client.close()
+        if local is not None:
+            local.close()
+
+
+def _bar(enabled: bool, total: int) -> Any:
+    if not enabled:
+        return None
+    return tqdm(total=total, unit="log", desc="lde replay")
+
+
+def _done(bar: Any, rep: LogReport, on_report: Callable[[LogReport], None] | None) -> None:
+    if bar is not None:
+        bar.update(1)
+    if on_report is not None:
+        on_report(rep)
+
+
+def summary_table(reports: Iterable[LogReport]) -> str:
+    """One line per log (frames, steps, valid share, rejected, seconds, host) and a total."""
+    reps = list(reports)
+    head = ("log", "format", "frames", "steps", "valid %", "rejected", "seconds", "host")
+    rows = []
+    for r in reps:
+        if not r.ok:
+            rows.append((r.log.name, "error", "", "", "", "", f"{r.seconds:.2f}", r.host))
+            continue
+        valid = 100.0 * r.valid_steps / r.steps if r.steps else 0.0
+        rows.append(
+            (
+                r.log.name,
+                r.format,
+                str(r.frames),
+                str(r.steps),
+                f"{valid:.1f}",
+                str(r.rejected),
+                f"{r.seconds:.2f}",
+                r.host,
+            )
+        )
+    ok = [r for r in reps if r.ok]
+    rows.append(
+        (
+            f"{len(reps)} logs",
+            f"{len(reps) - len(ok)} failed",
+            str(sum(r.frames for r in ok)),
+            str(sum(r.steps for r in ok)),
+            "",
+            str(sum(r.rejected for r in ok)),
+            f"{sum(r.seconds for r in reps):.2f}",
+            "",
+        )
+    )
+    widths = [max(len(head[i]), *(len(row[i]) for row in rows)) for i in range(len(head))]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True))]
+    lines.append("  ".join("-" * w for w in widths))
+    for row in rows[:-1]:
+        lines.append("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)))
+    lines.append("  ".join("-" * w for w in widths))
+    lines.append("  ".join(c.ljust(w) for c, w in zip(rows[-1], widths, strict=True)))
+    for r in reps:
+        if not r.ok:
+            lines.append(f"{r.log}: {r.error}")
+    return "\n".join(lines)
