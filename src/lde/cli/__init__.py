@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from ..errors import LdeError
 
 #: subcommand name -> module below lde.cli. A module that does not exist yet is skipped.
-SUBCOMMANDS = ("demo", "run", "sim", "replay", "evaluate", "study", "calibrate")
+SUBCOMMANDS = ("demo", "run", "sim", "replay", "evaluate", "study", "calibrate", "warmup")
 
 
 def _version() -> str:

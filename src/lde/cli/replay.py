@@ -170,6 +170,12 @@ def _summary(rep) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..jitcache import is_warm, notice
+
+    cold = not is_warm()
+    if cold and not args.quiet:  # before the heavy imports: said within a second
+        print(notice(), file=sys.stderr, flush=True)
+
     from tqdm import tqdm
 
     from ..fleet import ClusterConfig, ReplayJob, run_jobs, summary_table
@@ -177,94 +183,96 @@ def run(args: argparse.Namespace) -> int:
     from ..params import load_vehicle
     from ..profiles import load_profile
     from ..replay import resolve_backend
+    from .jit import announce_compiles
 
-    logs = [Path(p) for p in args.logs]
-    if args.reorder_window is not None and not args.reorder_window >= 0:
-        raise ConfigError(f"--reorder-window {args.reorder_window}: give seconds >= 0")
-    if args.jobs is not None and args.jobs < 1:
-        raise ConfigError(f"--jobs {args.jobs}: give 1 or more")
-    window = (
-        REORDER_WINDOW_NS
-        if args.reorder_window is None
-        else (None if args.reorder_window == 0 else int(round(args.reorder_window * 1e9)))
-    )
-    many = len(logs) > 1
-    for opt in (args.csv, args.mcap):
-        if many and opt is not None and opt.exists() and not opt.is_dir():
-            raise ConfigError(f"with several LOGs, {opt} must be a directory")
-    _check_paths(logs, [])
-    names = _out_names(logs)
-    if len(set(names.values())) < len(names):
-        raise ConfigError("several LOGs would write the same output file: give them different names")
-    outs = {
-        p: (_out_path(args.csv, names[p], ".csv", many), _out_path(args.mcap, names[p], ".mcap", many))
-        for p in logs
-    }
-    planned = [(opt, o) for c, m in outs.values() for opt, o in (("--csv", c), ("--mcap", m)) if o]
-    _check_paths(logs, planned, many)
-    # the options are checked here once (each job loads them again where it runs)
-    if args.profile is not None:
-        load_profile(args.profile)
-    vehicle = args.vehicle or "reference"
-    if Path(vehicle).suffix.lower() == ".toml" or Path(vehicle).exists():
-        vehicle = str(Path(vehicle).resolve())
-    load_vehicle(vehicle)
-    backend, _fn, note = resolve_backend(args.backend)
-    if note and not args.quiet:
-        print(f"lde replay: note: {note}", file=sys.stderr)
-    if many:
-        for opt in (args.csv, args.mcap):
-            if opt is not None:
-                try:
-                    opt.mkdir(parents=True, exist_ok=True)
-                except OSError as exc:
-                    raise ConfigError(f"{opt}: cannot create the output directory: {exc}") from exc
-
-    def absolute(p: Path | None) -> Path | None:
-        return None if p is None else p.resolve()
-
-    profile = args.profile
-    if profile is not None and Path(profile).suffix.lower() == ".dbc":
-        profile = str(Path(profile).resolve())
-    jobs = [
-        ReplayJob(
-            log=p.resolve(),
-            csv=absolute(outs[p][0]),
-            mcap=absolute(outs[p][1]),
-            profile=profile,
-            vehicle=vehicle,
-            backend=backend,
-            use_recorded_steps=not args.no_recorded_steps,
-            reorder_window_ns=window,
-            mcap_index=args.mcap_index,
-            shadow_thread=args.shadow_thread,
+    with announce_compiles(already_said=cold or args.quiet):
+        logs = [Path(p) for p in args.logs]
+        if args.reorder_window is not None and not args.reorder_window >= 0:
+            raise ConfigError(f"--reorder-window {args.reorder_window}: give seconds >= 0")
+        if args.jobs is not None and args.jobs < 1:
+            raise ConfigError(f"--jobs {args.jobs}: give 1 or more")
+        window = (
+            REORDER_WINDOW_NS
+            if args.reorder_window is None
+            else (None if args.reorder_window == 0 else int(round(args.reorder_window * 1e9)))
         )
-        for p in logs
-    ]
-    cluster = None
-    if args.scheduler is not None:
-        cluster = ClusterConfig(scheduler=args.scheduler)
-    elif args.jobs is not None and (args.jobs > 1 or many):
-        cluster = ClusterConfig(n_workers=args.jobs)
-    show_bar = (many or cluster is not None) and not args.quiet
+        many = len(logs) > 1
+        for opt in (args.csv, args.mcap):
+            if many and opt is not None and opt.exists() and not opt.is_dir():
+                raise ConfigError(f"with several LOGs, {opt} must be a directory")
+        _check_paths(logs, [])
+        names = _out_names(logs)
+        if len(set(names.values())) < len(names):
+            raise ConfigError("several LOGs would write the same output file: give them different names")
+        outs = {
+            p: (_out_path(args.csv, names[p], ".csv", many), _out_path(args.mcap, names[p], ".mcap", many))
+            for p in logs
+        }
+        planned = [(opt, o) for c, m in outs.values() for opt, o in (("--csv", c), ("--mcap", m)) if o]
+        _check_paths(logs, planned, many)
+        # the options are checked here once (each job loads them again where it runs)
+        if args.profile is not None:
+            load_profile(args.profile)
+        vehicle = args.vehicle or "reference"
+        if Path(vehicle).suffix.lower() == ".toml" or Path(vehicle).exists():
+            vehicle = str(Path(vehicle).resolve())
+        load_vehicle(vehicle)
+        backend, _fn, note = resolve_backend(args.backend)
+        if note and not args.quiet:
+            print(f"lde replay: note: {note}", file=sys.stderr)
+        if many:
+            for opt in (args.csv, args.mcap):
+                if opt is not None:
+                    try:
+                        opt.mkdir(parents=True, exist_ok=True)
+                    except OSError as exc:
+                        raise ConfigError(f"{opt}: cannot create the output directory: {exc}") from exc
 
-    def report(rep) -> None:
-        lines = [f"lde replay: warning: {rep.log}: {w}" for w in rep.warnings]  # even with -q
-        if not args.quiet and rep.ok:
-            lines.append(_summary(rep))
-        if rep.error and many:
-            lines.append(f"lde: error: {rep.log}: {rep.error}")
-        for text in lines:
-            if show_bar:
-                tqdm.write(text, file=sys.stderr)
-            else:
-                print(text, file=sys.stderr)
+        def absolute(p: Path | None) -> Path | None:
+            return None if p is None else p.resolve()
 
-    reports = run_jobs(jobs, cluster, progress=show_bar, on_report=report)
-    if not many:
-        if reports[0].error:
-            raise LdeError(reports[0].error)
-        return 0
-    if not args.quiet:
-        print(summary_table(reports), file=sys.stderr)
-    return 2 if any(not r.ok for r in reports) else 0
+        profile = args.profile
+        if profile is not None and Path(profile).suffix.lower() == ".dbc":
+            profile = str(Path(profile).resolve())
+        jobs = [
+            ReplayJob(
+                log=p.resolve(),
+                csv=absolute(outs[p][0]),
+                mcap=absolute(outs[p][1]),
+                profile=profile,
+                vehicle=vehicle,
+                backend=backend,
+                use_recorded_steps=not args.no_recorded_steps,
+                reorder_window_ns=window,
+                mcap_index=args.mcap_index,
+                shadow_thread=args.shadow_thread,
+            )
+            for p in logs
+        ]
+        cluster = None
+        if args.scheduler is not None:
+            cluster = ClusterConfig(scheduler=args.scheduler)
+        elif args.jobs is not None and (args.jobs > 1 or many):
+            cluster = ClusterConfig(n_workers=args.jobs)
+        show_bar = (many or cluster is not None) and not args.quiet
+
+        def report(rep) -> None:
+            lines = [f"lde replay: warning: {rep.log}: {w}" for w in rep.warnings]  # even with -q
+            if not args.quiet and rep.ok:
+                lines.append(_summary(rep))
+            if rep.error and many:
+                lines.append(f"lde: error: {rep.log}: {rep.error}")
+            for text in lines:
+                if show_bar:
+                    tqdm.write(text, file=sys.stderr)
+                else:
+                    print(text, file=sys.stderr)
+
+        reports = run_jobs(jobs, cluster, progress=show_bar, on_report=report)
+        if not many:
+            if reports[0].error:
+                raise LdeError(reports[0].error)
+            return 0
+        if not args.quiet:
+            print(summary_table(reports), file=sys.stderr)
+        return 2 if any(not r.ok for r in reports) else 0

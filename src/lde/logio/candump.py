@@ -36,6 +36,7 @@ __all__ = [
     "looks_like_candump",
     "write_candump",
     "format_candump",
+    "format_candump_bytes",
 ]
 
 # per-line status codes of the kernel
@@ -326,46 +327,114 @@ def looks_like_candump(head: bytes) -> bool:
     return False
 
 
-def _timestamps_text(t_ns: np.ndarray) -> list[str]:
-    """``sec.frac`` with 6 fraction digits when every timestamp is a whole microsecond, else 9."""
-    t = np.asarray(t_ns, dtype=np.int64)
-    if t.size and np.any(t < 0):
-        raise LogFormatError("candump logs cannot hold negative timestamps")
-    sec = t // 1_000_000_000
-    rem = t % 1_000_000_000
-    if np.all(rem % 1000 == 0):
-        us = rem // 1000
-        return [f"{s}.{f:06d}" for s, f in zip(sec.tolist(), us.tolist(), strict=True)]
-    return [f"{s}.{f:09d}" for s, f in zip(sec.tolist(), rem.tolist(), strict=True)]
+_HEX_UPPER = np.frombuffer(b"0123456789ABCDEF", np.uint8).copy()
 
 
-def format_candump(frames: FrameBatch, channel: str = "vcan0") -> str:
-    """The candump ``-L`` text of ``frames`` (rx frames plain; frames sent by lde get a `` T`` flag).
+@numba.njit(cache=True, nogil=True)
+def _format_lines(t, ndec, chan, ids, ext, dlc, data, rx, hexd, out):  # pragma: no cover - compiled
+    """The candump lines of the frames into ``out`` (module doc of :func:`format_candump`);
+    returns the bytes written."""
+    o = 0
+    digits = np.empty(24, np.uint8)
+    div = 1000 if ndec == 6 else 1
+    for i in range(t.shape[0]):
+        sec = t[i] // 1_000_000_000
+        frac = (t[i] % 1_000_000_000) // div
+        out[o] = 40  # '('
+        o += 1
+        k = 0
+        while True:
+            digits[k] = 48 + sec % 10
+            sec //= 10
+            k += 1
+            if sec == 0:
+                break
+        for j in range(k - 1, -1, -1):
+            out[o] = digits[j]
+            o += 1
+        out[o] = 46  # '.'
+        o += 1
+        for j in range(ndec - 1, -1, -1):
+            out[o + j] = 48 + frac % 10
+            frac //= 10
+        o += ndec
+        out[o] = 41  # ')'
+        out[o + 1] = 32
+        o += 2
+        for j in range(chan.shape[0]):
+            out[o] = chan[j]
+            o += 1
+        out[o] = 32
+        o += 1
+        nh = 8 if ext[i] else 3
+        v = ids[i]
+        for j in range(nh - 1, -1, -1):
+            out[o + j] = hexd[v & 15]
+            v >>= 4
+        o += nh
+        out[o] = 35  # '#'
+        o += 1
+        d = dlc[i]
+        if d > 8:
+            out[o] = 35
+            out[o + 1] = 48  # '##0': CAN FD, flags 0
+            o += 2
+            d = 8
+        for j in range(d):
+            b = data[i, j]
+            out[o] = hexd[b >> 4]
+            out[o + 1] = hexd[b & 15]
+            o += 2
+        if not rx[i]:
+            out[o] = 32
+            out[o + 1] = 84  # ' T'
+            o += 2
+        out[o] = 10
+        o += 1
+    return o
 
+
+def format_candump_bytes(frames: FrameBatch, channel: str = "vcan0") -> bytes:
+    """The candump ``-L`` text of ``frames`` as bytes (rx frames plain; frames sent by lde get a
+    `` T`` flag). Timestamps with 6 fraction digits when every one is a whole microsecond, else 9.
     Frames with ``dlc > 8`` are written as CAN FD (``##0``) holding only their stored first 8 bytes.
+
+    Raises:
+        LogFormatError: a negative timestamp.
     """
     n = len(frames)
     if n == 0:
-        return ""
-    ts = _timestamps_text(frames.t_ns)
-    hexdata = frames.data.tobytes().hex().upper()
-    dlc = frames.dlc.astype(np.int64).tolist()
-    ids = frames.can_id.tolist()
-    ext = frames.is_extended.tolist()
-    rx = frames.is_rx.tolist()
-    out = []
-    for i in range(n):
-        d = dlc[i]
-        idtxt = f"{ids[i]:08X}" if ext[i] else f"{ids[i]:03X}"
-        sep = "##0" if d > 8 else "#"
-        payload = hexdata[16 * i : 16 * i + 2 * min(d, 8)]
-        out.append(f"({ts[i]}) {channel} {idtxt}{sep}{payload}{'' if rx[i] else ' T'}\n")
-    return "".join(out)
+        return b""
+    t = np.asarray(frames.t_ns, dtype=np.int64)
+    if np.any(t < 0):
+        raise LogFormatError("candump logs cannot hold negative timestamps")
+    ndec = 6 if np.all(t % 1000 == 0) else 9
+    chan = np.frombuffer(channel.encode("ascii"), np.uint8)
+    width = 2 + 20 + 1 + ndec + 2 + chan.size + 1 + 8 + 3 + 16 + 2 + 1
+    out = np.empty(n * width, np.uint8)
+    k = _format_lines(
+        t,
+        ndec,
+        chan,
+        frames.can_id.astype(np.int64),
+        frames.is_extended,
+        frames.dlc,
+        frames.data,
+        frames.is_rx,
+        _HEX_UPPER,
+        out,
+    )
+    return out[:k].tobytes()
+
+
+def format_candump(frames: FrameBatch, channel: str = "vcan0") -> str:
+    """:func:`format_candump_bytes` as text."""
+    return format_candump_bytes(frames, channel).decode("ascii")
 
 
 def write_candump(path: str | Path, frames: FrameBatch, channel: str = "vcan0") -> None:
     """Write ``frames`` as a candump ``-L`` log (see :func:`format_candump`)."""
     try:
-        Path(path).write_text(format_candump(frames, channel), encoding="ascii")
+        Path(path).write_bytes(format_candump_bytes(frames, channel))
     except OSError as exc:
         raise LogFormatError(f"{path}: cannot write: {exc}") from exc

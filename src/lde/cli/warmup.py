@@ -1,0 +1,54 @@
+"""``lde warmup [--parts fixed,float,logio,sim] [--jobs N]``: compile lde's numba kernels now.
+
+A first run after an install or an upgrade compiles them (20-40 s of CPU per backend); after
+``lde warmup`` the first ``lde replay``, ``lde run`` or ``lde demo`` starts warm. Run it once
+after ``pip install`` (with ``--jobs 2`` on two cores).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from ..errors import ConfigError
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "warmup",
+        help="compile the numba kernels ahead of time (once after an install)",
+        description=__doc__.split("\n\n")[1] if __doc__ else None,
+    )
+    p.add_argument(
+        "--parts",
+        default="fixed,float,logio,sim",
+        help="comma-separated: fixed, float (the data path per backend), logio, sim (default: all)",
+    )
+    p.add_argument("--jobs", type=int, default=1, metavar="N", help="compile in N processes")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..jitcache import cache_dirs, is_warm
+
+    print(f"lde warmup: compiling into {' or '.join(map(str, cache_dirs()))}", file=sys.stderr, flush=True)
+    warm = is_warm()
+    from ..warmup import PARTS, warm_up
+
+    parts = [p.strip() for p in args.parts.split(",") if p.strip()]
+    bad = [p for p in parts if p not in PARTS]
+    if bad or not parts:
+        raise ConfigError(f"--parts {args.parts}: choose from {', '.join(PARTS)}")
+    if args.jobs < 1:
+        raise ConfigError(f"--jobs {args.jobs}: give 1 or more")
+    t0 = time.perf_counter()
+    for part, seconds in warm_up(parts, jobs=args.jobs):
+        print(f"  {part}: {seconds:.1f} s", file=sys.stderr, flush=True)
+    state = "were cached already" if warm else "compiled"
+    print(
+        f"lde warmup: done in {time.perf_counter() - t0:.1f} s (the data path's kernels {state})",
+        file=sys.stderr,
+    )
+    return 0

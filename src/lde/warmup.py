@@ -1,0 +1,109 @@
+"""Compile every numba kernel ahead of time (``lde warmup``): the first real run then starts warm.
+
+Each part runs a tiny workload through its kernels, so numba compiles them and writes its on-disk
+cache (:mod:`lde.jitcache`); parts can run in parallel processes (one core each):
+
+=========  ========================================================================================
+``fixed``  the data path with the fixed-point backend and its float shadow (lde.pipeline's loop)
+``float``  the data path with the float backend
+``logio``  candump parser and writer, MCAP writer and reader, CSV / JSON row formatting
+``sim``    the vehicle simulator (``lde demo``, ``lde sim``) and the batch decoder and grid
+=========  ========================================================================================
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from vcan_sim.run import simulate
+
+from .engine import Engine
+from .frames import FrameBatch
+from .grid import build_grid
+from .logio import McapWriter, open_log, read_mcap, write_candump
+from .logio.textfmt import EXACT, Column, format_rows, time_column
+from .params import load_vehicle
+from .profiles import load_profile
+from .replay import CsvWriter, RecordingWriter, run_replay
+from .signals import decode_batch
+
+__all__ = ["PARTS", "warm_up"]
+
+PARTS = ("fixed", "float", "logio", "sim")
+
+
+def _frames() -> FrameBatch:
+    """Half a second of simulated traffic (lde profile)."""
+    return simulate("straight", seed=0, duration=0.5).frames
+
+
+def _engine(backend: str) -> None:
+    profile, vehicle = load_profile("lde"), load_vehicle("reference")
+    frames = _frames()
+    for explicit in (False, True):
+        e = Engine(profile, vehicle, backend, explicit=explicit, shadow_thread=False)
+        steps = frames.t_ns[::3] if explicit else None
+        e.feed(frames, step_times=steps, final=True)
+
+
+def _logio() -> None:
+    profile, vehicle = load_profile("lde"), load_vehicle("reference")
+    frames = _frames()
+    with tempfile.TemporaryDirectory(prefix="lde-warmup-") as tmp:
+        d = Path(tmp)
+        write_candump(d / "x.log", frames)
+        with open_log(d / "x.log") as s:
+            list(s)
+        csv = CsvWriter(d / "x.csv")
+        rec = RecordingWriter(d / "x.mcap", profile)
+        run_replay(frames, profile, vehicle, "float", sinks=(csv, rec))
+        csv.close()
+        rec.close()
+        with McapWriter(d / "y.mcap") as w:
+            w.write_frames(frames)
+        read_mcap(d / "x.mcap", json_topics="all")
+        n = 4
+        cols = [time_column("t", np.arange(n) * 1000), Column("x", np.linspace(0, 1, n), EXACT)]
+        format_rows(cols, ["", ","], "\n")
+
+
+def _sim() -> None:
+    profile = load_profile("lde")
+    frames = _frames()
+    build_grid(decode_batch(profile, frames), profile)
+
+
+_RUN: dict[str, Callable[[], None]] = {
+    "fixed": lambda: _engine("fixed"),
+    "float": lambda: _engine("float"),
+    "logio": _logio,
+    "sim": _sim,
+}
+
+
+def run_part(part: str) -> tuple[str, float]:
+    """Compile (or load) one part's kernels; (part, seconds)."""
+    t0 = time.perf_counter()
+    _RUN[part]()
+    return part, time.perf_counter() - t0
+
+
+def warm_up(parts: Iterable[str] = PARTS, jobs: int = 1) -> Iterable[tuple[str, float]]:
+    """Run the parts (in ``jobs`` processes), yielding (part, seconds) as each ends."""
+    todo = list(parts)
+    unknown = [p for p in todo if p not in _RUN]
+    if unknown:
+        raise ValueError(f"unknown warm-up part(s) {', '.join(unknown)}: choose from {', '.join(PARTS)}")
+    if jobs <= 1:
+        for p in todo:
+            yield run_part(p)
+        return
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
+        yield from pool.map(run_part, todo)
