@@ -2,17 +2,17 @@
 
 :func:`replay_job` is what ``lde replay`` runs for one log (open the log, stream it through the
 data path into its CSV / MCAP outputs, report); :func:`run_jobs` runs a list of them in this
-process (``cluster`` None) or maps them on a cluster: a ``LocalCluster`` of ``n_workers``
-processes (``lde replay --jobs N``) or an existing scheduler by address (``--scheduler ADDR``:
-``dask scheduler`` and ``dask worker ADDR`` processes on any machines that see the logs, the
-output directories and lde under the same paths). The same function runs everywhere, so a fleet
+process, :func:`lde.fleet_dask.run_jobs_on_dask` maps them on a cluster: a ``LocalCluster`` of
+``n_workers`` processes (``lde replay --jobs N``) or an existing scheduler by address
+(``--scheduler ADDR``: ``dask scheduler`` and ``dask worker ADDR`` processes on any machines that
+see the logs, the output directories and lde under the same paths; kept apart because importing
+``distributed`` costs ~0.5 s of every start-up). The same function runs everywhere, so a fleet
 gives the same files as one replay after another. Each job returns a :class:`LogReport` (a failed
 log is a report with its error, the others go on); :func:`summary_table` prints them.
 """
 
 from __future__ import annotations
 
-import logging
 import socket
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -20,7 +20,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from distributed import Client, LocalCluster, as_completed
 from tqdm import tqdm
 
 from .errors import LdeError
@@ -39,7 +38,7 @@ from .replay import (
 )
 from .units import STEP_NS
 
-__all__ = ["ReplayJob", "LogReport", "ClusterConfig", "replay_job", "run_jobs", "summary_table"]
+__all__ = ["ReplayJob", "LogReport", "replay_job", "run_jobs", "summary_table", "progress_bar", "job_done"]
 
 
 @dataclass(frozen=True)
@@ -97,16 +96,6 @@ class LogReport:
     def duration_s(self) -> float:
         """Stepped time [s]."""
         return self.steps * STEP_NS * 1e-9
-
-
-@dataclass(frozen=True)
-class ClusterConfig:
-    """Where :func:`run_jobs` runs: ``scheduler`` address, else a local cluster of ``n_workers``
-    processes (one thread each: the replay's loop holds one core)."""
-
-    scheduler: str | None = None
-    n_workers: int = 2
-    connect_timeout: float = 10.0  # s, to reach an existing scheduler
 
 
 _SKIPPED = (
@@ -204,82 +193,34 @@ def _replay(job: ReplayJob, rep: LogReport) -> None:
 
 def run_jobs(
     jobs: Sequence[ReplayJob],
-    cluster: ClusterConfig | None = None,
     *,
     progress: bool = True,
     on_report: Callable[[LogReport], None] | None = None,
 ) -> list[LogReport]:
-    """Every job (this process when ``cluster`` is None, else on Dask); reports in the order of
-    ``jobs``. ``on_report`` sees each report as it arrives (the progress bar's order).
-
-    Raises:
-        LdeError: the scheduler cannot be reached.
-    """
-    if not jobs:
-        return []
-    bar = _bar(progress, len(jobs))
+    """Every job in this process, one after the other (:func:`lde.fleet_dask.run_jobs_on_dask`
+    maps them on a cluster); reports in the order of ``jobs``. ``on_report`` sees each report as
+    it ends."""
+    bar = progress_bar(progress, len(jobs))
     try:
-        if cluster is None:
-            out = []
-            for job in jobs:
-                rep = replay_job(job)
-                out.append(rep)
-                _done(bar, rep, on_report)
-            return out
-        return _run_on_dask(jobs, cluster, bar, on_report)
+        out = []
+        for job in jobs:
+            rep = replay_job(job)
+            out.append(rep)
+            job_done(bar, rep, on_report)
+        return out
     finally:
         if bar is not None:
             bar.close()
 
 
-def _run_on_dask(
-    jobs: Sequence[ReplayJob],
-    cfg: ClusterConfig,
-    bar: Any,
-    on_report: Callable[[LogReport], None] | None,
-) -> list[LogReport]:
-    # the scheduler's and nannies' INFO lines would drown the progress bar (-v shows them)
-    if logging.getLogger().getEffectiveLevel() >= logging.WARNING:
-        logging.getLogger("distributed").setLevel(logging.WARNING)
-    local = None
-    try:
-        if cfg.scheduler is None:
-            local = LocalCluster(
-                n_workers=cfg.n_workers, threads_per_worker=1, processes=True, dashboard_address=None
-            )
-            client = Client(local)
-        else:
-            client = Client(cfg.scheduler, timeout=cfg.connect_timeout)
-    except (OSError, TimeoutError) as exc:
-        if local is not None:
-            local.close()
-        raise LdeError(f"cannot reach the Dask scheduler {cfg.scheduler!r}: {exc}") from exc
-    try:
-        futures = client.map(replay_job, list(jobs), pure=False)
-        index = {f.key: i for i, f in enumerate(futures)}
-        out: list[LogReport | None] = [None] * len(jobs)
-        for fut in as_completed(futures):
-            i = index[fut.key]
-            try:
-                rep = fut.result()
-            except Exception as exc:  # noqa: BLE001 - a worker died or could not import lde: report it
-                rep = LogReport(jobs[i].log, error=f"worker: {type(exc).__name__}: {exc}")
-            out[i] = rep
-            _done(bar, rep, on_report)
-        return [r for r in out if r is not None]
-    finally:
-        client.close()
-        if local is not None:
-            local.close()
-
-
-def _bar(enabled: bool, total: int) -> Any:
+def progress_bar(enabled: bool, total: int) -> Any:
+    """A tqdm bar over ``total`` logs (None when not ``enabled``)."""
     if not enabled:
         return None
     return tqdm(total=total, unit="log", desc="lde replay")
 
 
-def _done(bar: Any, rep: LogReport, on_report: Callable[[LogReport], None] | None) -> None:
+def job_done(bar: Any, rep: LogReport, on_report: Callable[[LogReport], None] | None) -> None:
     if bar is not None:
         bar.update(1)
     if on_report is not None:

@@ -178,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from ..fleet import ClusterConfig, ReplayJob, run_jobs, summary_table
+    from ..fleet import ReplayJob, run_jobs, summary_table
     from ..logio import REORDER_WINDOW_NS
     from ..params import load_vehicle
     from ..profiles import load_profile
@@ -249,12 +249,8 @@ def run(args: argparse.Namespace) -> int:
             )
             for p in logs
         ]
-        cluster = None
-        if args.scheduler is not None:
-            cluster = ClusterConfig(scheduler=args.scheduler)
-        elif args.jobs is not None and (args.jobs > 1 or many):
-            cluster = ClusterConfig(n_workers=args.jobs)
-        show_bar = (many or cluster is not None) and not args.quiet
+        on_dask = args.scheduler is not None or (args.jobs is not None and (args.jobs > 1 or many))
+        show_bar = (many or on_dask) and not args.quiet
 
         def report(rep) -> None:
             lines = [f"lde replay: warning: {rep.log}: {w}" for w in rep.warnings]  # even with -q
@@ -268,7 +264,13 @@ def run(args: argparse.Namespace) -> int:
                 else:
                     print(text, file=sys.stderr)
 
-        reports = run_jobs(jobs, cluster, progress=show_bar, on_report=report)
+        if on_dask:  # distributed is imported only here: ~0.5 s of start-up
+            from ..fleet_dask import ClusterConfig, run_jobs_on_dask
+
+            cfg = ClusterConfig(scheduler=args.scheduler, n_workers=args.jobs or 2)
+            reports = run_jobs_on_dask(jobs, cfg, progress=show_bar, on_report=report)
+        else:
+            reports = run_jobs(jobs, progress=show_bar, on_report=report)
         if not many:
             if reports[0].error:
                 raise LdeError(reports[0].error)
