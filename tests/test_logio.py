@@ -17,6 +17,7 @@ from lde.logio import (
     CAN_SCHEMA_NAME,
     McapWriter,
     detect_format,
+    format_candump,
     parse_candump_bytes,
     read_log,
     read_mcap,
@@ -563,3 +564,27 @@ def test_mcap_metadata_is_indexed_for_the_mcap_library(tmp_path: Path):
     assert found == {"lde": meta, "run": {"note": "after a chunk"}}
     assert summary.statistics.metadata_count == 2 and len(summary.metadata_indexes) == 2
     assert read_mcap(path).metadata == found
+
+
+def test_candump_read_in_blocks_equals_one_parse(tmp_path: Path):
+    """Blocks cut anywhere inside lines (and a line longer than a block) give the frames and counts
+    of one parse of the whole text."""
+    from lde.logio.candump import CandumpBlocks
+
+    frames = random_frames(3000, seed=51)
+    text = format_candump(frames).encode()
+    lines = text.splitlines(keepends=True)
+    text = b"".join(lines[:1000]) + b"x" * 5000 + b"\n" + b"".join(lines[1000:]) + b"(17"  # cut last line
+    whole = parse_candump_bytes(text)
+    for block in (7, 64, 1000, 4096, 1 << 20):
+        p = CandumpBlocks()
+        with io.BytesIO(text) as fh:
+            got = FrameBatch.concat(list(p.read_file(fh, block)), sort=False)
+        assert_frames_equal(got, whole.frames)
+        r = p.result(got)
+        assert (r.lines, r.malformed_lines, r.first_malformed_line, r.truncated_last_line) == (
+            whole.lines,
+            whole.malformed_lines,
+            whole.first_malformed_line,
+            whole.truncated_last_line,
+        )

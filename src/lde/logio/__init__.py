@@ -317,23 +317,16 @@ def _candump_stats(parser: CandumpBlocks, reorder: Reorder, n: int) -> ReadStats
     )
 
 
-def _candump_file_pieces(
-    p: Path, parser: CandumpBlocks, block_bytes: int = BLOCK_BYTES
-) -> Iterator[FrameBatch]:
+def _candump_file_pieces(p: Path, parser: CandumpBlocks) -> Iterator[FrameBatch]:
     try:
         fh = p.open("rb")
     except OSError as exc:
         raise LogFormatError(f"{p}: cannot read: {exc}") from exc
     with fh:
-        while True:
-            try:
-                piece = fh.read(block_bytes)
-            except OSError as exc:
-                raise LogFormatError(f"{p}: cannot read: {exc}") from exc
-            if not piece:
-                break
-            yield parser.feed(piece)
-    yield parser.end()
+        try:
+            yield from parser.read_file(fh)
+        except OSError as exc:
+            raise LogFormatError(f"{p}: cannot read: {exc}") from exc
 
 
 def _candump_gz_pieces(

@@ -20,6 +20,8 @@ Classic frames may carry python-can's ``_<dlc>`` suffix (len8_dlc), which is ign
 
 from __future__ import annotations
 
+import io
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -60,7 +62,7 @@ for _i, _c in enumerate(b"ABCDEF"):
     _HEX[_c] = 10 + _i
 
 #: bytes read per block of a text log; a block is parsed at once (its frames are one piece)
-BLOCK_BYTES = 8 << 20
+BLOCK_BYTES = 2 << 20
 #: the shortest line that holds a frame, ``(0) a 0#\n``: bounds the frames of a block
 _MIN_LINE = 9
 
@@ -286,6 +288,29 @@ class CandumpBlocks:
             block = np.frombuffer(data, np.uint8, count=cut + 1)
         self._carry = data[cut + 1 :]
         return _parse_lines(block, self.counts)
+
+    def read_file(self, fh: io.BufferedIOBase, block_bytes: int = BLOCK_BYTES) -> Iterator[FrameBatch]:
+        """The frames of an open file, block by block: each block is read into one reused buffer
+        behind the cut line of the block before (no copy of the text), then :meth:`end`."""
+        buf = bytearray(block_bytes + 4096)
+        carry = 0
+        while True:
+            if len(buf) - carry < block_bytes:  # a line longer than the spare room: grow
+                buf.extend(bytes(block_bytes + carry - len(buf) + 4096))
+            n = fh.readinto(memoryview(buf)[carry : carry + block_bytes])
+            if not n:
+                break
+            end = carry + n
+            cut = buf.rfind(b"\n", 0, end)
+            if cut < 0:
+                carry = end
+                continue
+            yield _parse_lines(np.frombuffer(buf, np.uint8, count=cut + 1), self.counts)
+            rest = end - (cut + 1)
+            buf[:rest] = buf[cut + 1 : end]
+            carry = rest
+        self._carry = bytes(buf[:carry])
+        yield self.end()
 
     def end(self) -> FrameBatch:
         """The log ended: a last line without newline is counted as truncated unless it is blank
