@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ConfigError
-from .units import DEG, KMH
+from .units import DEG, KMH, G
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -208,6 +208,22 @@ class Vehicle:
     corrections: InputCorrections = field(default_factory=InputCorrections)
     sim: dict[str, Any] = field(default_factory=dict)
     source: str = ""
+    #: file keys that took lde's defaults (``[table] key``): not in the file or a file it extends
+    defaults: tuple[str, ...] = field(default=(), compare=False)
+
+    def defaults_note(self) -> str:
+        """One line naming the keys that took defaults ('' when none did)."""
+        if not self.defaults:
+            return ""
+        tables: dict[str, list[str]] = {}
+        for d in self.defaults:
+            t, k = d.split(" ", 1)
+            tables.setdefault(t, []).append(k)
+        parts = []
+        for t, keys in tables.items():
+            total = len(_SCHEMA[t.strip("[]")][1])
+            parts.append(f"{t} all {total} keys" if len(keys) == total else f"{t} {', '.join(keys)}")
+        return f"vehicle {self.name!r}: lde's defaults used for " + "; ".join(parts)
 
     def with_body(self, **changes: float) -> Vehicle:
         """A copy with some body parameters replaced (SI), re-validated."""
@@ -353,7 +369,9 @@ def shipped_vehicles() -> list[str]:
     return sorted(p.stem for p in VEHICLE_DIR.glob("*.toml"))
 
 
-def _build(cls: type, table: str, raw: dict[str, Any], src: str) -> Any:
+def _build(cls: type, table: str, raw: dict[str, Any], src: str, defaults: list[str] | None = None) -> Any:
+    """The dataclass of ``[table]`` from its raw TOML keys (units converted); keys that are absent
+    and have a default are appended to ``defaults`` as ``[table] key``."""
     keymap = _SCHEMA[table][1]
     if not isinstance(raw, dict):
         raise ConfigError(f"{src}: [{table}] must be a table")
@@ -370,10 +388,14 @@ def _build(cls: type, table: str, raw: dict[str, Any], src: str) -> Any:
         if not math.isfinite(value):
             raise ConfigError(f"{src}: [{table}] {key} must be finite, got {value!r}")
         kwargs[attr] = _std_to_var(key, float(value)) if factor is None else float(value) * factor
+    names = {a: k for k, (a, _) in keymap.items()}
     missing = [f.name for f in fields(cls) if f.name not in kwargs and _has_no_default(f)]
     if missing:
-        names = {a: k for k, (a, _) in keymap.items()}
         raise ConfigError(f"{src}: [{table}] is missing {', '.join(names[m] for m in missing)}")
+    if defaults is not None:
+        defaults += [
+            f"[{table}] {names[f.name]}" for f in fields(cls) if f.name not in kwargs and f.name in names
+        ]
     return cls(**kwargs)
 
 
@@ -399,7 +421,8 @@ def vehicle_from_dict(data: dict[str, Any], src: str = "<dict>") -> Vehicle:
     unknown = sorted(set(data) - set(_SCHEMA))
     if unknown:
         raise ConfigError(f"{src}: unknown table(s) {', '.join(unknown)}")
-    parts = {t: _build(_SCHEMA[t][0], t, data.get(t, {}), src) for t in _SCHEMA}
+    defaults: list[str] = []
+    parts = {t: _build(_SCHEMA[t][0], t, data.get(t, {}), src, defaults) for t in _SCHEMA}
     v = Vehicle(
         name=name,
         body=parts["vehicle"],
@@ -410,6 +433,7 @@ def vehicle_from_dict(data: dict[str, Any], src: str = "<dict>") -> Vehicle:
         corrections=parts["corrections"],
         sim=sim,
         source=src,
+        defaults=tuple(defaults),
     )
     validate(v)
     return v
@@ -436,17 +460,72 @@ def _check(cond: bool, src: str, msg: str) -> None:
         raise ConfigError(f"{src}: {msg}")
 
 
+#: plausibility ranges of a road vehicle with MDPS (cars, SUVs, light vans; docs/tuning.md)
+MASS_RANGE_KG = (300.0, 8000.0)
+WHEELBASE_RANGE_M = (1.5, 5.0)
+AXLE_SHARE_RANGE = (0.2, 0.8)  # lf / L and lr / L: the CG lies between the axles, not at one
+YAW_INDEX_RANGE = (0.5, 1.6)  # Iz / (m lf lr), the dynamic index (about 1 for a car)
+TRACK_RANGE_M = (0.9, 2.2)
+RATIO_RANGE = (8.0, 30.0)
+CORNERING_COEF_RANGE = (4.0, 45.0)  # per-tire cornering stiffness / static tire load [1/rad]
+TRAIL_RANGE_M = (0.02, 0.3)  # K / C_f: the total (pneumatic + mechanical) trail
+
+
+def _in(x: float, rng: tuple[float, float]) -> bool:
+    return rng[0] <= x <= rng[1]
+
+
+def _fmt(rng: tuple[float, float]) -> str:
+    return f"{rng[0]:g}..{rng[1]:g}"
+
+
 def validate(v: Vehicle) -> None:
-    """Physical plausibility checks; raise :class:`ConfigError` naming the offending field."""
+    """Physical plausibility of a road vehicle with MDPS; raise :class:`ConfigError` in one line that
+    names the file, the key(s) and the range."""
     s = v.source or v.name
     b, t, o, e = v.body, v.tires, v.overlay, v.estimator
-    _check(200.0 <= b.mass <= 40000.0, s, f"mass_kg {b.mass} outside 200..40000")
-    _check(50.0 <= b.yaw_inertia <= 500000.0, s, f"yaw_inertia_kgm2 {b.yaw_inertia} outside 50..500000")
-    _check(0.2 <= b.lf <= 6.0 and 0.2 <= b.lr <= 6.0, s, f"lf_m/lr_m ({b.lf}, {b.lr}) must lie in 0.2..6 m")
-    _check(0.5 <= b.track_front <= 3.0 and 0.5 <= b.track_rear <= 3.0, s, "track widths must lie in 0.5..3 m")
-    _check(5.0 <= v.steering.ratio <= 40.0, s, f"steering ratio {v.steering.ratio} outside 5..40")
-    _check(1e3 <= t.cf <= 1e6 and 1e3 <= t.cr <= 1e6, s, "cornering stiffnesses must lie in 1e3..1e6 N/rad")
-    _check(10.0 <= t.align_rate <= 1e5, s, f"align_rate {t.align_rate} outside 10..1e5 Nm/rad")
+    _check(_in(b.mass, MASS_RANGE_KG), s, f"[vehicle] mass_kg {b.mass:g} outside {_fmt(MASS_RANGE_KG)} kg")
+    _check(b.lf > 0.0 and b.lr > 0.0, s, f"[vehicle] lf_m {b.lf:g} and lr_m {b.lr:g} must be > 0")
+    L = b.wheelbase
+    _check(
+        _in(L, WHEELBASE_RANGE_M),
+        s,
+        f"[vehicle] lf_m + lr_m = wheelbase {L:g} m outside {_fmt(WHEELBASE_RANGE_M)} m",
+    )
+    _check(
+        _in(b.lf / L, AXLE_SHARE_RANGE),
+        s,
+        f"[vehicle] lf_m {b.lf:g} is {b.lf / L:.2f} of the wheelbase, outside {_fmt(AXLE_SHARE_RANGE)}",
+    )
+    di = b.yaw_inertia / (b.mass * b.lf * b.lr)
+    _check(
+        _in(di, YAW_INDEX_RANGE),
+        s,
+        f"[vehicle] yaw_inertia_kgm2 {b.yaw_inertia:g} is {di:.2f} x mass lf lr, "
+        f"outside {_fmt(YAW_INDEX_RANGE)}",
+    )
+    for key, tr in (("track_front_m", b.track_front), ("track_rear_m", b.track_rear)):
+        _check(_in(tr, TRACK_RANGE_M), s, f"[vehicle] {key} {tr:g} outside {_fmt(TRACK_RANGE_M)} m")
+    _check(
+        _in(v.steering.ratio, RATIO_RANGE),
+        s,
+        f"[steering] ratio {v.steering.ratio:g} outside {_fmt(RATIO_RANGE)}",
+    )
+    fz_f = b.mass * G * b.lr / (2.0 * L)  # static load per front tire [N]
+    fz_r = b.mass * G * b.lf / (2.0 * L)
+    for key, c, fz in (("cf_N_per_rad", t.cf, fz_f), ("cr_N_per_rad", t.cr, fz_r)):
+        _check(
+            _in(c / fz, CORNERING_COEF_RANGE),
+            s,
+            f"[tires] {key} {c:g} is {c / fz:.1f} x the static tire load ({fz:.0f} N) per rad, "
+            f"outside {_fmt(CORNERING_COEF_RANGE)}",
+        )
+    _check(
+        _in(t.align_rate / t.cf, TRAIL_RANGE_M),
+        s,
+        f"[tires] align_rate_Nm_per_rad {t.align_rate:g} / cf_N_per_rad = trail {t.align_rate / t.cf:.3f} m, "
+        f"outside {_fmt(TRAIL_RANGE_M)} m",
+    )
     _check(0.0 < o.max_torque <= 10.0, s, "overlay max_torque_Nm must lie in (0, 10]")
     _check(0.0 < o.max_rate <= 100.0, s, "overlay max_rate_Nm_per_s must lie in (0, 100]")
     _check(0.0 <= o.min_speed < o.max_speed, s, "overlay needs 0 <= min_speed_kmh < max_speed_kmh")
