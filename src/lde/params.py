@@ -513,11 +513,11 @@ def validate(v: Vehicle) -> None:
     )
     fz_f = b.mass * G * b.lr / (2.0 * L)  # static load per front tire [N]
     fz_r = b.mass * G * b.lf / (2.0 * L)
-    for key, c, fz in (("cf_N_per_rad", t.cf, fz_f), ("cr_N_per_rad", t.cr, fz_r)):
+    for key, stiff, fz in (("cf_N_per_rad", t.cf, fz_f), ("cr_N_per_rad", t.cr, fz_r)):
         _check(
-            _in(c / fz, CORNERING_COEF_RANGE),
+            _in(stiff / fz, CORNERING_COEF_RANGE),
             s,
-            f"[tires] {key} {c:g} is {c / fz:.1f} x the static tire load ({fz:.0f} N) per rad, "
+            f"[tires] {key} {stiff:g} is {stiff / fz:.1f} x the static tire load ({fz:.0f} N) per rad, "
             f"outside {_fmt(CORNERING_COEF_RANGE)}",
         )
     _check(
