@@ -174,4 +174,4 @@ def test_fuzzing_saw_enough_frames():
 
 
 def test_step_period_constant_matches():
-    assert STEP_NS * 1e-9 == pytest.approx(STEP_S)
+    assert pytest.approx(STEP_S) == STEP_NS * 1e-9
