@@ -102,12 +102,14 @@ def _apply(fb: FrameBatch, f: dict) -> FrameBatch:
             FrameBatch(t[dup], out.can_id[dup], out.is_extended[dup], dlc[dup], data[dup], out.is_rx[dup])
         )
     k = f["n_foreign"]
-    if k:
+    if k:  # other ECUs' frames all the time (ids of the profile's inputs only as 29-bit ones)
+        ids = rng.integers(0, 0x800, k).astype(np.uint32)
+        ids[np.isin(ids, np.unique(fb.can_id))] += 0x800  # an input id's number: a 29-bit id
         parts.append(
             FrameBatch(
                 t0 + rng.integers(0, int(DRIVE_S * 1e9), k),
-                rng.integers(0, 0x800, k).astype(np.uint32),
-                rng.random(k) < 0.2,
+                ids,
+                (rng.random(k) < 0.2) | (ids >= 0x800),
                 rng.integers(0, 9, k).astype(np.uint8),
                 rng.integers(0, 256, (k, 8), dtype=np.uint8),
                 np.ones(k, np.bool_),

@@ -153,6 +153,11 @@ def test_defaults_used_are_stated(tmp_path):
     )
     v = load_vehicle(f)
     note = v.defaults_note()
-    assert "[estimator] all 12 keys" in note and "[corrections] all 6 keys" in note
+    assert "[estimator] all 17 keys" in note and "[corrections] all 6 keys" in note
     assert "[overlay] max_rate_Nm_per_s" in note and "max_torque_Nm" not in note
     assert load_vehicle("reference").defaults == ()  # the shipped file states every key
+    spec = tmp_path / "spec.toml"  # a spec sheet: no tires, generic ones from the axle loads
+    spec.write_text(f.read_text().split("[tires]")[0])
+    s = load_vehicle(spec)
+    assert "[tires] generic from the axle loads" in s.defaults_note()
+    assert s.tires.cf == pytest.approx(13.98 * 1600.0 * 9.80665 * 1.65 / 5.6, rel=1e-3)

@@ -105,7 +105,7 @@ def test_every_step_sends_estimate_overlay_diag_with_valid_e2e(rig) -> None:
     _lockstep(svc, feeder, clock, 60)
     msgs = _outputs(feed_bus)
     profile = svc.profile
-    for name in ("LDE_Estimate", "LDE_Overlay", "LDE_Diag"):
+    for name in ("LDE_Estimate", "LDE_Overlay", "LDE_Disturbance", "LDE_Diag"):
         fid = profile.output_id(name)
         frames = [m for m in msgs if m.arbitration_id == fid]
         assert len(frames) == 60, name
@@ -203,7 +203,7 @@ def test_send_errors_are_counted_not_raised(rig) -> None:
 
     svc.bus.send = broken_send  # type: ignore[method-assign]
     _lockstep(svc, feeder, clock, 3)
-    assert svc.send_errors == 9
+    assert svc.send_errors == 12  # 3 steps x (LDE_Estimate, LDE_Overlay, LDE_Disturbance, LDE_Diag)
 
 
 def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path) -> None:
@@ -256,7 +256,7 @@ def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path) -> None:
     n = len(rec.step_times_ns)
     assert rec.step_times_ns[-1] - rec.step_times_ns[0] >= 0.5e9 - STEP_NS  # --duration (plus the ramp-out)
     np.testing.assert_array_equal(np.diff(rec.step_times_ns) % STEP_NS, 0)  # on the grid
-    assert len(rec.rx) > 100 and len(rec.tx) == 3 * n
+    assert len(rec.rx) > 100 and len(rec.tx) == 4 * n  # LDE_Estimate, _Overlay, _Disturbance, _Diag
     assert rec.metadata["backend"] == "float"
 
 

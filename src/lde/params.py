@@ -143,6 +143,18 @@ class EstimatorTuning:
         min_speed: below this the model is not used, the filter holds [m/s] (SPEC: 30 km/h).
         converge_time: time after a (re)start before the estimate counts as converged [s]
             (5 slowest time constants at 160 km/h).
+
+    The lateral filter (:mod:`lde.estimator`, states beta, r, F_wind, M_wind, F_bank; the product's
+    default) uses q_beta, q_yaw, r_yaw, r_align, the p0 and min_speed/converge_time above, and:
+
+        q_wind: random-walk density of the wind force F_wind [N^2/s], 1e5.
+        q_wind_moment: random-walk density of the wind moment M_wind [(Nm)^2/s], 3e4.
+        q_bank: random-walk density of the bank force F_bank = m g sin(phi) [N^2/s], 5e4.
+        r_lat_accel: lateral-acceleration measurement variance [(m/s^2)^2]: (0.10 m/s^2)^2.
+        p0_bank: initial standard deviation of F_bank [N].
+
+    (docs/estimator.md: chosen on the tuning plants with their identified tires; the zoo results are
+    flat within 0.5 points across the sweep.)
     """
 
     q_beta: float = 1e-8
@@ -157,6 +169,11 @@ class EstimatorTuning:
     p0_mw: float = 3000.0
     min_speed: float = 30.0 * KMH
     converge_time: float = 1.0
+    q_wind: float = 1.0e5
+    q_wind_moment: float = 3.0e4
+    q_bank: float = 5.0e4
+    r_lat_accel: float = 0.10**2
+    p0_bank: float = 3000.0
 
 
 #: default steering-wheel rate scale of the smoothed friction sign tanh(rate / w) [rad/s]
@@ -196,6 +213,46 @@ class InputCorrections:
 
 
 @dataclass(frozen=True)
+class LearningSettings:
+    """Online learning of what a spec sheet does not give (:mod:`lde.learner`).
+
+    Attributes:
+        enabled: 1 learns tires, friction and sensor offsets while driving; 0 keeps the vehicle
+            file's (and a ``--learned`` file's) values.
+        accel_scale: prior of the accelerometer's roll-tilt scale s = 1 + g k_roll [-] (a sedan's
+            ~4 deg/g roll gradient gives 1.06; learned).
+        friction_prior: prior of the steering Coulomb friction at the column [Nm] (learned; the
+            vehicle file's ``[corrections] steering_friction_Nm`` overrides it when set).
+        torsion_above_bar: generic torsion-bar twist used when the profile's angle sensor sits above
+            the torsion bar and ``[corrections] torsion_deg_per_Nm`` is 0 [rad/Nm] (not learnable
+            from driving: the column torque follows the aligning torque).
+    """
+
+    enabled: float = 1.0
+    accel_scale: float = 1.06
+    friction_prior: float = 0.3
+    torsion_above_bar: float = 0.5 * DEG
+
+
+#: generic tires when a vehicle file gives none (a spec sheet): per-tire cornering stiffness per
+#: newton of static tire load [1/rad], front and rear, and the total trail K / C_f [m]; the values of
+#: the shipped reference.toml's tires on its own body (a mid-size sedan on 215/60R16)
+GENERIC_CORNERING_FRONT = 13.98
+GENERIC_CORNERING_REAR = 20.33
+GENERIC_TRAIL_M = 0.1161
+
+
+def generic_tires(body: VehicleParams) -> TireParams:
+    """Tires for a body without a ``[tires]`` table: the generic cornering coefficients times the
+    static per-tire loads, K from the generic trail (the learner refines them while driving)."""
+    L = body.wheelbase
+    fz_f = body.mass * G * body.lr / (2.0 * L)
+    fz_r = body.mass * G * body.lf / (2.0 * L)
+    cf = GENERIC_CORNERING_FRONT * fz_f
+    return TireParams(cf=cf, cr=GENERIC_CORNERING_REAR * fz_r, align_rate=GENERIC_TRAIL_M * cf)
+
+
+@dataclass(frozen=True)
 class Vehicle:
     """Everything a vehicle file holds. ``sim`` is the raw ``[sim]`` table for :mod:`vcan_sim`."""
 
@@ -206,6 +263,7 @@ class Vehicle:
     overlay: OverlayLimits = field(default_factory=OverlayLimits)
     estimator: EstimatorTuning = field(default_factory=EstimatorTuning)
     corrections: InputCorrections = field(default_factory=InputCorrections)
+    learning: LearningSettings = field(default_factory=LearningSettings)
     sim: dict[str, Any] = field(default_factory=dict)
     source: str = ""
     #: file keys that took lde's defaults (``[table] key``): not in the file or a file it extends
@@ -285,6 +343,20 @@ _SCHEMA: dict[str, tuple[type, dict[str, tuple[str, float | None]]]] = {
             "p0_mw_Nm": ("p0_mw", 1.0),
             "min_speed_kmh": ("min_speed", KMH),
             "converge_time_s": ("converge_time", 1.0),
+            "q_wind_N2_per_s": ("q_wind", 1.0),
+            "q_wind_moment_Nm2_per_s": ("q_wind_moment", 1.0),
+            "q_bank_N2_per_s": ("q_bank", 1.0),
+            "r_lat_accel_m_per_s2": ("r_lat_accel", None),  # a std dev, stored as variance
+            "p0_bank_N": ("p0_bank", 1.0),
+        },
+    ),
+    "learning": (
+        LearningSettings,
+        {
+            "enabled": ("enabled", 1.0),
+            "accel_scale": ("accel_scale", 1.0),
+            "friction_prior_Nm": ("friction_prior", 1.0),
+            "torsion_above_bar_deg_per_Nm": ("torsion_above_bar", DEG),
         },
     ),
     "corrections": (
@@ -299,7 +371,7 @@ _SCHEMA: dict[str, tuple[type, dict[str, tuple[str, float | None]]]] = {
         },
     ),
 }
-_REQUIRED_TABLES = ("vehicle", "steering", "tires")
+_REQUIRED_TABLES = ("vehicle", "steering")
 #: the ``[corrections]`` keys of a vehicle file (units in the names)
 CORRECTION_KEYS: tuple[str, ...] = tuple(_SCHEMA["corrections"][1])
 
@@ -307,7 +379,7 @@ CORRECTION_KEYS: tuple[str, ...] = tuple(_SCHEMA["corrections"][1])
 def _std_to_var(key: str, value: float) -> float:
     if key == "r_yaw_deg_per_s":
         return (value * DEG) ** 2
-    return value**2
+    return value**2  # r_align_Nm, r_lat_accel_m_per_s2
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
@@ -422,7 +494,14 @@ def vehicle_from_dict(data: dict[str, Any], src: str = "<dict>") -> Vehicle:
     if unknown:
         raise ConfigError(f"{src}: unknown table(s) {', '.join(unknown)}")
     defaults: list[str] = []
-    parts = {t: _build(_SCHEMA[t][0], t, data.get(t, {}), src, defaults) for t in _SCHEMA}
+    parts = {
+        t: _build(_SCHEMA[t][0], t, data.get(t, {}), src, defaults)
+        for t in _SCHEMA
+        if t != "tires" or t in data
+    }
+    if "tires" not in parts:  # a spec sheet: generic tires from the axle loads (the learner refines them)
+        parts["tires"] = generic_tires(parts["vehicle"])
+        defaults.append("[tires] generic from the axle loads")
     v = Vehicle(
         name=name,
         body=parts["vehicle"],
@@ -431,6 +510,7 @@ def vehicle_from_dict(data: dict[str, Any], src: str = "<dict>") -> Vehicle:
         overlay=parts["overlay"],
         estimator=parts["estimator"],
         corrections=parts["corrections"],
+        learning=parts["learning"],
         sim=sim,
         source=src,
         defaults=tuple(defaults),
@@ -551,3 +631,18 @@ def validate(v: Vehicle) -> None:
     _check(abs(c.steer_offset) <= 20.0 * DEG, s, "corrections steering_angle_offset_deg must lie in -20..20")
     _check(abs(c.yaw_bias) <= 5.0 * DEG, s, "corrections yaw_rate_bias_deg_s must lie in -5..5")
     _check(abs(c.align_offset) <= 200.0, s, "corrections align_offset_Nm must lie in -200..200")
+    lg = v.learning
+    _check(lg.enabled in (0.0, 1.0), s, f"[learning] enabled must be 0 or 1, got {lg.enabled:g}")
+    _check(0.9 <= lg.accel_scale <= 1.3, s, f"[learning] accel_scale {lg.accel_scale:g} outside 0.9..1.3")
+    _check(
+        0.0 <= lg.friction_prior <= 2.0, s, f"[learning] friction_prior_Nm {lg.friction_prior:g} outside 0..2"
+    )
+    _check(
+        0.0 <= lg.torsion_above_bar <= 3.0 * DEG,
+        s,
+        "[learning] torsion_above_bar_deg_per_Nm must lie in 0..3",
+    )
+    _check(
+        e.q_wind > 0 and e.q_wind_moment > 0 and e.q_bank > 0, s, "estimator q_wind/q_bank keys must be > 0"
+    )
+    _check(e.r_lat_accel > 0 and e.p0_bank > 0, s, "estimator r_lat_accel_m_per_s2 and p0_bank_N must be > 0")

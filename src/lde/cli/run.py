@@ -17,6 +17,7 @@ from types import FrameType
 
 from ..errors import BusError, ConfigError
 from ..service import StepResult
+from . import BACKEND_CHOICES
 
 log = logging.getLogger("lde.service")
 
@@ -71,7 +72,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_bus_arguments(p)
     p.add_argument("--profile", default="lde", help="CAN profile: lde (default) or hyundai")
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
-    p.add_argument("--backend", choices=("fixed", "float"), default="fixed", help="estimator backend")
+    p.add_argument("--backend", choices=BACKEND_CHOICES, default="fixed", help="estimator backend")
     p.add_argument("--record", metavar="FILE.mcap", help="record frames, estimates and diagnostics to MCAP")
     p.add_argument("--duration", type=float, metavar="SEC", help="stop after this many seconds")
     p.add_argument("--no-overlay", action="store_true", help="keep the overlay request at zero")
