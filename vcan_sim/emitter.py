@@ -214,7 +214,8 @@ class PumpStats:
             :data:`MAX_LAG_S` behind, and by how much in all [s] (its traffic then ends that much later).
         yields, yield_s: sleeps taken although behind schedule, after holding the CPU for
             :data:`MAX_BUSY_S` (see :func:`pump`), and their total length [s].
-        wall_s, cpu_s, sim_s: wall-clock time from the first frame, CPU time, simulated time [s].
+        wall_s, cpu_s, sim_s: wall-clock time from the first frame to the end (slips included), CPU
+            time, simulated time [s].
     """
 
     sent: int = 0
@@ -296,7 +297,8 @@ def pump(
     gc.freeze()
     cpu0 = time.process_time()
     sim0 = sim.t_ns
-    wall0: float | None = None  # set at the first frame, after the first step's warm-up
+    wall0: float | None = None  # the schedule's origin: set at the first frame, moved by slips
+    wall_first = 0.0  # when the first frame went out
     listen = closed_loop and receiver is not None
     send_timeout = 0.0 if realtime else None  # real time: never block in send
     busy_since = 0.0  # when the pump last woke from a sleep (or started its schedule)
@@ -309,10 +311,12 @@ def pump(
             if receiver.on_message(msg, sim.t_ns) is not None:
                 st.overlay_used += 1
 
-    def sleep(seconds: float) -> None:
+    def sleep(now: float, seconds: float) -> None:
         nonlocal busy_since
         time.sleep(seconds)
-        busy_since = time.monotonic()
+        # the wake-up it asked for, without another clock read (each is a system call in user-mode
+        # Linux); a late wake-up makes the next busy stretch look longer, never shorter
+        busy_since = now + seconds
 
     while not sim.done:
         if stop is not None and stop():
@@ -331,13 +335,13 @@ def pump(
         for msg in to_messages(frames):
             t_rel = (int(round(msg.timestamp * 1e9)) - sim0) * 1e-9
             if wall0 is None:
-                busy_since = time.monotonic()
+                busy_since = wall_first = time.monotonic()
                 wall0 = busy_since - t_rel
             if realtime:
                 now = time.monotonic()
                 wait = wall0 + t_rel - now
                 if wait > 0:
-                    sleep(wait)
+                    sleep(now, wait)
                 else:
                     if -wait > MAX_LAG_S:  # move the schedule: no burst of stale frames
                         st.slips += 1
@@ -350,7 +354,7 @@ def pump(
                     if busy > MAX_BUSY_S:  # behind for a whole period: leave the CPU to the others
                         st.yields += 1
                         st.yield_s += busy
-                        sleep(busy)
+                        sleep(now, busy)
             try:
                 bus.send(msg, timeout=send_timeout)
                 st.sent += 1
@@ -359,10 +363,11 @@ def pump(
                 if st.send_errors == 1 or st.send_errors % 1000 == 0:
                     log.warning("send failed (%d so far): %s", st.send_errors, exc)
         if realtime and wall0 is not None and len(frames) == 0:  # a silent step (faults): keep the pace
-            wait = wall0 + (sim.t_ns - sim0) * 1e-9 - time.monotonic()
+            now = time.monotonic()
+            wait = wall0 + (sim.t_ns - sim0) * 1e-9 - now
             if wait > 0:
-                sleep(wait)
-    st.wall_s = time.monotonic() - wall0 if wall0 is not None else 0.0
+                sleep(now, wait)
+    st.wall_s = time.monotonic() - wall_first if wall0 is not None else 0.0
     st.cpu_s = time.process_time() - cpu0
     st.sim_s = (sim.t_ns - sim0) * 1e-9
     return st

@@ -7,9 +7,9 @@ within its bound, or to keep the real-time pace a timing judgement needs, makes 
 with what was measured; the correctness checks (E2E, counters, overlay limits, replay equal to live)
 run on whatever was recorded.
 
-``guest_speed`` measures how much slower than the host this guest runs a fixed piece of Python
-(``LDE_UML_HOST_LOOP_S``: the host's time for :func:`python_loop`, measured by ``tests/test_uml.py``),
-so that skip reasons can say how slow the guest was.
+``guest_speed`` measures how much slower than the host this guest runs a fixed piece of Python and a
+system call (``LDE_UML_HOST_SPEED``: the host's figures, measured by ``tests/test_uml.py``), so that
+skip reasons can say how slow the guest was.
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from __future__ import annotations
 import os
 
 import pytest
-from uml_bounds import Budget, python_loop
+from uml_bounds import Budget, python_loop, syscall_us
 
 BUDGET_ENV = "LDE_UML_BUDGET_S"
-HOST_LOOP_ENV = "LDE_UML_HOST_LOOP_S"
+HOST_SPEED_ENV = "LDE_UML_HOST_SPEED"  # "python_loop seconds,syscall_us" on the host
 DEFAULT_BUDGET_S = 1200.0
 
 
@@ -36,14 +36,23 @@ def budget() -> Budget:
 
 @pytest.fixture(scope="session")
 def guest_speed() -> str:
-    """'; guest N x slower than the host at Python' (or the guest's loop time when no host figure)."""
-    guest = min(python_loop() for _ in range(3))
-    raw = os.environ.get(HOST_LOOP_ENV, "")
+    """'; guest: a Python loop N x the host's time, a system call X us (host Y us)' for skip reasons."""
+    loop = min(python_loop() for _ in range(3))
+    sys_us = min(syscall_us() for _ in range(3))
+    host = _host_figures()
+    if host is None:
+        return f"; guest: a Python loop {loop:.3f} s, a system call {sys_us:.1f} us"
+    h_loop, h_sys = host
+    return (
+        f"; guest: a Python loop {loop / h_loop:.1f}x the host's time ({loop:.3f} s), a system call"
+        f" {sys_us:.1f} us ({sys_us / h_sys:.0f}x the host's {h_sys:.2f} us)"
+    )
+
+
+def _host_figures() -> tuple[float, float] | None:
+    """(python_loop seconds, syscall_us) measured on the host by tests/test_uml.py, if given."""
     try:
-        host = float(raw) if raw else 0.0
+        loop, sys_us = (float(x) for x in os.environ.get(HOST_SPEED_ENV, "").split(","))
     except ValueError:
-        host = 0.0
-    if host > 0:
-        ratio = guest / host
-        return f"; guest {ratio:.1f}x slower than the host at a Python loop ({guest:.3f} s vs {host:.3f} s)"
-    return f"; a Python loop takes {guest:.3f} s in the guest"
+        return None
+    return (loop, sys_us) if loop > 0 and sys_us > 0 else None

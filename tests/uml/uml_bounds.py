@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import time
 from dataclasses import dataclass
@@ -19,6 +20,15 @@ def python_loop(n: int = 300_000) -> float:
     for i in range(n):
         acc += i * i % 7
     return time.perf_counter() - t0
+
+
+def syscall_us(n: int = 2000) -> float:
+    """Microseconds per system call (``os.getppid``): what user-mode Linux makes slow (every call is
+    trapped and emulated), unlike plain Python code."""
+    t0 = time.perf_counter()
+    for _ in range(n):
+        os.getppid()
+    return (time.perf_counter() - t0) / n * 1e6
 
 
 @dataclass(frozen=True)
