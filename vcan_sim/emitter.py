@@ -212,8 +212,6 @@ class PumpStats:
             frames sent more than :data:`LATE_S` after their time.
         slips, slipped_s: how often the schedule was moved later because the simulator fell more than
             :data:`MAX_LAG_S` behind, and by how much in all [s] (its traffic then ends that much later).
-        yields, yield_s: sleeps taken although behind schedule, after holding the CPU for
-            :data:`MAX_BUSY_S` (see :func:`pump`), and their total length [s].
         wall_s, cpu_s, sim_s: wall-clock time from the first frame to the end (slips included), CPU
             time, simulated time [s].
     """
@@ -228,8 +226,6 @@ class PumpStats:
     late_frames: int = 0
     slips: int = 0
     slipped_s: float = 0.0
-    yields: int = 0
-    yield_s: float = 0.0
     wall_s: float = 0.0
     cpu_s: float = 0.0
     sim_s: float = 0.0
@@ -241,9 +237,6 @@ LATE_S = 1e-3
 #: behind schedule by more than this, the simulator moves its schedule instead of sending a burst to
 #: catch up [s]: three MDPS periods, the receiver's input timeout, past which the frames are stale anyway
 MAX_LAG_S = 3 * STEP_NS * 1e-9
-#: the longest the real-time pump computes and sends without sleeping [s] (one MDPS period); then it
-#: sleeps at least as long as it ran, so it never takes more than half of a CPU while behind schedule
-MAX_BUSY_S = STEP_NS * 1e-9
 #: closed loop: at most this many received frames are taken in per step (the rest wait for the next)
 MAX_RX_PER_STEP = 64
 
@@ -285,9 +278,9 @@ def pump(
     next frame's time (a timed sleep: no frame wakes it), then takes in the overlay frames that have
     arrived (non-blocking) and steps with the newest request; a step that finds none runs on the
     last request (counted: ``stale_overlay_steps``). Sends do not wait either (``timeout=0``: a full
-    queue is a counted send error). Behind schedule it catches up without sleeping for at most
-    :data:`MAX_BUSY_S`, then sleeps as long as it ran; more than :data:`MAX_LAG_S` behind it moves
-    the rest of its schedule later instead (``slips``).
+    queue is a counted send error). Behind schedule it sends at once; more than :data:`MAX_LAG_S`
+    behind (after a stall) it moves the rest of its schedule later (``slips``) instead of sending a
+    burst of stale frames.
     """
     st = PumpStats()
     # what exists now (modules, DBC objects, the schedules) leaves the collector's view: a full
@@ -301,7 +294,6 @@ def pump(
     wall_first = 0.0  # when the first frame went out
     listen = closed_loop and receiver is not None
     send_timeout = 0.0 if realtime else None  # real time: never block in send
-    busy_since = 0.0  # when the pump last woke from a sleep (or started its schedule)
 
     def take_arrived() -> None:
         n = 0
@@ -310,13 +302,6 @@ def pump(
             st.received += 1
             if receiver.on_message(msg, sim.t_ns) is not None:
                 st.overlay_used += 1
-
-    def sleep(now: float, seconds: float) -> None:
-        nonlocal busy_since
-        time.sleep(seconds)
-        # the wake-up it asked for, without another clock read (each is a system call in user-mode
-        # Linux); a late wake-up makes the next busy stretch look longer, never shorter
-        busy_since = now + seconds
 
     while not sim.done:
         if stop is not None and stop():
@@ -335,26 +320,20 @@ def pump(
         for msg in to_messages(frames):
             t_rel = (int(round(msg.timestamp * 1e9)) - sim0) * 1e-9
             if wall0 is None:
-                busy_since = wall_first = time.monotonic()
-                wall0 = busy_since - t_rel
+                wall_first = time.monotonic()
+                wall0 = wall_first - t_rel
             if realtime:
                 now = time.monotonic()
                 wait = wall0 + t_rel - now
                 if wait > 0:
-                    sleep(now, wait)
+                    time.sleep(wait)  # a timed sleep: no frame on the bus wakes it
+                elif -wait > MAX_LAG_S:  # move the schedule: no burst of stale frames
+                    st.slips += 1
+                    st.slipped_s += -wait
+                    wall0 += -wait
                 else:
-                    if -wait > MAX_LAG_S:  # move the schedule: no burst of stale frames
-                        st.slips += 1
-                        st.slipped_s += -wait
-                        wall0 += -wait
-                    else:
-                        st.max_late_s = max(st.max_late_s, -wait)
-                        st.late_frames += -wait > LATE_S
-                    busy = now - busy_since
-                    if busy > MAX_BUSY_S:  # behind for a whole period: leave the CPU to the others
-                        st.yields += 1
-                        st.yield_s += busy
-                        sleep(now, busy)
+                    st.max_late_s = max(st.max_late_s, -wait)
+                    st.late_frames += -wait > LATE_S
             try:
                 bus.send(msg, timeout=send_timeout)
                 st.sent += 1
@@ -363,10 +342,9 @@ def pump(
                 if st.send_errors == 1 or st.send_errors % 1000 == 0:
                     log.warning("send failed (%d so far): %s", st.send_errors, exc)
         if realtime and wall0 is not None and len(frames) == 0:  # a silent step (faults): keep the pace
-            now = time.monotonic()
-            wait = wall0 + (sim.t_ns - sim0) * 1e-9 - now
+            wait = wall0 + (sim.t_ns - sim0) * 1e-9 - time.monotonic()
             if wait > 0:
-                sleep(now, wait)
+                time.sleep(wait)
     st.wall_s = time.monotonic() - wall_first if wall0 is not None else 0.0
     st.cpu_s = time.process_time() - cpu0
     st.sim_s = (sim.t_ns - sim0) * 1e-9
