@@ -389,7 +389,8 @@ def main(argv: list[str] | None = None) -> int:
         try:
             stale = stale_entries(json.loads(out.read_text()), json.loads(text))
         except (OSError, ValueError) as exc:  # missing, unreadable or not JSON
-            stale = [f"cannot read it: {exc}"]
+            print(f"{out}: STALE (run python -m firmware_model.gen_tables): cannot read it: {exc}")
+            return 1
         if not stale:
             print(f"{out}: up to date")
             return 0
