@@ -30,7 +30,7 @@ _EXPORTS = {
     "MW_BOUND_NM": "shadow",
     "ShadowChecker": "shadow",
     "ShadowReport": "shadow",
-    "run_batch_with_shadow": "shadow",
+    "run_batch_with_shadow": "fast",
     "shadow_check": "shadow",
     "FixedTables": "tables",
     "tables_for": "tables",

@@ -836,3 +836,37 @@ class FixedEstimator:
 
     def saturations(self) -> dict[str, int]:
         return self.state.saturations()
+
+
+def run_batch_with_shadow(
+    t_ns,
+    speed,
+    steering_angle,
+    yaw_rate,
+    column_torque,
+    assist_torque,
+    mdps_ok,
+    esc_ok,
+    vehicle: Vehicle,
+    *,
+    dt: float = STEP_S,
+) -> tuple[BatchResult, ShadowReport]:
+    """The fixed backend from a fresh state with the float filter as shadow: (fixed result with
+    bit 6 set where it deviates, report)."""
+    state = FastState.initial(tables_vector(tables_for(vehicle, int(round(dt * 1e9)))))
+    fixed = run_batch(
+        t_ns,
+        speed,
+        steering_angle,
+        yaw_rate,
+        column_torque,
+        assist_torque,
+        mdps_ok,
+        esc_ok,
+        vehicle,
+        state=state,
+        dt=dt,
+        shadow=True,
+    )
+    assert state.last_report is not None
+    return fixed, state.last_report

@@ -7,7 +7,8 @@ shadow=True)`` and ``FixedEstimator(vehicle, shadow=True)``), so a replay or a l
 ``--backend fixed`` reports deviations in ``Status`` without further wiring; the counts are kept
 in ``FastState.shadow_count`` / ``FixedEstimator.shadow.count``.
 
-Batch: :func:`shadow_check` on two :class:`lde.step.BatchResult`, or :func:`run_batch_with_shadow`.
+Batch: :func:`shadow_check` on two :class:`lde.step.BatchResult`, or
+:func:`firmware_model.fast.run_batch_with_shadow`.
 Live: :class:`ShadowChecker` per step.
 """
 
@@ -17,9 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lde.params import Vehicle
 from lde.step import BatchResult, EstimatorOutput, Status
-from lde.units import STEP_S
 
 FW_BOUND_N = 5.0  #: |Fw_fixed - Fw_float| bound [N]
 MW_BOUND_NM = 2.0  #: |Mw_fixed - Mw_float| bound [Nm]
@@ -57,44 +56,6 @@ def shadow_check(
     return ShadowReport(
         dev, int(dev.sum()), float(np.max(dfw, initial=0.0)), float(np.max(dmw, initial=0.0)), status
     )
-
-
-def run_batch_with_shadow(
-    t_ns,
-    speed,
-    steering_angle,
-    yaw_rate,
-    column_torque,
-    assist_torque,
-    mdps_ok,
-    esc_ok,
-    vehicle: Vehicle,
-    *,
-    dt: float = STEP_S,
-) -> tuple[BatchResult, ShadowReport]:
-    """The fixed backend from a fresh state with the float filter as shadow: (fixed result with
-    bit 6 set where it deviates, report)."""
-    from .fast import FastState, tables_vector
-    from .fast import run_batch as fixed_run_batch
-    from .tables import tables_for
-
-    state = FastState.initial(tables_vector(tables_for(vehicle, int(round(dt * 1e9)))))
-    fixed = fixed_run_batch(
-        t_ns,
-        speed,
-        steering_angle,
-        yaw_rate,
-        column_torque,
-        assist_torque,
-        mdps_ok,
-        esc_ok,
-        vehicle,
-        state=state,
-        dt=dt,
-        shadow=True,
-    )
-    assert state.last_report is not None
-    return fixed, state.last_report
 
 
 class ShadowChecker:

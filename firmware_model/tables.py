@@ -119,12 +119,6 @@ class FixedTables:
         """(N_COEF, 3, 2) int64: (raw, shift) of every term (for the numba twin)."""
         return np.array(self.coef_terms, dtype=np.int64)
 
-    def ints_array(self) -> np.ndarray:
-        """The scalar constants as an int64 vector in the ``T_*`` layout of :mod:`firmware_model.fast`."""
-        from .fast import tables_vector
-
-        return tables_vector(self)
-
 
 def load_shipped(vehicle_name: str = "reference") -> dict[str, Any]:
     """The tables file shipped in the package for ``vehicle_name``."""

@@ -7,13 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from firmware_model.fast import FastState, FixedEstimator, run_batch, tables_vector
+from firmware_model.fast import FastState, FixedEstimator, run_batch, run_batch_with_shadow, tables_vector
 from firmware_model.shadow import (
     FW_BOUND_N,
     MW_BOUND_NM,
     SHADOW_DEVIATION,
     ShadowChecker,
-    run_batch_with_shadow,
     shadow_check,
 )
 from firmware_model.synthetic import make_drive

@@ -153,3 +153,28 @@ def test_format_table_prints_percent_and_dash_for_nan():
     rows = [{"s": "heavy", "x": 0.0412}, {"s": "free", "x": float("nan")}]
     text = metrics.format_table(rows, [("s", "scenario", ""), ("x", "NRMSE", ".1%")])
     assert "4.1%" in text and "-" in text.splitlines()[-1]
+
+
+def test_issue_11_targets_use_mw_about_the_vehicle_files_cg():
+    """A payload moves the true CG: the target figure is Mw about the CG the vehicle file states
+    (the truth's Mw_ref), not about the true CG; a disturbance-free drive is bounded by RMS."""
+    t = np.arange(0.0, 10.0, 0.01)
+    fw = np.full_like(t, 1000.0)
+    mw = np.full_like(t, 200.0)  # about the true (loaded) CG
+    mw_ref = mw - 0.1 * fw  # about the file's CG, 0.1 m ahead of the true one (dx = -0.1 m)
+    # the estimate is right about the file's CG, 50 % off about the true CG
+    a = metrics.accuracy(t, fw + 60.0, mw_ref, _truth(t, fw, mw, mw_ref))
+    assert metrics.target_figures(a) == pytest.approx((0.06, 0.0))
+    assert a.nrmse_mw == pytest.approx(0.5)
+    assert metrics.meets(a, metrics.COLD) and not metrics.meets(a, metrics.WARM)
+    b = metrics.accuracy(t, fw + 120.0, mw_ref, _truth(t, fw, mw, mw_ref))
+    assert not metrics.meets(b, metrics.COLD)  # 12 % Fw
+    quiet = np.zeros_like(t)
+    c = metrics.accuracy(t, quiet + 55.0, quiet - 19.0, _truth(t, quiet, quiet))
+    assert c.kind is Kind.UNDISTURBED and metrics.target_figures(c) == pytest.approx((55.0, 19.0))
+    assert metrics.meets(c, metrics.COLD) and not metrics.meets(c, metrics.WARM)
+    d = metrics.accuracy(t, quiet + 15.0, quiet + 21.0, _truth(t, quiet, quiet))
+    assert not metrics.meets(d, metrics.COLD)  # 21 Nm > 20 Nm
+    bounds = (metrics.COLD.max_nrmse, metrics.WARM.max_nrmse, metrics.WARM_DEFECTS.max_nrmse)
+    assert bounds == (0.1, 0.05, 0.1)
+    assert "60 N / 20 Nm" in metrics.COLD.describe()

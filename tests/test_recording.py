@@ -17,10 +17,12 @@ import numpy as np
 import pytest
 
 from lde.diagnostics import StepTiming
+from lde.engine import StepBlock
 from lde.errors import LogFormatError
 from lde.frames import seconds_to_ns
 from lde.logio.mcapfile import read_mcap
-from lde.recording import DIAG_TOPIC, ESTIMATE_TOPIC, INPUTS_TOPIC, Recorder, read_recording
+from lde.profiles import INPUT_NAMES
+from lde.recording import DIAG_TOPIC, ESTIMATE_TOPIC, INPUTS_TOPIC, Recorder, Timing, read_recording
 from lde.service import StepResult
 from lde.units import STEP_NS
 
@@ -56,6 +58,35 @@ def _inputs(rng: np.random.Generator) -> SimpleNamespace:
     )
 
 
+def _row(res: StepResult, inputs: SimpleNamespace, e2e_rejects: int) -> tuple[StepBlock, Timing]:
+    """One step as the service hands it to the recorder (a StepBlock row and its timing)."""
+    b = StepBlock.empty(1)
+    b.t_ns[0] = res.t_ns
+    b.status[0] = res.status
+    b.est[0] = [res.fw, res.mw, res.t_align, 0.001, 0.002]
+    b.t_overlay[0] = res.t_overlay
+    b.overlay_state[0] = res.overlay_state
+    b.overlay_enable[0] = True
+    b.inputs[0] = [getattr(inputs, n) for n in INPUT_NAMES]
+    b.ages[0] = 0
+    b.valid_mask[0] = 0
+    b.ok[0] = (inputs.mdps_ok, inputs.esc_ok)
+    b.frames_used[0] = res.frames_used
+    b.e2e_rejects[0] = e2e_rejects
+    tm = res.timing
+    assert tm is not None
+    values = (
+        tm.period_error_ns,
+        tm.step_time_ns,
+        tm.latency_ns,
+        int(tm.deadline_miss),
+        tm.deadline_misses,
+        0,
+    )
+    timing = Timing(*(np.array([v]) for v in values))
+    return b, timing
+
+
 def _record(rec: Recorder, n: int, seed: int = 1) -> list[StepResult]:
     rng = np.random.default_rng(seed)
     out = []
@@ -65,7 +96,7 @@ def _record(rec: Recorder, n: int, seed: int = 1) -> list[StepResult]:
         tx = can.Message(timestamp=(t + 200_000) / 1e9, arbitration_id=0x3D1, data=bytes(range(8)))
         rec.rx(rx)
         res = _result(k, rng)
-        rec.step(res, _inputs(rng), e2e_rejects=k // 100, skipped=0)
+        rec.steps(*_row(res, _inputs(rng), e2e_rejects=k // 100))
         rec.tx(tx)
         out.append(res)
     return out
@@ -143,7 +174,7 @@ _CHILD = textwrap.dedent(
     import sys, time
     import numpy as np
     sys.path.insert(0, {tests!r})
-    from test_recording import _result, _inputs
+    from test_recording import _result, _inputs, _row
     from lde.recording import Recorder
     from lde.units import STEP_NS
     import dataclasses
@@ -153,7 +184,7 @@ _CHILD = textwrap.dedent(
     print("ready", flush=True)
     while True:
         res = dataclasses.replace(_result(k, rng), t_ns=time.time_ns())
-        rec.step(res, _inputs(rng))
+        rec.steps(*_row(res, _inputs(rng), 0))
         k += 1
         time.sleep(STEP_NS / 1e9)
     """

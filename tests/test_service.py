@@ -378,7 +378,7 @@ def test_frame_delivered_after_its_step_is_restamped_fed_next_step_and_counted(r
         def tx(self, msg: can.Message) -> None:
             pass
 
-        def step(self, *args: object) -> None:
+        def steps(self, *args: object) -> None:
             pass
 
     _lockstep(svc, feeder, clock, 20)

@@ -8,18 +8,7 @@ The plant is deliberately independent of the estimator's linear model (no lde.mo
 
 from __future__ import annotations
 
-from typing import Any
+from .run import SimResult, Simulation, simulate
+from .scenarios import SCENARIOS
 
 __all__ = ["simulate", "Simulation", "SimResult", "SCENARIOS"]
-
-
-def __getattr__(name: str) -> Any:  # lazy: importing the package does not compile the plant
-    if name in ("simulate", "Simulation", "SimResult"):
-        from . import run
-
-        return getattr(run, name)
-    if name == "SCENARIOS":
-        from .scenarios import SCENARIOS
-
-        return SCENARIOS
-    raise AttributeError(f"module 'vcan_sim' has no attribute {name!r}")

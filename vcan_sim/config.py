@@ -15,6 +15,7 @@ Layout (all optional)::
     [sim.driver]           lane-keeping driver (DriverParams)
     [sim.sensors]          noise, bias, delay (SensorParams)
     [sim.seats.NAME]       payload positions: x_behind_front_axle_m, y_left_m, z_m
+    [sim.payload]          what this car always carries: seat name = mass in kg (default: nothing)
 
 Signs: ISO 8855 (x forward, y left, z up).
 """
@@ -218,8 +219,10 @@ class SensorParams:
         mdps_delay: computation delay of the MDPS torque signals [s] (paper: 3.9 ms).
         mdps_angle_at_motor: the MDPS message's steering angle and rate are sensed at the motor,
             below the torsion bar (pinion angle = N delta_f), as a column MDPS does; False: at the
-            steering wheel, above it (the torsion bar's twist T_column / k_tb included). A separate
-            steering-angle sensor message (hyundai SAS11) always reads the steering wheel.
+            steering wheel, above it (the torsion bar's twist T_column / k_tb included).
+        sas_angle_at_motor: the separate steering-angle sensor message (hyundai SAS11) reads the
+            pinion angle below the torsion bar (a car whose angle signal comes from the MDPS motor's
+            position); False (default): the steering wheel, above the torsion bar, twist included.
     """
 
     column_torque_noise: float = 0.005
@@ -236,6 +239,7 @@ class SensorParams:
     lat_accel_bias: float = 0.0
     mdps_delay: float = 0.0039
     mdps_angle_at_motor: bool = True
+    sas_angle_at_motor: bool = False
 
 
 @dataclass(frozen=True)
@@ -262,7 +266,13 @@ def default_seats() -> dict[str, Seat]:
 
 @dataclass(frozen=True)
 class SimParams:
-    """Everything in ``[sim]``."""
+    """Everything in ``[sim]``.
+
+    ``payload``: what the car always carries, as (seat name, mass [kg]) pairs (``[sim.payload]``);
+    a scenario's payload comes on top of it (:func:`vcan_sim.payload.combined`). The vehicle
+    file's ``[vehicle]`` body stays the unloaded car (what a spec sheet gives); the truth's
+    ``Mw_ref`` is about its CG.
+    """
 
     chassis: ChassisParams = field(default_factory=ChassisParams)
     tire: TireCoeffs = field(default_factory=TireCoeffs)
@@ -271,6 +281,7 @@ class SimParams:
     driver: DriverParams = field(default_factory=DriverParams)
     sensors: SensorParams = field(default_factory=SensorParams)
     seats: dict[str, Seat] = field(default_factory=default_seats)
+    payload: tuple[tuple[str, float], ...] = ()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -351,6 +362,7 @@ _SENSOR_KEYS: _KeyMap = {
     "lat_accel_bias_m_per_s2": ("lat_accel_bias", 1.0),
     "mdps_delay_s": ("mdps_delay", 1.0),
     "mdps_angle_at_motor": ("mdps_angle_at_motor", None),
+    "sas_angle_at_motor": ("sas_angle_at_motor", None),
 }
 _SUBTABLES: dict[str, tuple[type, _KeyMap]] = {
     "tire": (TireCoeffs, _TIRE_KEYS),
@@ -397,7 +409,7 @@ def sim_params_from_vehicle(vehicle: Vehicle) -> SimParams:
     """Parse ``vehicle.sim`` (the raw ``[sim]`` table) into :class:`SimParams`; ConfigError on mistakes."""
     raw = dict(vehicle.sim)
     src = vehicle.source or vehicle.name
-    subs = {k: raw.pop(k) for k in list(raw) if k in _SUBTABLES or k == "seats"}
+    subs = {k: raw.pop(k) for k in list(raw) if k in _SUBTABLES or k in ("seats", "payload")}
     chassis = _build(ChassisParams, _CHASSIS_KEYS, raw, src, "sim")
     parts = {
         name: _build(cls, keys, subs.get(name, {}), src, f"sim.{name}")
@@ -416,9 +428,27 @@ def sim_params_from_vehicle(vehicle: Vehicle) -> SimParams:
         if not isinstance(tab, dict) or "x_behind_front_axle_m" not in tab or "y_left_m" not in tab:
             raise ConfigError(f"{src}: [sim.seats.{name}] needs x_behind_front_axle_m and y_left_m")
         seats[name] = _build(Seat, seat_keys, tab, src, f"sim.seats.{name}")
-    sp = SimParams(chassis=chassis, seats=seats, **parts)
+    payload = _payload_items(subs.get("payload", {}), seats, src)
+    sp = SimParams(chassis=chassis, seats=seats, payload=payload, **parts)
     validate_sim(sp, src)
     return sp
+
+
+def _payload_items(raw: Any, seats: Mapping[str, Seat], src: str) -> tuple[tuple[str, float], ...]:
+    """``[sim.payload]``: seat name = mass [kg] (0 < m <= 2000) at a known seat."""
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{src}: [sim.payload] must be a table of seat name = mass in kg")
+    items = []
+    for seat, mass in raw.items():
+        if seat not in seats:
+            raise ConfigError(
+                f"{src}: [sim.payload] {seat}: unknown seat (known: {', '.join(sorted(seats))})"
+            )
+        m = _num(src, "sim.payload", seat, mass)
+        if not 0.0 < m <= 2000.0:
+            raise ConfigError(f"{src}: [sim.payload] {seat} must lie in (0, 2000] kg, got {m}")
+        items.append((seat, m))
+    return tuple(items)
 
 
 def validate_sim(sp: SimParams, src: str = "<sim>") -> None:

@@ -7,10 +7,12 @@ arm stiffness, damping and a slowly built-up holding torque::
     y_p    = Y + T_p (vx sin psi + vy cos psi)               predicted lateral position [m]
     e      = y_ref(t + T_p) - y_p                            preview error, left positive [m]
     a_w    = k_y e + k_i int(e)                               wanted lateral acceleration [m/s^2]
-    th_raw = N (L + k_us vx^2) / vx^2 a_w - k_psi psi         wanted steering-wheel angle [rad]
+    th_raw = N (L + k_us vx^2) (a_w / vx^2 + kappa_p) - k_psi psi     wanted steering-wheel angle [rad]
 
-(the driver's internal model of the car: steady-state curvature a_w / vx^2 from the road-wheel
-angle (L + k_us vx^2) a_w / vx^2, with the understeer gradient k_us [rad s^2/m] it has learnt).
+(the driver's internal model of the car: the path curvature a_w / vx^2 + kappa_p needs the
+road-wheel angle (L + k_us vx^2) times it, with the understeer gradient k_us [rad s^2/m] it has
+learnt; kappa_p is the road's curvature at the preview point, which the driver steers into ahead
+of the curve; 0 on a straight road).
     th_d'  = (th_raw - th_d) / tau                            lagged wanted angle
     T_drv  = k_a (th_d - th_sw) - d_a w_sw + I + n(t)         wheel torque [Nm], left positive
     I'     = k_ia (th_d - th_sw)                              holding torque build-up
@@ -78,16 +80,18 @@ def wanted_angle(
     y_ref_preview: float,
     e_int: float,
     angle_cmd: float,
+    kappa_preview: float,
     dp: np.ndarray,
 ) -> tuple[float, float]:
-    """(th_raw [rad], e [m]): the wanted steering-wheel angle and the preview error."""
+    """(th_raw [rad], e [m]): the wanted steering-wheel angle and the preview error
+    (``kappa_preview``: the road's curvature at the preview point [1/m], left positive)."""
     if int(dp[DR_MODE]) == DRIVER_ANGLE:
         return angle_cmd, 0.0
     y_p = y + dp[DR_TP] * (vx * math.sin(psi) + vy * math.cos(psi))
     e = y_ref_preview - y_p
     v2 = max(vx, 5.0) ** 2
     a_w = dp[DR_KY] * e + dp[DR_KI] * e_int
-    return (dp[DR_GEO] / v2 + dp[DR_KUS]) * a_w - dp[DR_KPSI] * psi, e
+    return (dp[DR_GEO] / v2 + dp[DR_KUS]) * (a_w + v2 * kappa_preview) - dp[DR_KPSI] * psi, e
 
 
 @numba.njit(cache=True)

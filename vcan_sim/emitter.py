@@ -28,7 +28,7 @@ from lde.units import STEP_NS
 from .config import SensorParams
 from .faults import Fault, apply_faults, hit_mask
 from .plant import O_VW1, O_VW2, O_VW3, O_VW4
-from .sensors import PINION_ANGLE_MESSAGES, SensorNoise, measure
+from .sensors import SensorNoise, angle_below_torsion_bar, measure
 
 log = logging.getLogger(__name__)
 
@@ -130,7 +130,7 @@ def emit_range(
         stream.noise,
         slice(a, b),
         sp,
-        sp.mdps_angle_at_motor and stream.name in PINION_ANGLE_MESSAGES,
+        angle_below_torsion_bar(sp, stream.name),
     )
     for name in stream.unsigned:
         si[name] = np.abs(si[name])

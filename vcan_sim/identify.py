@@ -36,7 +36,8 @@ import numpy as np
 from lde.params import Vehicle, load_vehicle
 
 from .config import SimParams, sim_params_from_vehicle
-from .payload import loaded_body, payload_by_name
+from .payload import combined, loaded_body, payload_by_name
+from .run import simulate
 from .tires import aligning_slope, force_slope
 
 
@@ -102,10 +103,10 @@ def static_stiffness(
     vehicle: Vehicle | None = None, sp: SimParams | None = None, payload: str = "none"
 ) -> tuple[float, float, float]:
     """(C_f, C_r, K) per tire [N/rad, N/rad, Nm/rad]: Magic Formula tangents at the static wheel loads
-    (mean of left and right)."""
+    (mean of left and right) of the car with its own load (``[sim.payload]``) and ``payload``."""
     v = vehicle or load_vehicle()
     sp = sp or sim_params_from_vehicle(v)
-    body = loaded_body(v, sp, payload_by_name(payload))
+    body = loaded_body(v, sp, combined(sp, payload_by_name(payload)))
     f1, f2, f3, f4 = body.wheel_loads
     cf = 0.5 * (force_slope(f1, sp.tire) + force_slope(f2, sp.tire))
     cr = 0.5 * (force_slope(f3, sp.tire) + force_slope(f4, sp.tire))
@@ -139,7 +140,6 @@ def identify_scenarios(
     duration: float | None = None,
 ) -> dict[str, LinearEquivalent]:
     """:func:`identify` over runs of several scenarios (truth of all seeds pooled per scenario)."""
-    from .run import simulate  # noqa: PLC0415 - run imports this module's siblings
 
     out: dict[str, LinearEquivalent] = {}
     for name in names:

@@ -148,6 +148,14 @@ PAYLOADS: dict[str, Payload] = {
 }
 
 
+def combined(sp: SimParams, scenario_payload: Payload) -> Payload:
+    """What the car carries in a run: its own load (``[sim.payload]``) plus the scenario's payload."""
+    if not sp.payload:
+        return scenario_payload
+    name = "car" if scenario_payload.name == "none" else f"car+{scenario_payload.name}"
+    return Payload(tuple(sp.payload) + scenario_payload.items, name)
+
+
 def payload_by_name(name: str) -> Payload:
     try:
         return PAYLOADS[name]

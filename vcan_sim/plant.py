@@ -1,8 +1,9 @@
 """The nonlinear plant: planar two-track vehicle with roll and load transfer, steering, driver.
 
-States (``X_*``), SI, ISO 8855 (x forward, y left, z up; road along world X)::
+States (``X_*``), SI, ISO 8855 (x forward, y left, z up), in road coordinates::
 
-    X, Y, psi        world position [m] and heading [rad]
+    X, Y, psi        distance along the road's reference line [m], lateral offset from it [m]
+                     (left positive) and heading relative to the road's tangent [rad]
     vx, vy, r        body velocities [m/s] and yaw rate [rad/s]
     phi, phi'        body roll [rad] (positive: right side down) and its rate
     th_sw, w_sw      steering-wheel angle [rad] and rate (upper column)
@@ -24,6 +25,16 @@ Vertical loads: static (from the loaded CG, eqs. 17-18 inverted) plus lateral tr
 right wheels gaining when the tires push left::
 
     dFz_f = (k_phi,f phi + c_phi,f phi') / t_f + (m lr / L) a_t h_ra / t_f     (rear alike)
+
+Road coordinates (Frenet frame of the road's reference line, curvature kappa [1/m], left turns
+positive; on a straight road, kappa = 0, they are world coordinates with the road along X)::
+
+    X'   = (vx cos psi - vy sin psi) / (1 - kappa Y)
+    Y'   = vx sin psi + vy cos psi
+    psi' = r - kappa X'
+
+Wind and bank are given in road axes (the wind's direction is relative to the road, so on a curve
+it turns with the road; the bank tilts the road's lateral axis).
 
 Slip angles (eq. 9 generalised per wheel) a_i = delta_i - atan2(vy + r x_i, vx - r y_i), lagged by
 the tire's relaxation length sigma (a_eff' = vx / sigma (a_i - a_eff), four states); tires by
@@ -128,9 +139,10 @@ N_PARAM = 31
 
 # ------------------------------------------------------------------ per-sub-step inputs
 # air velocity in world axes [m/s], bank [rad], lane centre at t + preview [m], driver noise torque
-# [Nm], speed reference [m/s], scripted overlay request [Nm], commanded steering-wheel angle [rad]
-D_WX, D_WY, D_BANK, D_YREFP, D_TNOISE, D_VREF, D_TOVREQ, D_SWCMD = range(8)
-N_DRIVE = 8
+# [Nm], speed reference [m/s], scripted overlay request [Nm], commanded steering-wheel angle [rad],
+# road curvature at the car and at the driver's preview point [1/m] (left turns positive)
+D_WX, D_WY, D_BANK, D_YREFP, D_TNOISE, D_VREF, D_TOVREQ, D_SWCMD, D_KAPPA, D_KAPPAP = range(10)
+N_DRIVE = 10
 
 # ------------------------------------------------------------------ outputs (one row per sub-step)
 (
@@ -351,10 +363,12 @@ def derivatives(
         + mz4
     )
 
-    # --- body
-    dx[X_X] = vx * cpsi - vy * spsi
+    # --- body (road coordinates: exactly the world's on a straight road, kappa = 0)
+    kappa = d[D_KAPPA]
+    sdot = (vx * cpsi - vy * spsi) / (1.0 - kappa * x[X_Y])
+    dx[X_X] = sdot
     dx[X_Y] = vx * spsi + vy * cpsi
-    dx[X_PSI] = r
+    dx[X_PSI] = r - kappa * sdot
     dx[X_VX] = r * vy + (sfx + fax + fbx) / m
     dx[X_VY] = -r * vx + (sfy + fay + fby) / m
     dx[X_R] = (mz_t + m_aero) / p[P_IZ]
@@ -377,7 +391,7 @@ def derivatives(
     t_ast = t_boost + x[X_TOV]
 
     # --- driver
-    th_raw, e = wanted_angle(x[X_Y], psi, vx, vy, d[D_YREFP], x[X_EINT], d[D_SWCMD], dp)
+    th_raw, e = wanted_angle(x[X_Y], psi, vx, vy, d[D_YREFP], x[X_EINT], d[D_SWCMD], d[D_KAPPAP], dp)
     dx[X_EINT] = e
     dx[X_THD] = (th_raw - x[X_THD]) / dp[DR_TAU]
     t_drv = arm_torque(x[X_THD], x[X_THSW], x[X_WSW], x[X_HOLD], d[D_TNOISE], dp)

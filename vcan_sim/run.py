@@ -27,7 +27,7 @@ from . import plant as P
 from .config import SimParams, sim_params_from_vehicle
 from .driver import DRIVER_ANGLE, DRIVER_HANDS_OFF, DRIVER_LANE
 from .emitter import MessageStream, build_streams, emit_range
-from .payload import LoadedBody, payload_by_name
+from .payload import LoadedBody, combined, payload_by_name
 from .scenarios import (
     STREAM_DRIVER_GAINS,
     STREAM_DRIVER_NOISE,
@@ -132,14 +132,15 @@ class Simulation:
                 f"start time t0 {self.t0_ns * 1e-9:.9g} s outside 0..{MAX_T0_NS // 1_000_000_000} s "
                 "(epoch seconds; timestamps are int64 ns)"
             )
-        self.sp = sim_params if sim_params is not None else sim_params_from_vehicle(self.vehicle)
+        sp = sim_params if sim_params is not None else sim_params_from_vehicle(self.vehicle)
+        self.sp = replace(sp, driver=sc.driver_style.apply(sp.driver))
         if sc.driver not in _DRIVER_MODES:
             raise ConfigError(f"scenario {sc.name}: unknown driver {sc.driver!r}")
         rngs = rng_streams(self.seed)
         self.model = P.build_plant(
             self.vehicle,
             self.sp,
-            payload_by_name(sc.payload),
+            combined(self.sp, payload_by_name(sc.payload)),
             _DRIVER_MODES[sc.driver],
             rngs[STREAM_DRIVER_GAINS],
         )
@@ -171,7 +172,9 @@ class Simulation:
         drive[:, P.D_BANK] = d.bank
         # lane centre the driver sees at its preview point
         shift = int(round(self.sp.driver.preview_time / H))
-        drive[:, P.D_YREFP] = np.concatenate([d.lane[shift:], np.full(min(shift, n), d.lane[-1])])[:n]
+        drive[:, P.D_YREFP] = _ahead(d.lane, shift)
+        drive[:, P.D_KAPPA] = d.curvature
+        drive[:, P.D_KAPPAP] = _ahead(d.curvature, shift)
         drive[:, P.D_TNOISE] = ou_process(n, H, self.sp.driver.noise_torque, self.sp.driver.noise_time, rng)
         drive[:, P.D_VREF] = d.speed
         drive[:, P.D_TOVREQ] = d.overlay
@@ -255,6 +258,12 @@ class Simulation:
             profile=self.profile.name,
             body=self.model.body,
         )
+
+
+def _ahead(x: np.ndarray, shift: int) -> np.ndarray:
+    """``x`` advanced by ``shift`` samples (what lies ahead), its last value held at the end."""
+    n = x.size
+    return np.concatenate([x[shift:], np.full(min(shift, n), x[-1])])[:n]
 
 
 def simulate(

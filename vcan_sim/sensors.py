@@ -16,7 +16,9 @@ Where the angle is sensed matters: the torsion bar twists by T_column / k_tb (ab
 motor, below the torsion bar: messages in :data:`PINION_ANGLE_MESSAGES` (the ``lde`` profile's
 MDPS_Sensors) carry the pinion angle th_p (= N delta_f) and rate (unless ``[sim.sensors]
 mdps_angle_at_motor = false``); a steering-angle sensor at the top of the column (the ``hyundai``
-profile's SAS11) carries the steering-wheel angle th_sw and rate, twist included.
+profile's SAS11) carries the steering-wheel angle th_sw and rate, twist included (unless
+``sas_angle_at_motor = true``: a car whose angle signal is the motor position). Both positions can
+be modelled on both profiles (:func:`angle_below_torsion_bar`).
 
 ``d`` = round(mdps_delay / h) sub-steps (the paper's 3.9 ms computation delay), ``b`` the
 configured bias, ``n`` white Gaussian noise (seeded, drawn once per frame for the whole run so that
@@ -35,6 +37,19 @@ from .plant import O_AY, O_DSW, O_R, O_TAST, O_TCOL, O_THP, O_VX, O_WP, O_WSW
 
 #: messages whose steering angle is sensed below the torsion bar (the MDPS motor's position)
 PINION_ANGLE_MESSAGES = frozenset({"MDPS_Sensors"})
+#: separate steering-angle sensor messages: at the steering wheel unless ``sas_angle_at_motor``
+SAS_ANGLE_MESSAGES = frozenset({"SAS11"})
+
+
+def angle_below_torsion_bar(sp: SensorParams, message: str) -> bool:
+    """True if ``message`` carries the pinion angle and rate (below the torsion bar), False if the
+    steering-wheel angle and rate (above it, the twist T_column / k_tb included)."""
+    if message in PINION_ANGLE_MESSAGES:
+        return sp.mdps_angle_at_motor
+    if message in SAS_ANGLE_MESSAGES:
+        return sp.sas_angle_at_motor
+    return False
+
 
 #: input -> (output column, delayed by the MDPS, noise attribute, bias attribute or None)
 SENSOR_MAP: dict[str, tuple[int, bool, str, str | None]] = {

@@ -33,6 +33,7 @@ from .grid import InputGrid, build_grid
 from .params import Vehicle
 from .profiles import Profile, load_profile
 from .signals import decode_batch
+from .units import STEP_S
 
 
 def grid_from_frames(frames: FrameBatch, profile: Profile | str = "lde") -> InputGrid:
@@ -104,7 +105,6 @@ def augmented_estimate(
     estimated slip angles: ``C(alpha) = C (1 - kappa alpha^2)`` (the tires' force and aligning torque
     fall below linear at large slip; 0: linear tires).
     """
-    from .units import STEP_S
 
     g = compensate(grid, vehicle)
     b, t, e = vehicle.body, vehicle.tires, vehicle.estimator

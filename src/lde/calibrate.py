@@ -64,7 +64,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ConfigError, LdeError
-from .params import FRICTION_RATE_WIDTH, VEHICLE_DIR, InputCorrections, Vehicle
+from .params import FRICTION_RATE_WIDTH, VEHICLE_DIR, InputCorrections, Vehicle, load_vehicle
 from .units import DEG, KMH
 
 #: zero-phase Gaussian smoothing of every signal before differentiation [s]
@@ -498,7 +498,6 @@ def write_vehicle(
     tires: bool = True,
 ) -> Path:
     """Write :func:`vehicle_toml` to ``path`` and check that it loads."""
-    from .params import load_vehicle
 
     try:
         path.write_text(vehicle_toml(cal, base, name=name, log=log, corrections=corrections, tires=tires))

@@ -1,9 +1,9 @@
 """Raw <-> physical conversion of DBC signals (the one place it lives) and frame encoding with
 automatic counters and CRCs (the "packer" of opendbc).
 
-Bit layout. A frame's 8 bytes are read as one little-endian 64-bit word ``w_le`` (bit ``k`` of the
-frame = bit ``k % 8`` of byte ``k // 8``) for Intel signals, and as a big-endian word ``w_be`` for
-Motorola signals (whose DBC start bit is the MSB)::
+Bit layout (:mod:`lde.bitfield`, the one packer). A frame's 8 bytes are one little-endian 64-bit
+word ``w_le`` for Intel signals and the big-endian word ``w_be`` for Motorola signals (whose DBC
+start bit is the MSB)::
 
     Intel:    raw = (w_le >> start) & (2**length - 1)
     Motorola: raw = (w_be >> (msb_pos - length + 1)) & (2**length - 1),
@@ -11,11 +11,13 @@ Motorola signals (whose DBC start bit is the MSB)::
     signed:   raw -= 2**length if raw >= 2**(length - 1)
     physical = raw * scale + offset
 
-Encoding (:class:`MessageEncoder`, :func:`encode_batch`): values in DBC physical units; a value
-outside the signal's DBC range ``[minimum, maximum]`` is **saturated** at the range (then at what the
-bits can hold), rounding is to nearest (half to even); NaN raises :class:`EncodeError`. A signal not
-given takes physical 0 (saturated into its range). Counter and CRC/checksum signals are filled in by
-the encoder, never by the caller (passing one raises). Profile 1 counters run 0..14 and wrap.
+Encoding (:class:`MessageEncoder`, :func:`encode_batch`, and the engine's output frames, all through
+the compiled :func:`encode_word`): values in DBC physical units; a value outside the signal's DBC
+range ``[minimum, maximum]`` is **saturated** at the range (then at what the bits can hold),
+rounding is to nearest (half to even); NaN raises :class:`EncodeError` (the compiled kernels are
+only given finite values). A signal not given takes physical 0 (saturated into its range). Counter
+and CRC/checksum signals are filled in by the encoder, never by the caller (passing one raises).
+Profile 1 counters run 0..14 and wrap.
 """
 
 from __future__ import annotations
@@ -27,8 +29,18 @@ from dataclasses import dataclass
 import can
 import cantools
 import numpy as np
+from numba import njit
 
-from .e2e import IntegrityKind, IntegrityScheme, p01_crc_batch, protect_frame, whl_spd11_checksum_batch
+from .bitfield import (
+    bytes_to_word,
+    byteswap64,
+    get_field,
+    motorola_shift,
+    put_field,
+    word_bytes,
+    word_to_bytes,
+)
+from .e2e import IntegrityScheme, protect_word
 from .errors import LdeError
 from .frames import FrameBatch, ns_to_seconds
 from .profiles import Profile
@@ -36,10 +48,12 @@ from .profiles import Profile
 __all__ = [
     "EncodeError",
     "SignalCodec",
+    "MessageLayout",
     "MessageCodec",
     "MessageEncoder",
     "encode_batch",
     "encode_frames",
+    "encode_word",
     "decode_frame",
     "si_to_dbc",
     "words_le",
@@ -50,10 +64,154 @@ class EncodeError(LdeError, ValueError):
     """A frame cannot be encoded: NaN value, unknown signal, or a counter/CRC passed by the caller."""
 
 
+# ------------------------------------------------------------------------- compiled conversions
+
+
+@njit(cache=True, inline="always")
+def raw_value(w_le, w_be, shift, nbits, little_endian, signed):  # pragma: no cover - compiled
+    """Raw integer value of one signal (sign-extended) from the frame's two words."""
+    w = w_le if little_endian else w_be
+    raw = np.int64(get_field(w, shift, nbits))
+    if signed and nbits < 64 and (raw >> (nbits - 1)) & 1:
+        raw -= np.int64(1) << nbits
+    return raw
+
+
+@njit(cache=True, inline="always")
+def phys_to_raw(x, lo, hi, scale, offset, nbits, signed):  # pragma: no cover - compiled
+    """Physical (finite) -> raw int64, saturated at the DBC range [lo, hi] (ignored unless lo < hi)
+    and then at the bit range; rounding half to even."""
+    if lo < hi:
+        x = min(max(x, lo), hi)
+    if signed:
+        rmin = -(np.int64(1) << (nbits - 1))
+        rmax = (np.int64(1) << (nbits - 1)) - 1
+    else:
+        rmin = np.int64(0)
+        rmax = (np.int64(1) << nbits) - 1 if nbits < 63 else np.int64(9223372036854775807)
+    r = (x - offset) / scale
+    if r >= rmax:
+        return rmax
+    if r <= rmin:
+        return rmin
+    return np.int64(np.rint(r))
+
+
+@njit(cache=True, inline="always")
+def encode_word(
+    values,
+    shift,
+    nbits,
+    little_endian,
+    signed,
+    scale,
+    offset,
+    lo,
+    hi,
+    is_value,
+    length,
+    kind,
+    frame_id,
+    ctr_parts,
+    chk_parts,
+    counter,
+):  # pragma: no cover
+    """The frame word of one message: every value signal from ``values`` (physical, finite; one
+    entry per signal of the layout, integrity signals ignored), bytes past ``length`` zero, then the
+    counter and CRC / checksum (:func:`lde.e2e.protect_word`)."""
+    w_le = np.uint64(0)
+    w_be = np.uint64(0)
+    for k in range(shift.shape[0]):
+        if not is_value[k]:
+            continue
+        raw = phys_to_raw(values[k], lo[k], hi[k], scale[k], offset[k], nbits[k], signed[k])
+        if little_endian[k]:
+            w_le = put_field(w_le, shift[k], nbits[k], np.uint64(raw))
+        else:
+            w_be = put_field(w_be, shift[k], nbits[k], np.uint64(raw))
+    w = w_le | byteswap64(w_be)
+    if length < 8:
+        w &= (np.uint64(1) << np.uint64(8 * length)) - np.uint64(1)
+    return protect_word(kind, frame_id, w, length, ctr_parts, chk_parts, counter)
+
+
+@njit(cache=True)
+def _encode_rows(
+    values,
+    shift,
+    nbits,
+    little_endian,
+    signed,
+    scale,
+    offset,
+    lo,
+    hi,
+    is_value,
+    length,
+    kind,
+    frame_id,
+    ctr_parts,
+    chk_parts,
+    counter,
+    modulus,
+    invalid,
+    out,
+):  # pragma: no cover
+    c = counter
+    for i in range(values.shape[0]):
+        w = encode_word(
+            values[i],
+            shift,
+            nbits,
+            little_endian,
+            signed,
+            scale,
+            offset,
+            lo,
+            hi,
+            is_value,
+            length,
+            kind,
+            frame_id,
+            ctr_parts,
+            chk_parts,
+            c,
+        )
+        word_to_bytes(w, out[i])
+        c = (c + 1) % modulus
+        if c == invalid:
+            c = (c + 1) % modulus
+    return c
+
+
+@njit(cache=True)
+def _raw_rows(words, shift, nbits, little_endian, signed, out):  # pragma: no cover - compiled
+    for i in range(words.shape[0]):
+        w = words[i]
+        out[i] = raw_value(w, byteswap64(w), shift, nbits, little_endian, signed)
+
+
+@njit(cache=True)
+def _place_rows(raw, shift, nbits, out):  # pragma: no cover - compiled
+    for i in range(raw.shape[0]):
+        out[i] = put_field(np.uint64(0), shift, nbits, np.uint64(raw[i]))
+
+
+@njit(cache=True)
+def _words_of(data, out):  # pragma: no cover - compiled
+    for i in range(data.shape[0]):
+        out[i] = bytes_to_word(data[i], 8)
+
+
 def words_le(data: np.ndarray) -> np.ndarray:
-    """uint8 [n, 8] frames -> uint64 [n] little-endian words (a view when ``data`` is C-contiguous)."""
-    d = np.ascontiguousarray(data, dtype=np.uint8)
-    return d.view("<u8").reshape(-1)
+    """uint8 [n, 8] frames -> uint64 [n] little-endian words."""
+    d = np.ascontiguousarray(data, dtype=np.uint8).reshape(-1, 8)
+    out = np.empty(d.shape[0], dtype=np.uint64)
+    _words_of(d, out)
+    return out
+
+
+# ------------------------------------------------------------------------------- signals
 
 
 @dataclass(frozen=True)
@@ -89,9 +247,7 @@ class SignalCodec:
     @property
     def shift(self) -> int:
         """LSB position in ``w_le`` (Intel) or ``w_be`` (Motorola)."""
-        if self.little_endian:
-            return self.start
-        return (7 - self.start // 8) * 8 + self.start % 8 - self.length + 1
+        return self.start if self.little_endian else motorola_shift(self.start, self.length)
 
     @property
     def mask(self) -> int:
@@ -105,43 +261,44 @@ class SignalCodec:
     def raw_max(self) -> int:
         return (1 << (self.length - 1)) - 1 if self.signed else (1 << self.length) - 1
 
+    @property
+    def range(self) -> tuple[float, float]:
+        """(lo, hi) of the DBC range; (inf, -inf) (no clipping) when it is not given or empty."""
+        if self.minimum is None or self.maximum is None or not self.minimum < self.maximum:
+            return math.inf, -math.inf
+        return self.minimum, self.maximum
+
     # ---------------------------------------------------------------- decode
     def raw_batch(self, w_le: np.ndarray, w_be: np.ndarray | None = None) -> np.ndarray:
-        """Raw integer values (sign-extended) -> int64 [n]."""
-        w = w_le if self.little_endian else (w_be if w_be is not None else w_le.byteswap())
-        raw = ((w >> np.uint64(self.shift)) & np.uint64(self.mask)).astype(np.int64)
-        if self.signed:
-            raw -= (raw >> (self.length - 1)) << self.length  # subtract 2**length where the sign bit is set
-        return raw
+        """Raw integer values (sign-extended) of ``w_le`` words -> int64 [n] (``w_be`` is derived)."""
+        w = np.ascontiguousarray(w_le, dtype=np.uint64)
+        out = np.empty(w.shape[0], dtype=np.int64)
+        _raw_rows(w, self.shift, self.length, self.little_endian, self.signed, out)
+        return out
 
     def decode_batch(self, w_le: np.ndarray, w_be: np.ndarray | None = None) -> np.ndarray:
         """Physical values (DBC units) -> float64 [n]."""
-        return self.raw_batch(w_le, w_be) * self.scale + self.offset
+        return self.raw_batch(w_le) * self.scale + self.offset
 
     # ---------------------------------------------------------------- encode
-    def to_raw_batch(self, phys: np.ndarray) -> np.ndarray:
-        """Physical -> raw int64, saturated at the DBC range and the bit range (module docstring)."""
-        x = np.asarray(phys, dtype=np.float64)
-        if np.isnan(x).any():
-            raise EncodeError(f"signal {self.name}: NaN cannot be encoded")
-        lo = -np.inf if self.minimum is None else self.minimum
-        hi = np.inf if self.maximum is None else self.maximum
-        if lo < hi:
-            x = np.clip(x, lo, hi)
-        raw = np.rint((x - self.offset) / self.scale)
-        return np.clip(raw, self.raw_min, self.raw_max).astype(np.int64)
-
     def to_raw(self, phys: float) -> int:
-        """Scalar :meth:`to_raw_batch` (same rounding and saturation)."""
+        """Physical -> raw, saturated at the DBC range and the bit range (module docstring)."""
         x = float(phys)
         if math.isnan(x):
             raise EncodeError(f"signal {self.name}: NaN cannot be encoded")
-        if self.minimum is not None and self.maximum is not None and self.minimum < self.maximum:
-            x = min(max(x, self.minimum), self.maximum)
-        r = (x - self.offset) / self.scale
-        if math.isinf(r):
-            r = float(self.raw_max) if r > 0 else float(self.raw_min)
-        return int(min(max(round(r), self.raw_min), self.raw_max))
+        lo, hi = self.range
+        return int(phys_to_raw(x, lo, hi, self.scale, self.offset, self.length, self.signed))
+
+    def to_raw_batch(self, phys: np.ndarray) -> np.ndarray:
+        """:meth:`to_raw` of every element -> int64."""
+        x = np.asarray(phys, dtype=np.float64)
+        if np.isnan(x).any():
+            raise EncodeError(f"signal {self.name}: NaN cannot be encoded")
+        lo, hi = self.range
+        return np.array(
+            [phys_to_raw(v, lo, hi, self.scale, self.offset, self.length, self.signed) for v in x.ravel()],
+            dtype=np.int64,
+        ).reshape(x.shape)
 
     def place(self, raw: int) -> int:
         """Raw value -> its bits in ``w_le`` (Intel) or ``w_be`` (Motorola)."""
@@ -149,7 +306,81 @@ class SignalCodec:
 
     def place_batch(self, raw: np.ndarray) -> np.ndarray:
         """Vectorised :meth:`place` -> uint64 [n]."""
-        return (raw.astype(np.uint64) & np.uint64(self.mask)) << np.uint64(self.shift)
+        r = np.ascontiguousarray(raw, dtype=np.int64).reshape(-1)
+        out = np.empty(r.shape[0], dtype=np.uint64)
+        _place_rows(r.astype(np.uint64), self.shift, self.length, out)
+        return out
+
+
+# ------------------------------------------------------------------------------- messages
+
+
+@dataclass(frozen=True, eq=False)
+class MessageLayout:
+    """One message as the arrays the compiled encoder and decoder read (one row per DBC signal)."""
+
+    frame_id: int
+    length: int
+    scheme: IntegrityScheme
+    shift: np.ndarray  # int64
+    nbits: np.ndarray  # int64
+    little_endian: np.ndarray  # bool
+    signed: np.ndarray  # bool
+    scale: np.ndarray  # float64
+    offset: np.ndarray  # float64
+    lo: np.ndarray  # float64, DBC minimum (inf where there is no range)
+    hi: np.ndarray  # float64, DBC maximum (-inf where there is no range)
+    is_value: np.ndarray  # bool, False for the counter / CRC signals
+
+    @classmethod
+    def of(
+        cls,
+        frame_id: int,
+        length: int,
+        scheme: IntegrityScheme,
+        codecs: list[SignalCodec],
+        integrity: frozenset[str],
+    ) -> MessageLayout:
+        rng = [c.range for c in codecs]
+        return cls(
+            frame_id=int(frame_id),
+            length=int(length),
+            scheme=scheme,
+            shift=np.array([c.shift for c in codecs], np.int64),
+            nbits=np.array([c.length for c in codecs], np.int64),
+            little_endian=np.array([c.little_endian for c in codecs], np.bool_),
+            signed=np.array([c.signed for c in codecs], np.bool_),
+            scale=np.array([c.scale for c in codecs], np.float64),
+            offset=np.array([c.offset for c in codecs], np.float64),
+            lo=np.array([r[0] for r in rng], np.float64),
+            hi=np.array([r[1] for r in rng], np.float64),
+            is_value=np.array([c.name not in integrity for c in codecs], np.bool_),
+        )
+
+    def kernel_args(self) -> tuple:
+        """The encoder's layout arguments, in :func:`encode_word`'s order after ``values``."""
+        s = self.scheme
+        return (
+            self.shift,
+            self.nbits,
+            self.little_endian,
+            self.signed,
+            self.scale,
+            self.offset,
+            self.lo,
+            self.hi,
+            self.is_value,
+            self.length,
+            s.kind_code,
+            self.frame_id,
+            s.counter_parts,
+            s.checksum_parts,
+        )
+
+    def encode(self, values: np.ndarray, counter: int) -> bytes:
+        """Frame bytes (``length``) of one row of physical values (one per signal, finite)."""
+        w = encode_word(np.ascontiguousarray(values, np.float64), *self.kernel_args(), int(counter))  # type: ignore[call-arg]
+        return word_bytes(int(w), self.length)
 
 
 class MessageCodec:
@@ -168,6 +399,11 @@ class MessageCodec:
             n for n, s in self.signals.items() if s.little_endian and (s.start, s.length) in integrity_fields
         )
         self.values: tuple[str, ...] = tuple(n for n in self.signals if n not in self.integrity)
+        self.order: tuple[str, ...] = tuple(self.signals)  # the layout's row order
+        self.index: dict[str, int] = {n: k for k, n in enumerate(self.order)}
+        self.layout = MessageLayout.of(
+            self.frame_id, self.length, self.scheme, list(self.signals.values()), self.integrity
+        )
 
     def _check_names(self, names) -> None:
         bad = [n for n in names if n in self.integrity]
@@ -176,6 +412,17 @@ class MessageCodec:
         unknown = [n for n in names if n not in self.signals]
         if unknown:
             raise EncodeError(f"{self.name}: unknown signals {unknown}; known: {list(self.values)}")
+
+    def value_row(self, values: Mapping[str, float]) -> np.ndarray:
+        """Physical values (a signal not given: 0) as the layout's row; NaN raises."""
+        self._check_names(values)
+        row = np.zeros(len(self.order), np.float64)
+        for n, v in values.items():
+            x = float(v)
+            if math.isnan(x):
+                raise EncodeError(f"signal {n}: NaN cannot be encoded")
+            row[self.index[n]] = x
+        return row
 
     def decode(self, data: bytes | bytearray) -> dict[str, float]:
         """All signals of one frame in DBC physical units (integrity signals as raw numbers)."""
@@ -196,7 +443,6 @@ class MessageEncoder:
         if not 0 <= counter_start < sch.modulus or counter_start == sch.invalid_counter:
             raise EncodeError(f"{name}: counter_start {counter_start} outside 0..{sch.modulus - 1}")
         self.counter = int(counter_start)
-        self._zero_raw = {n: self.codec.signals[n].to_raw(0.0) for n in self.codec.values}
 
     @property
     def frame_id(self) -> int:
@@ -205,23 +451,9 @@ class MessageEncoder:
     def encode(self, values: Mapping[str, float]) -> bytes:
         """Physical values (DBC units) -> frame bytes (message length), counter advanced by one."""
         c = self.codec
-        c._check_names(values)
-        w_le = 0
-        w_be = 0
-        for n in c.values:
-            s = c.signals[n]
-            raw = s.to_raw(values[n]) if n in values else self._zero_raw[n]
-            if s.little_endian:
-                w_le |= s.place(raw)
-            else:
-                w_be |= s.place(raw)
-        word = w_le | int.from_bytes(w_be.to_bytes(8, "big"), "little")
-        buf = bytearray(word.to_bytes(8, "little")[: c.length])
-        protect_frame(c.scheme, c.frame_id, buf, self.counter)
-        self.counter = (self.counter + 1) % c.scheme.modulus
-        if self.counter == c.scheme.invalid_counter:
-            self.counter = (self.counter + 1) % c.scheme.modulus
-        return bytes(buf)
+        data = c.layout.encode(c.value_row(values), self.counter)
+        self.counter = c.scheme.next_counter(self.counter)
+        return data
 
     def message(self, values: Mapping[str, float], t_ns: int, channel: str | None = None) -> can.Message:
         """Encoded python-can message with timestamp ``t_ns`` (float seconds)."""
@@ -237,7 +469,7 @@ class MessageEncoder:
 def encode_batch(
     profile: Profile, name: str, columns: Mapping[str, np.ndarray], counter_start: int = 0
 ) -> np.ndarray:
-    """Vectorised encoding of ``n`` frames of message ``name`` -> uint8 [n, 8] (zero padded past its length).
+    """Encoding of ``n`` frames of message ``name`` -> uint8 [n, 8] (zero padded past its length).
 
     ``columns`` maps signal names to arrays of ``n`` physical values (scalars broadcast). Counters run
     ``counter_start, counter_start + 1, ...`` modulo the scheme's period (so the next batch continues at
@@ -253,34 +485,15 @@ def encode_batch(
     sch = c.scheme
     if not 0 <= counter_start < sch.modulus or counter_start == sch.invalid_counter:
         raise EncodeError(f"{name}: counter_start {counter_start} outside 0..{sch.modulus - 1}")
-    w_le = np.zeros(n, dtype=np.uint64)
-    w_be = np.zeros(n, dtype=np.uint64)
-    for sname in c.values:
-        s = c.signals[sname]
-        col = columns.get(sname, 0.0)
-        raw = s.to_raw_batch(np.broadcast_to(np.asarray(col, dtype=np.float64), (n,)))
-        if s.little_endian:
-            w_le |= s.place_batch(raw)
-        else:
-            w_be |= s.place_batch(raw)
-    w_le |= w_be.byteswap()
-    counters = (counter_start + np.arange(n, dtype=np.int64)) % sch.modulus
-    for start, length in sch.counter_fields:
-        w_le |= (counters.astype(np.uint64) & np.uint64((1 << length) - 1)) << np.uint64(start)
-        counters = counters >> length
-    data = w_le.view(np.uint8).reshape(n, 8).copy()
-    if c.length < 8:
-        data[:, c.length :] = 0
-    if sch.kind is IntegrityKind.P01:
-        data[:, 0] = p01_crc_batch(c.frame_id, data, c.length)
-    elif sch.kind is IntegrityKind.HYUNDAI_WHL_SPD:
-        chk = whl_spd11_checksum_batch(data).astype(np.uint64)
-        w = words_le(data)
-        for start, length in sch.checksum_fields:
-            w |= (chk & np.uint64((1 << length) - 1)) << np.uint64(start)
-            chk = chk >> np.uint64(length)
-        data = w.view(np.uint8).reshape(n, 8)
-    return data
+    values = np.zeros((n, len(c.order)), np.float64)
+    for sname, col in columns.items():
+        v = np.broadcast_to(np.asarray(col, dtype=np.float64), (n,))
+        if np.isnan(v).any():
+            raise EncodeError(f"signal {sname}: NaN cannot be encoded")
+        values[:, c.index[sname]] = v
+    out = np.zeros((n, 8), np.uint8)
+    _encode_rows(values, *c.layout.kernel_args(), int(counter_start), sch.modulus, sch.invalid_counter, out)  # type: ignore[call-arg]
+    return out
 
 
 def encode_frames(

@@ -73,7 +73,7 @@ def check_profile(vehicle: Vehicle, rate_signed: bool, profile_name: str = "") -
         )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def condition_kernel(c, steering_angle, steering_rate, yaw_rate, column_torque):  # pragma: no cover
     """(steering_angle', yaw_rate', column_torque') after the corrections (module docstring)."""
     if c[C_ACTIVE] == 0.0:

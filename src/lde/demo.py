@@ -33,7 +33,19 @@ from typing import Any
 import can
 import numpy as np
 
+from vcan_sim.closed_loop import OverlayReceiver
+from vcan_sim.run import Simulation, simulate
+from vcan_sim.scenarios import SCENARIOS
+from vcan_sim.truth import TRUTH_COLUMNS
+
+from .clock import SimulatedClock
 from .errors import ConfigError
+from .metrics import Truth, accuracy
+from .params import load_vehicle
+from .plots import plot_demo
+from .profiles import load_profile
+from .recording import Recorder
+from .service import Service
 from .units import STEP_NS
 
 __all__ = [
@@ -85,8 +97,6 @@ class SimDriver:
         closed_loop: bool = True,
         duration: float | None = None,
     ) -> None:
-        from vcan_sim.closed_loop import OverlayReceiver
-        from vcan_sim.run import Simulation
 
         self.bus = bus
         self.sim = Simulation(scenario, vehicle, profile, seed=seed, duration=duration)
@@ -216,7 +226,6 @@ class DemoSummary:
 
 
 def _truth_recorder_props() -> dict[str, dict[str, str]]:
-    from vcan_sim.truth import TRUTH_COLUMNS
 
     return {k: {"type": "number", "description": TRUTH_COLUMNS[k][1]} for k in TRUTH_FIELDS}
 
@@ -236,10 +245,6 @@ def run_closed_loop(
 
     With ``record`` the run is written to that MCAP file (service channels + ``/sim/truth``).
     """
-    from .clock import SimulatedClock
-    from .params import load_vehicle
-    from .profiles import load_profile
-    from .service import Service
 
     veh = vehicle if vehicle is not None and not isinstance(vehicle, str) else load_vehicle(vehicle)
     prof = load_profile(profile)
@@ -252,8 +257,6 @@ def run_closed_loop(
         sim_t0 = sim.t_ns
         clock = SimulatedClock(sim_t0)
         if record is not None:
-            from .recording import Recorder
-
             recorder = Recorder(
                 record,
                 metadata={
@@ -359,7 +362,6 @@ def run_without_overlay_fast(
     not computed. Used by :func:`run_demo` to halve its time; ``run_closed_loop(overlay=False)``
     is the full loop.
     """
-    from vcan_sim.run import simulate
 
     wall0 = time.perf_counter()
     res = simulate(scenario, vehicle, "lde", seed=seed, duration=duration)
@@ -391,7 +393,6 @@ def _rms(x: np.ndarray) -> float:
 
 def summarise(on: DemoRun, off: DemoRun, scenario: str, seed: int, backend: str) -> DemoSummary:
     """The demo's figures from the two runs (after the settling window)."""
-    from .metrics import Truth, accuracy
 
     s = on.series
     t = s["t"]
@@ -469,7 +470,6 @@ def run_demo(
     Raises:
         ConfigError: unknown scenario, or an output path that cannot be written.
     """
-    from vcan_sim.scenarios import SCENARIOS
 
     if scenario not in SCENARIOS:
         raise ConfigError(f"unknown scenario {scenario!r} (known: {', '.join(SCENARIOS)})")
@@ -483,8 +483,6 @@ def run_demo(
     summary = summarise(on, off, scenario, seed, backend)
     summary.mcap = Path(mcap) if mcap is not None else None
     if png is not None:
-        from .plots import plot_demo
-
         summary.png = plot_demo(
             _plot_series(on.series),
             _plot_series(off.series),

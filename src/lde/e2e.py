@@ -44,6 +44,9 @@ from enum import Enum, IntEnum
 import e2e.p01 as _p01
 import numba as nb
 import numpy as np
+from numba import njit
+
+from .bitfield import bytes_to_word, frame_word, get_field, get_parts, put_field, put_parts, word_bytes
 
 __all__ = [
     "E2EStatus",
@@ -106,7 +109,8 @@ P01_CRC_TABLE = crc8_j1850_table(0x1D)
 
 
 def p01_crc(data_id: int, data: bytes | bytearray) -> int:
-    """Profile 1 CRC of a frame (``data[0]`` is the CRC slot and is ignored) via ``autosar-e2e``."""
+    """Profile 1 CRC of a frame (``data[0]`` is the CRC slot and is ignored) via ``autosar-e2e``
+    (the reference the compiled :func:`p01_crc_word` is tested against)."""
     buf = bytearray(data)
     _p01.e2e_p01_protect(buf, int(data_id) & 0xFFFF, increment_counter=False)
     return buf[0]
@@ -117,42 +121,6 @@ def p01_check(data_id: int, data: bytes | bytearray) -> bool:
     if len(data) < 2:
         return False
     return bool(_p01.e2e_p01_check(bytearray(data), int(data_id) & 0xFFFF))
-
-
-def p01_crc_batch(data_id: int, data: np.ndarray, length: int = 8) -> np.ndarray:
-    """Vectorised Profile 1 CRC of ``data`` (uint8 [n, >=length]) -> uint8 [n].
-
-    crc = 0; for each byte b of [id_lo, id_hi, data[:, 1], ..., data[:, length-1]]: crc = T[crc ^ b]
-    """
-    t = P01_CRC_TABLE
-    c0 = t[t[int(data_id) & 0xFF] ^ ((int(data_id) >> 8) & 0xFF)]  # a scalar: the Data ID part
-    crc = t[np.full(data.shape[0], c0, dtype=np.uint8) ^ data[:, 1]]
-    for k in range(2, length):
-        crc = t[crc ^ data[:, k]]
-    return crc
-
-
-# ------------------------------------------------------------------------ hyundai WHL_SPD11
-
-# bytes 1, 3, 5 and 7 lose their top two bits (the alive counter and checksum halves)
-_WHL_SPD_MASK = np.array([0xFF, 0x3F, 0xFF, 0x3F, 0xFF, 0x3F, 0xFF, 0x3F], dtype=np.uint8)
-_POPCOUNT8 = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)
-
-
-def whl_spd11_checksum(data: bytes | bytearray) -> int:
-    """hyundai WHL_SPD11 checksum (SPEC 3).
-
-    ``(number of 1-bits in all 8 bytes, the top 2 bits of bytes 1, 3, 5, 7 masked) ^ 9) & 15``
-    """
-    raw = bytes(data)[:8].ljust(8, b"\x00")
-    count = sum(bin(b & int(m)).count("1") for b, m in zip(raw, _WHL_SPD_MASK, strict=True))
-    return (count ^ 9) & 15
-
-
-def whl_spd11_checksum_batch(data: np.ndarray) -> np.ndarray:
-    """Vectorised :func:`whl_spd11_checksum` over uint8 [n, 8] -> uint8 [n]."""
-    counts = _POPCOUNT8[data[:, :8] & _WHL_SPD_MASK].sum(axis=1, dtype=np.int64)
-    return ((counts ^ 9) & 15).astype(np.uint8)
 
 
 # ------------------------------------------------------------------------ integrity schemes
@@ -166,7 +134,25 @@ class IntegrityKind(Enum):
     COUNTER = "COUNTER"  #: alive counter checked, checksum not verified (algorithm unknown)
 
 
+# the kinds as ints for the compiled kernels
+K_P01, K_WHL_SPD, K_COUNTER = 0, 1, 2
+_KIND_CODE = {
+    IntegrityKind.P01: K_P01,
+    IntegrityKind.HYUNDAI_WHL_SPD: K_WHL_SPD,
+    IntegrityKind.COUNTER: K_COUNTER,
+}
+
 Field = tuple[int, int]  # (start bit, length), Intel byte order, as in DBC ``start|length@1``
+
+
+def parts_array(fields: tuple[Field, ...], rows: int = 2) -> np.ndarray:
+    """``fields`` as the int64 [rows, 2] (shift, length) array of :mod:`lde.bitfield` (unused rows 0)."""
+    if len(fields) > rows:
+        raise ValueError(f"at most {rows} parts per field, got {fields}")
+    a = np.zeros((rows, 2), dtype=np.int64)
+    for k, (start, length) in enumerate(fields):
+        a[k] = (start, length)
+    return a
 
 
 @dataclass(frozen=True)
@@ -189,73 +175,173 @@ class IntegrityScheme:
     def verifies_checksum(self) -> bool:
         return self.kind in (IntegrityKind.P01, IntegrityKind.HYUNDAI_WHL_SPD)
 
+    @property
+    def kind_code(self) -> int:
+        """The kind as the kernels' int (``K_*``)."""
+        return _KIND_CODE[self.kind]
+
+    @property
+    def counter_parts(self) -> np.ndarray:
+        return parts_array(self.counter_fields)
+
+    @property
+    def checksum_parts(self) -> np.ndarray:
+        return parts_array(self.checksum_fields)
+
+    def next_counter(self, counter: int) -> int:
+        """The counter after ``counter``: +1 modulo ``modulus``, skipping ``invalid_counter``."""
+        return int(advance_counter(counter, self.modulus, self.invalid_counter))
+
 
 #: The scheme of every lde message (and of lde's outputs on every profile).
 P01_SCHEME = IntegrityScheme(IntegrityKind.P01, counter_fields=((8, 4),), checksum_fields=((0, 8),))
 
+# ------------------------------------------------------------------ the compiled integrity kernels
 
-def _read_fields_u64(words: np.ndarray, fields: tuple[Field, ...]) -> np.ndarray:
-    out = np.zeros(words.shape[0], dtype=np.uint64)
-    shift = 0
-    for start, length in fields:
-        part = (words >> np.uint64(start)) & np.uint64((1 << length) - 1)
-        out |= part << np.uint64(shift)
-        shift += length
-    return out
+# bytes 1, 3, 5 and 7 of WHL_SPD11 lose their top two bits (the alive counter and checksum halves)
+_WHL_SPD_MASK = np.uint64(0x3FFF3FFF3FFF3FFF)
+
+
+@njit(cache=True, inline="always")
+def p01_crc_word(data_id, w, length):  # pragma: no cover - compiled
+    """Profile 1 CRC of the frame ``w`` (``w_le``, ``length`` bytes):
+    crc = 0; for b in [id_lo, id_hi, byte 1, ..., byte length-1]: crc = T[crc ^ b]."""
+    t = P01_CRC_TABLE
+    crc = t[np.int64(data_id) & 0xFF]
+    crc = t[crc ^ ((np.int64(data_id) >> 8) & 0xFF)]
+    for k in range(1, length):
+        crc = t[crc ^ np.uint8(get_field(w, 8 * k, 8))]
+    return crc
+
+
+@njit(cache=True, inline="always")
+def whl_spd11_checksum_word(w):  # pragma: no cover - compiled
+    """hyundai WHL_SPD11 checksum (SPEC 3): ``(popcount(w masked) ^ 9) & 15``."""
+    v = np.uint64(w) & _WHL_SPD_MASK
+    count = 0
+    while v:
+        v &= v - np.uint64(1)
+        count += 1
+    return (count ^ 9) & 15
+
+
+@njit(cache=True, inline="always")
+def integrity_ok(kind, data_id, w, length, chk_parts):  # pragma: no cover - compiled
+    """The frame's CRC / checksum verdict (True where the scheme verifies nothing)."""
+    if kind == K_P01:
+        return length >= 2 and p01_crc_word(data_id, w, length) == get_field(w, 0, 8)
+    if kind == K_WHL_SPD:
+        return whl_spd11_checksum_word(w) == get_parts(w, chk_parts)
+    return True
+
+
+@njit(cache=True, inline="always")
+def protect_word(kind, data_id, w, length, ctr_parts, chk_parts, counter):  # pragma: no cover - compiled
+    """``w`` with ``counter`` and the CRC / checksum written (COUNTER schemes: the counter only;
+    their checksum field, algorithm unknown, is left as is)."""
+    w = put_parts(w, ctr_parts, np.uint64(counter))
+    if kind == K_P01:
+        w = put_field(w, 0, 8, np.uint64(p01_crc_word(data_id, w, length)))
+    elif kind == K_WHL_SPD:
+        w = put_parts(w, chk_parts, np.uint64(whl_spd11_checksum_word(w)))
+    return w
+
+
+@njit(cache=True, inline="always")
+def advance_counter(counter, modulus, invalid):  # pragma: no cover - compiled
+    """+1 modulo ``modulus``, skipping ``invalid`` (the sender's counter rule, once)."""
+    c = (counter + 1) % modulus
+    if c == invalid:
+        c = (c + 1) % modulus
+    return c
+
+
+@njit(cache=True)
+def _words(data, out):  # pragma: no cover - compiled
+    for i in range(data.shape[0]):
+        out[i] = bytes_to_word(data[i], 8)
 
 
 def _as_words(data: np.ndarray) -> np.ndarray:
-    """uint8 [n, 8] -> uint64 [n], little-endian (bit k of the frame = bit k of the word)."""
-    return np.ascontiguousarray(data[:, :8], dtype=np.uint8).view("<u8").reshape(-1)
+    """uint8 [n, >=8] -> uint64 [n] ``w_le`` words (bytes past 8 ignored)."""
+    d = np.ascontiguousarray(np.asarray(data, dtype=np.uint8)[:, :8])
+    out = np.empty(d.shape[0], dtype=np.uint64)
+    _words(d, out)
+    return out
+
+
+@njit(cache=True)
+def _check_loop(kind, data_id, words, length, chk_parts, out):  # pragma: no cover - compiled
+    for i in range(words.shape[0]):
+        out[i] = integrity_ok(kind, data_id, words[i], length, chk_parts)
+
+
+@njit(cache=True)
+def _counter_loop(words, parts, out):  # pragma: no cover - compiled
+    for i in range(words.shape[0]):
+        out[i] = np.int64(get_parts(words[i], parts))
+
+
+@njit(cache=True)
+def _crc_loop(data_id, words, length, out):  # pragma: no cover - compiled
+    for i in range(words.shape[0]):
+        out[i] = p01_crc_word(data_id, words[i], length)
+
+
+@njit(cache=True)
+def _whl_loop(words, out):  # pragma: no cover - compiled
+    for i in range(words.shape[0]):
+        out[i] = whl_spd11_checksum_word(words[i])
+
+
+def p01_crc_batch(data_id: int, data: np.ndarray, length: int = 8) -> np.ndarray:
+    """Profile 1 CRC of every frame of ``data`` (uint8 [n, >=length]) -> uint8 [n] (compiled table
+    CRC, :func:`p01_crc_word`)."""
+    out = np.empty(np.shape(data)[0], dtype=np.uint8)
+    _crc_loop(int(data_id), _as_words(data), int(length), out)
+    return out
+
+
+def whl_spd11_checksum(data: bytes | bytearray) -> int:
+    """hyundai WHL_SPD11 checksum of one frame (SPEC 3).
+
+    ``(number of 1-bits in all 8 bytes, the top 2 bits of bytes 1, 3, 5, 7 masked) ^ 9) & 15``
+    """
+    return int(whl_spd11_checksum_word(np.uint64(frame_word(data))))
+
+
+def whl_spd11_checksum_batch(data: np.ndarray) -> np.ndarray:
+    """:func:`whl_spd11_checksum` over uint8 [n, 8] -> uint8 [n]."""
+    out = np.empty(np.shape(data)[0], dtype=np.uint8)
+    _whl_loop(_as_words(data), out)
+    return out
 
 
 def read_counter_batch(scheme: IntegrityScheme, data: np.ndarray) -> np.ndarray:
     """Counters of uint8 [n, 8] frames -> int64 [n]."""
-    return _read_fields_u64(_as_words(data), scheme.counter_fields).astype(np.int64)
+    out = np.empty(np.shape(data)[0], dtype=np.int64)
+    _counter_loop(_as_words(data), scheme.counter_parts, out)
+    return out
 
 
 def read_counter(scheme: IntegrityScheme, data: bytes | bytearray) -> int:
     """Counter of one frame."""
-    w = int.from_bytes(bytes(data)[:8].ljust(8, b"\x00"), "little")
-    out, shift = 0, 0
-    for start, length in scheme.counter_fields:
-        out |= ((w >> start) & ((1 << length) - 1)) << shift
-        shift += length
-    return out
+    return int(get_parts(np.uint64(frame_word(data)), scheme.counter_parts))
 
 
 def check_batch(scheme: IntegrityScheme, data_id: int, data: np.ndarray, length: int = 8) -> np.ndarray:
     """Checksum / CRC verdict per frame -> bool [n] (all True where the scheme verifies nothing)."""
-    n = data.shape[0]
-    if scheme.kind is IntegrityKind.P01:
-        return p01_crc_batch(data_id, data, length) == data[:, 0]
-    if scheme.kind is IntegrityKind.HYUNDAI_WHL_SPD:
-        stored = _read_fields_u64(_as_words(data), scheme.checksum_fields).astype(np.uint8)
-        return whl_spd11_checksum_batch(data) == stored
-    return np.ones(n, dtype=np.bool_)
+    words = _as_words(data)
+    out = np.empty(words.shape[0], dtype=np.bool_)
+    _check_loop(scheme.kind_code, int(data_id), words, int(length), scheme.checksum_parts, out)
+    return out
 
 
 def check_frame(scheme: IntegrityScheme, data_id: int, data: bytes | bytearray) -> bool:
-    """Scalar :func:`check_batch` (Profile 1 through ``autosar-e2e``)."""
-    if scheme.kind is IntegrityKind.P01:
-        return p01_check(data_id, data)
-    if scheme.kind is IntegrityKind.HYUNDAI_WHL_SPD:
-        w = int.from_bytes(bytes(data)[:8].ljust(8, b"\x00"), "little")
-        stored, shift = 0, 0
-        for start, length in scheme.checksum_fields:
-            stored |= ((w >> start) & ((1 << length) - 1)) << shift
-            shift += length
-        return whl_spd11_checksum(data) == stored
-    return True
-
-
-def _write_fields(buf: bytearray, fields: tuple[Field, ...], value: int) -> None:
-    w = int.from_bytes(bytes(buf[:8]).ljust(8, b"\x00"), "little")
-    for start, length in fields:
-        mask = (1 << length) - 1
-        w = (w & ~(mask << start)) | ((value & mask) << start)
-        value >>= length
-    buf[: min(8, len(buf))] = w.to_bytes(8, "little")[: min(8, len(buf))]
+    """:func:`check_batch` of one frame (its length is ``len(data)``, at most 8 bytes used)."""
+    n = min(len(data), 8)
+    w = np.uint64(frame_word(data, n))
+    return bool(integrity_ok(scheme.kind_code, int(data_id), w, n, scheme.checksum_parts))
 
 
 def protect_frame(scheme: IntegrityScheme, data_id: int, buf: bytearray, counter: int) -> None:
@@ -263,11 +349,17 @@ def protect_frame(scheme: IntegrityScheme, data_id: int, buf: bytearray, counter
 
     COUNTER schemes get the counter only; their checksum field (algorithm unknown) is left as is.
     """
-    _write_fields(buf, scheme.counter_fields, counter)
-    if scheme.kind is IntegrityKind.P01:
-        _p01.e2e_p01_protect(buf, int(data_id) & 0xFFFF, increment_counter=False)
-    elif scheme.kind is IntegrityKind.HYUNDAI_WHL_SPD:
-        _write_fields(buf, scheme.checksum_fields, whl_spd11_checksum(buf))
+    n = min(len(buf), 8)
+    w = protect_word(
+        scheme.kind_code,
+        int(data_id),
+        np.uint64(frame_word(buf, n)),
+        n,
+        scheme.counter_parts,
+        scheme.checksum_parts,
+        int(counter),
+    )
+    buf[:n] = word_bytes(int(w), n)
 
 
 # ----------------------------------------------------------------------------------- receiver
@@ -293,7 +385,8 @@ S_N_WRONGCRC = 12
 S_N_NONEWDATA = 13
 S_N_INITIAL = 14
 S_N_OKSOMELOST = 15
-S_SIZE = 16
+S_N_RESYNC = 16  # frames that passed the check but were not used: INITIAL and the sync frames after it
+S_SIZE = 17
 
 _OK = np.int64(E2EStatus.OK)
 _WRONGCRC = np.int64(E2EStatus.WRONGCRC)
@@ -310,7 +403,7 @@ def new_state() -> np.ndarray:
     return s
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def receive_frame(
     state: np.ndarray, cfg: np.ndarray, t_ns: np.int64, counter: np.int64, check_ok: bool
 ) -> np.int64:
@@ -340,6 +433,7 @@ def receive_frame(
         state[S_SYNC_LEFT] = cfg[C_SYNC]
         state[S_TRUSTED] = 1 if cfg[C_SYNC] == 0 else 0
         state[S_N_INITIAL] += 1
+        state[S_N_RESYNC] += 1
         return _INITIAL
     delta = (counter - state[S_LAST_COUNTER]) % cfg[C_MODULUS]
     if delta == 0:
@@ -365,6 +459,8 @@ def receive_frame(
         state[S_TRUSTED] = 1
         state[S_ACCEPTED] = 1
         state[S_N_USED] += 1
+    else:
+        state[S_N_RESYNC] += 1
     return status
 
 
@@ -436,9 +532,14 @@ class ReceiverStats:
 
     ``received``: frames of the right length passed to the receiver; ``used``: frames whose values were
     used; ``lost``: frames missing in the counter sequence (seen at OKSOMELOST frames); ``repeated``,
-    ``wrong_sequence``, ``wrong_crc``: rejected frames by cause; ``nonewdata``: timeouts (counted when
-    the next frame arrives); ``initial``: (re-)starts; ``malformed``: frames with the message's id but
-    the wrong length (rejected before the receiver, counted by :mod:`lde.signals`).
+    ``wrong_sequence``, ``wrong_crc``: rejected frames by cause; ``resync``: frames that passed the
+    check but were not used because the message was (re-)synchronising (the INITIAL frame and the
+    ``sync_frames - 1`` good frames after it); ``nonewdata``: timeouts (counted when the next frame
+    arrives); ``initial``: (re-)starts; ``malformed``: frames with the message's id but the wrong
+    length (rejected before the receiver, counted by :mod:`lde.signals`).
+
+    Every received frame is exactly one of used, rejected or resync:
+    ``received == used + rejected + resync``.
     """
 
     received: int = 0
@@ -451,6 +552,7 @@ class ReceiverStats:
     initial: int = 0
     oksomelost: int = 0
     malformed: int = 0
+    resync: int = 0
 
     @property
     def rejected(self) -> int:
@@ -470,6 +572,7 @@ class ReceiverStats:
             initial=int(state[S_N_INITIAL]),
             oksomelost=int(state[S_N_OKSOMELOST]),
             malformed=malformed,
+            resync=int(state[S_N_RESYNC]),
         )
 
 
@@ -548,7 +651,5 @@ class P01Sender:
     def protect(self, buf: bytearray) -> bytearray:
         """Write the current counter and the CRC/checksum into ``buf`` (in place); advance the counter."""
         protect_frame(self.scheme, self.data_id, buf, self.counter)
-        self.counter = (self.counter + 1) % self.scheme.modulus
-        if self.counter == self.scheme.invalid_counter:
-            self.counter = (self.counter + 1) % self.scheme.modulus
+        self.counter = self.scheme.next_counter(self.counter)
         return buf

@@ -34,6 +34,7 @@ around them, and :class:`FilterpyReference` (filterpy's ``KalmanFilter``; used i
 from __future__ import annotations
 
 import numpy as np
+from filterpy.kalman import KalmanFilter as _FpKF
 from numba import njit
 
 #: state dimension of every kernel here (the model's 4 states): a compile-time constant lets LLVM
@@ -268,7 +269,6 @@ class FilterpyReference:
     """
 
     def __init__(self, x0: np.ndarray, P0: np.ndarray) -> None:
-        from filterpy.kalman import KalmanFilter as _FpKF
 
         x0 = np.asarray(x0, dtype=np.float64)
         self._kf = _FpKF(dim_x=x0.size, dim_z=2, dim_u=1)

@@ -72,7 +72,7 @@ from numba import njit
 
 from .errors import ConfigError
 from .params import OverlayLimits, Vehicle
-from .step import Status
+from .status import ESC_FAULT, FAULT_BITS, MDPS_FAULT, NOT_READY_BITS, VALID
 
 __all__ = [
     "OverlayState",
@@ -104,11 +104,7 @@ class OverlayState(enum.IntEnum):
     FAULT = ST_FAULT
 
 
-#: Status bits that are input faults (ramp out; FAULT when persistent)
-FAULT_BITS = int(Status.MDPS_FAULT | Status.ESC_FAULT | Status.SHADOW_DEVIATION)
-#: Status bits that mean "estimate not usable yet" (ramp out, no FAULT)
-NOT_READY_BITS = int(Status.NOT_CONVERGED | Status.LOW_SPEED)
-_VALID_BIT = int(Status.VALID)
+_VALID_BIT = VALID
 
 
 @dataclass(frozen=True)
@@ -230,7 +226,7 @@ def new_limiter_state() -> tuple[np.ndarray, np.ndarray]:
 # --- the one per-step function ------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def overlay_kernel(p, si, sf, t_ns, fw, mw, status, speed, steer, col_tq, enable):  # pragma: no cover
     """One limiter step at ``t_ns`` [ns]; updates ``si``/``sf`` in place, returns the torque [Nm].
 
@@ -424,9 +420,9 @@ class OverlayLimiter:
         MDPS_FAULT/ESC_FAULT: a stale or untrusted input ramps out even if the estimator held)."""
         status = int(est.status)
         if not getattr(inputs, "mdps_ok", True):
-            status |= int(Status.MDPS_FAULT)
+            status |= MDPS_FAULT
         if not getattr(inputs, "esc_ok", True):
-            status |= int(Status.ESC_FAULT)
+            status |= ESC_FAULT
         return self.step_values(
             t_ns, est.fw, est.mw, status, inputs.speed, inputs.steering_angle, inputs.column_torque, enable
         )

@@ -15,6 +15,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from .errors import LogFormatError
 
@@ -36,14 +37,13 @@ def plot_demo(
     Raises:
         LogFormatError: the file cannot be written (missing directory, no permission).
     """
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    # a Figure with its own canvas, not pyplot: no global backend is selected (matplotlib.use would
+    # change every caller's backend) and no figure stays in pyplot's registry
 
     on = with_overlay
     off = without_overlay
-    fig, ax = plt.subplots(3, 2, figsize=(12, 9), sharex=True, constrained_layout=True)
+    fig = Figure(figsize=(12, 9), layout="constrained")
+    ax = fig.subplots(3, 2, sharex=True)
     t = np.asarray(on["t"])
 
     a = ax[0, 0]
@@ -99,6 +99,4 @@ def plot_demo(
         fig.savefig(out, dpi=110)
     except OSError as exc:
         raise LogFormatError(f"{out}: cannot write the plot: {exc.strerror or exc}") from exc
-    finally:
-        plt.close(fig)
     return out

@@ -45,8 +45,8 @@ import os
 import struct
 import threading
 from collections import deque
-from collections.abc import Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -56,11 +56,13 @@ from mcap.exceptions import McapError
 from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
+from .engine import StepBlock
 from .errors import LogFormatError
 from .frames import FrameBatch, seconds_to_ns
 from .logio.mcapfile import CAN_PAYLOAD_SIZE, TOPIC_RX, TOPIC_TX, McapWriter
+from .logio.textfmt import EXACT, Column, format_rows, time_column
 from .profiles import INPUT_NAMES
-from .step import Status
+from .status import DEADLINE_MISS, STATUS_BITS
 
 __all__ = [
     "Recorder",
@@ -84,123 +86,244 @@ INPUTS_TOPIC = "/lde/inputs"
 DIAG_TOPIC = "/lde/diag"
 EVENTS_TOPIC = "/lde/events"
 
-#: ``Status`` bits (docs/ARCHITECTURE.md) -> flat 0/1 fields of ``/lde/estimate``, bit 0 first
-STATUS_BITS: tuple[str, ...] = tuple(str(flag.name).lower() for flag in Status)
 #: estimator input names (SI) recorded on ``/lde/inputs``
 INPUT_FIELDS: tuple[str, ...] = INPUT_NAMES
 
 
-def _props(types: dict[str, str], doc: dict[str, str]) -> dict[str, dict[str, str]]:
-    return {k: {"type": t, "description": doc.get(k, "")} for k, t in types.items()}
+# ---------------------------------------------------------------------- the step topics, once
 
 
-#: ``/lde/estimate`` fields (the step time t_k is the message's log time, exact in ns)
-ESTIMATE_PROPS = _props(
-    {
-        "Fw": "number",
-        "Mw": "number",
-        "T_align": "number",
-        "T_overlay": "number",
-        "overlay_state": "integer",
-        "overlay_active": "integer",
-        "overlay_enable": "integer",
-        "status": "integer",
-        **{b: "integer" for b in STATUS_BITS},
-    },
-    {
-        "Fw": "disturbance force at the CG [N], left positive",
-        "Mw": "disturbance yaw moment [Nm], left positive",
-        "T_align": "aligning torque on the steering axis [Nm], paper sign",
-        "T_overlay": "overlay torque request sent [Nm] at the column, left positive",
-        "overlay_state": "0 off, 1 ramp-in, 2 active, 3 ramp-out, 4 fault",
-        "overlay_active": "the Active bit sent",
-        "overlay_enable": "0: overlay switched off (--no-overlay) or ramping out at shutdown",
-        "status": "LDE_Estimate.Status bit map",
-        **{b: f"Status bit{i}" for i, b in enumerate(STATUS_BITS)},
-    },
+@dataclass(frozen=True)
+class Timing:
+    """The live loop's per-step timing columns (``/lde/diag``); a replay has none (null fields).
+
+    All int64 [n]: period error, step time and latency [ns] (latency -1: no input yet), the
+    deadline-miss flag (0/1), late steps plus skipped grid points since start, grid points skipped.
+    """
+
+    period_error_ns: np.ndarray
+    step_time_ns: np.ndarray
+    latency_ns: np.ndarray
+    deadline_miss: np.ndarray
+    deadline_misses: np.ndarray
+    skipped: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int) -> Timing:
+        return cls(*(np.zeros(n, np.int64) for _ in range(6)))
+
+    def head(self, n: int) -> Timing:
+        return Timing(*(getattr(self, f.name)[:n] for f in fields(self)))
+
+    @classmethod
+    def concat(cls, parts: list[Timing]) -> Timing:
+        return cls(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(cls)))
+
+
+Getter = Callable[[StepBlock, "Timing | None"], Any]
+
+
+@dataclass(frozen=True)
+class TopicField:
+    """One flat JSON field of a step topic: name, JSON type, description, decimals, and how its
+    column is taken from a :class:`lde.engine.StepBlock` (and the live timing)."""
+
+    name: str
+    kind: str  # "integer" | "number"
+    description: str
+    decimals: int
+    get: Getter
+
+
+@dataclass(frozen=True)
+class StepTopic:
+    """A per-step JSON channel: one message per step, log time = the step time t_k (exact ns)."""
+
+    topic: str
+    title: str
+    fields: tuple[TopicField, ...]
+
+    @property
+    def properties(self) -> dict[str, dict[str, str]]:
+        """JSON-schema properties (the channel's schema)."""
+        return {f.name: {"type": f.kind, "description": f.description} for f in self.fields}
+
+    def columns(self, block: StepBlock, timing: Timing | None) -> list[Column]:
+        """The text columns of ``block``'s rows."""
+        out = []
+        for f in self.fields:
+            v = f.get(block, timing)
+            out.append(v if isinstance(v, Column) else Column(f.name, np.asarray(v), f.decimals))
+        return out
+
+
+def _num(name: str, desc: str, dec: int, get: Getter) -> TopicField:
+    return TopicField(name, "number", desc, dec, get)
+
+
+def _int(name: str, desc: str, get: Getter) -> TopicField:
+    return TopicField(name, "integer", desc, 0, get)
+
+
+def _timing(attr: str, scale: float, missing: float) -> Getter:
+    def get(b: StepBlock, tm: Timing | None) -> np.ndarray:
+        if tm is None:
+            return np.full(len(b), missing)
+        v = getattr(tm, attr)
+        return v * scale if scale != 1.0 else v
+
+    return get
+
+
+def _status_bit(i: int) -> Getter:
+    return lambda b, _: (b.status >> i) & 1
+
+
+def _input(i: int) -> Getter:
+    return lambda b, _: b.inputs[:, i]
+
+
+def _latency_us(b: StepBlock, tm: Timing | None) -> np.ndarray:
+    if tm is None:
+        return np.full(len(b), np.nan)
+    return np.where(tm.latency_ns >= 0, tm.latency_ns / 1e3, -1.0)
+
+
+ESTIMATE = StepTopic(
+    ESTIMATE_TOPIC,
+    "lde.Estimate",
+    (
+        _int("t_ns", "the step time t_k [ns], the bus/log time base", lambda b, _: b.t_ns),
+        TopicField("t", "number", "the step time [s]", 0, lambda b, _: time_column("t", b.t_ns)),
+        _num("Fw", "disturbance force at the CG [N], left positive", EXACT, lambda b, _: b.fw),
+        _num("Mw", "disturbance yaw moment [Nm], left positive", EXACT, lambda b, _: b.mw),
+        _num(
+            "T_align", "aligning torque on the steering axis [Nm], paper sign", EXACT, lambda b, _: b.t_align
+        ),
+        _num(
+            "T_overlay",
+            "overlay torque request [Nm] at the column, left positive",
+            EXACT,
+            lambda b, _: b.t_overlay,
+        ),
+        _int(
+            "overlay_state", "0 off, 1 ramp-in, 2 active, 3 ramp-out, 4 fault", lambda b, _: b.overlay_state
+        ),
+        _int("overlay_active", "the Active bit sent", lambda b, _: b.overlay_active),
+        _int(
+            "overlay_enable",
+            "the limiter's enable input (0: overlay switched off or ramping out at shutdown)",
+            lambda b, _: b.overlay_enable,
+        ),
+        _int("status", "LDE_Estimate.Status bit map", lambda b, _: b.status),
+        _num("beta", "estimated side slip [rad]", EXACT, lambda b, _: b.beta),
+        _num("yaw_rate", "estimated yaw rate [rad/s]", EXACT, lambda b, _: b.yaw_rate),
+        *(_int(name, f"Status bit{i}", _status_bit(i)) for i, name in enumerate(STATUS_BITS)),
+    ),
 )
-INPUTS_PROPS = _props(
-    {**{f: "number" for f in INPUT_FIELDS}, "mdps_ok": "integer", "esc_ok": "integer"},
-    {
-        "column_torque": "Nm, left positive",
-        "assist_torque": "Nm, left positive",
-        "steering_angle": "rad (steering wheel), left positive",
-        "steering_rate": "rad/s (steering wheel), left positive",
-        "yaw_rate": "rad/s, left positive",
-        "lat_accel": "m/s^2, left positive",
-        "speed": "m/s",
-        "mdps_ok": "1 if the MDPS input is valid (fresh, E2E ok)",
-        "esc_ok": "1 if the ESC input is valid (fresh, E2E ok)",
-    },
+_INPUT_DOC = {
+    "column_torque": "Nm, left positive",
+    "assist_torque": "Nm, left positive",
+    "steering_angle": "rad (steering wheel), left positive",
+    "steering_rate": "rad/s (steering wheel), left positive",
+    "yaw_rate": "rad/s, left positive",
+    "lat_accel": "m/s^2, left positive",
+    "speed": "m/s",
+}
+INPUTS = StepTopic(
+    INPUTS_TOPIC,
+    "lde.Inputs",
+    (
+        _int("t_ns", "the step time t_k [ns]", lambda b, _: b.t_ns),
+        *(_num(n, _INPUT_DOC[n], EXACT, _input(i)) for i, n in enumerate(INPUT_FIELDS)),
+        _int("mdps_ok", "1 if the MDPS inputs are valid (fresh, E2E trusted)", lambda b, _: b.mdps_ok),
+        _int("esc_ok", "1 if the ESC inputs are valid (fresh, E2E trusted)", lambda b, _: b.esc_ok),
+    ),
 )
-DIAG_PROPS = _props(
-    {
-        "period_error_us": "number",
-        "step_time_us": "number",
-        "latency_us": "number",
-        "deadline_miss": "integer",
-        "deadline_misses": "integer",
-        "skipped": "integer",
-        "e2e_rejects": "integer",
-        "frames_used": "integer",
-    },
-    {
-        "period_error_us": "actual minus nominal step start [us]",
-        "step_time_us": "compute time of the step up to the send of its outputs [us]",
-        "latency_us": "newest input frame used -> outputs sent [us] (-1: no input yet)",
-        "deadline_miss": "1 if this step started more than 1 ms late",
-        "deadline_misses": "late steps plus skipped grid points since start",
-        "skipped": "grid points skipped after overruns since start",
-        "e2e_rejects": "frames rejected by the E2E receiver since start",
-        "frames_used": "input frames used in this step",
-    },
+DIAG = StepTopic(
+    DIAG_TOPIC,
+    "lde.Diag",
+    (
+        _num(
+            "period_error_us",
+            "actual minus nominal step start [us] (live)",
+            3,
+            _timing("period_error_ns", 1e-3, np.nan),
+        ),
+        _num(
+            "step_time_us",
+            "compute time of the step up to the send of its outputs [us] (live)",
+            3,
+            _timing("step_time_ns", 1e-3, np.nan),
+        ),
+        _num(
+            "latency_us",
+            "newest input frame used -> outputs sent [us] (-1: no input yet; live)",
+            3,
+            _latency_us,
+        ),
+        _int("deadline_miss", "1 if this step started more than 1 ms late", _timing("deadline_miss", 1.0, 0)),
+        _int(
+            "deadline_misses",
+            "late steps plus skipped grid points since start",
+            _timing("deadline_misses", 1.0, 0),
+        ),
+        _int("skipped", "grid points skipped after overruns since start", _timing("skipped", 1.0, 0)),
+        _int("e2e_rejects", "frames rejected (E2E or wrong length) since start", lambda b, _: b.e2e_rejects),
+        _int("frames_used", "input frames accepted since the previous step", lambda b, _: b.frames_used),
+    ),
 )
+#: the per-step topics, in the order they are written
+STEP_TOPICS: tuple[StepTopic, ...] = (ESTIMATE, INPUTS, DIAG)
+EVENTS_PROPS = {
+    "overlay_enable": {
+        "type": "integer",
+        "description": "the limiter's enable input from this step on (0: switched off or ramping out)",
+    },
+    "deadline_miss": {"type": "integer", "description": "1: this step started more than 1 ms late"},
+}
+# compatibility names (the schemas as property dicts)
+ESTIMATE_PROPS = ESTIMATE.properties
+INPUTS_PROPS = INPUTS.properties
+DIAG_PROPS = DIAG.properties
 
 
-EVENTS_PROPS = _props(
-    {"overlay_enable": "integer"},
-    {"overlay_enable": "the limiter's enable input from this step on (0: switched off or ramping out)"},
-)
+class StepTopicWriter:
+    """Writes rows of steps (:class:`lde.engine.StepBlock`) as the recording's step topics and the
+    sparse ``/lde/events`` channel into an :class:`lde.logio.McapWriter`: the one definition used by
+    the live :class:`Recorder` and by :func:`lde.replay.write_recording`.
+
+    ``/lde/events`` gets a message at the first step, whenever the overlay enable input changes, and
+    at every step with a deadline miss (so that a replay reproduces the status bits exactly).
+    """
+
+    def __init__(self, writer: McapWriter) -> None:
+        self.writer = writer
+        self._ids = [writer.add_json_channel(t.topic, t.properties, title=t.title) for t in STEP_TOPICS]
+        self._events = writer.add_json_channel(EVENTS_TOPIC, EVENTS_PROPS, title="lde.Events")
+        self._last_enable: int | None = None
+
+    def write(self, block: StepBlock, timing: Timing | None = None) -> None:
+        n = len(block)
+        if n == 0:
+            return
+        t = block.t_ns
+        for cid, topic in zip(self._ids, STEP_TOPICS, strict=True):
+            _write_json_channel(self.writer, cid, t, topic.columns(block, timing))
+        en = block.overlay_enable.astype(np.int64)
+        prev = np.concatenate([[-1 if self._last_enable is None else self._last_enable], en[:-1]])
+        miss = (block.status.astype(np.int64) & DEADLINE_MISS) != 0
+        ev = np.flatnonzero((en != prev) | miss)
+        if ev.size:
+            cols = [Column("overlay_enable", en[ev]), Column("deadline_miss", miss[ev].astype(np.int64))]
+            _write_json_channel(self.writer, self._events, t[ev], cols)
+        self._last_enable = int(en[-1])
 
 
-def _estimate_record(res: Any) -> dict[str, Any]:
-    d: dict[str, Any] = {
-        "Fw": res.fw,
-        "Mw": res.mw,
-        "T_align": res.t_align,
-        "T_overlay": res.t_overlay,
-        "overlay_state": res.overlay_state,
-        "overlay_active": int(res.overlay_active),
-        "overlay_enable": int(getattr(res, "overlay_enable", True)),
-        "status": res.status,
-    }
-    for i, name in enumerate(STATUS_BITS):
-        d[name] = (res.status >> i) & 1
-    return d
-
-
-def _inputs_record(inputs: Any) -> dict[str, Any]:
-    d: dict[str, Any] = {}
-    for f in INPUT_FIELDS:
-        v = getattr(inputs, f, None)
-        d[f] = float(v) if v is not None else None
-    d["mdps_ok"] = int(bool(getattr(inputs, "mdps_ok", 0)))
-    d["esc_ok"] = int(bool(getattr(inputs, "esc_ok", 0)))
-    return d
-
-
-def _diag_record(res: Any, skipped: int, e2e_rejects: int) -> dict[str, Any]:
-    tm = res.timing
-    return {
-        "period_error_us": tm.period_error_ns / 1e3,
-        "step_time_us": tm.step_time_ns / 1e3,
-        "latency_us": tm.latency_ns / 1e3 if tm.latency_ns >= 0 else -1.0,
-        "deadline_miss": int(tm.deadline_miss),
-        "deadline_misses": tm.deadline_misses,
-        "skipped": skipped,
-        "e2e_rejects": e2e_rejects,
-        "frames_used": res.frames_used,
-    }
+def _write_json_channel(w: McapWriter, cid: int, t: np.ndarray, cols: list[Column]) -> None:
+    seps = [("{" if i == 0 else ",") + f'"{c.name}":' for i, c in enumerate(cols)]
+    text, off = format_rows(cols, seps, "}", nan_text="null")
+    w.write_json_payloads(cid, t, text, off)
 
 
 def _normal_priority() -> None:
@@ -216,19 +339,13 @@ def _normal_priority() -> None:
 def _sync(writer: McapWriter) -> None:
     """Write the queued messages as chunks and push them to the OS (survives a SIGKILL)."""
     writer.flush()
-    sync = getattr(writer, "sync", None)
-    if sync is not None:
-        sync()
-    else:  # lde.logio's McapWriter.flush() writes the chunks but does not flush the file object
-        fh = getattr(writer, "_f", None)
-        if fh is not None:
-            fh.flush()
+    writer.sync()
 
 
 class Recorder:
     """Writes a live run to an MCAP file (:class:`lde.logio.McapWriter`) from a background thread.
 
-    Hot-path methods (:meth:`rx`, :meth:`tx`, :meth:`step`) append to a deque and return.
+    Hot-path methods (:meth:`rx`, :meth:`tx`, :meth:`steps`) append to a deque and return.
     Use as a context manager or call :meth:`close` (idempotent; writes the summary/footer).
 
     Args:
@@ -252,11 +369,7 @@ class Recorder:
         meta = {k: str(v) for k, v in (metadata or {}).items()}
         self._writer = McapWriter(self.path, chunk_size=chunk_size, buffer_bytes=64 << 20, metadata=meta)
         w = self._writer
-        self._ch_est = w.add_json_channel(ESTIMATE_TOPIC, ESTIMATE_PROPS, title="lde.Estimate")
-        self._ch_in = w.add_json_channel(INPUTS_TOPIC, INPUTS_PROPS, title="lde.Inputs")
-        self._ch_diag = w.add_json_channel(DIAG_TOPIC, DIAG_PROPS, title="lde.Diag")
-        self._ch_events = w.add_json_channel(EVENTS_TOPIC, EVENTS_PROPS, title="lde.Events")
-        self._last_enable: int | None = None
+        self._steps = StepTopicWriter(w)
         self._ch_extra = {t: w.add_json_channel(t, props) for t, props in (extra_topics or {}).items()}
         _sync(w)
         self._q: deque[tuple[Any, ...]] = deque()
@@ -269,16 +382,21 @@ class Recorder:
 
     # ------------------------------------------------------------------ hot path
     def rx(self, msg: can.Message) -> None:
-        """A received frame (its timestamp is the receive time)."""
-        self._q.append((0, msg))
+        """A received frame (its timestamp is the receive time); its content is copied now."""
+        self._q.append(
+            (0, seconds_to_ns(msg.timestamp), msg.arbitration_id, msg.is_extended_id, bytes(msg.data))
+        )
 
     def tx(self, msg: can.Message) -> None:
-        """A sent frame (its timestamp is the send time)."""
-        self._q.append((1, msg))
+        """A sent frame (its timestamp is the send time); its content is copied now (the sender
+        may reuse the message object)."""
+        self._q.append(
+            (1, seconds_to_ns(msg.timestamp), msg.arbitration_id, msg.is_extended_id, bytes(msg.data))
+        )
 
-    def step(self, res: Any, inputs: Any, e2e_rejects: int = 0, skipped: int = 0) -> None:
-        """One step's result (:class:`lde.service.StepResult`), its sampled inputs and counters."""
-        self._q.append((2, res, inputs, e2e_rejects, skipped))
+    def steps(self, block: StepBlock, timing: Timing | None = None) -> None:
+        """Rows of steps (the recorder keeps them: pass a block that is not reused)."""
+        self._q.append((2, block, timing))
 
     def json_columns(self, topic: str, t_ns: np.ndarray, columns: dict[str, np.ndarray]) -> None:
         """Many JSON messages at once on an ``extra_topics`` channel (one per element of ``t_ns``)."""
@@ -299,39 +417,39 @@ class Recorder:
             return
         w = self._writer
         try:
+            blocks: list[StepBlock] = []
+            timings: list[Timing] = []
             while q:
                 item = q.popleft()
                 kind = item[0]
                 if kind < 2:
-                    msg = item[1]
-                    data = bytes(msg.data)
-                    w.write_frame(
-                        seconds_to_ns(msg.timestamp),
-                        int(msg.arbitration_id),
-                        bool(msg.is_extended_id),
-                        len(data),
-                        data,
-                        kind == 0,
-                    )
-                elif kind == 3:
+                    self._write_steps(blocks, timings)
+                    _, t_ns, can_id, ext, data = item
+                    w.write_frame(t_ns, int(can_id), bool(ext), len(data), data, kind == 0)
+                elif kind == 2:
+                    blocks.append(item[1])
+                    if item[2] is not None:
+                        timings.append(item[2])
+                else:
+                    self._write_steps(blocks, timings)
                     _, topic, t_arr, cols = item
                     w.write_json_columns(self._ch_extra[topic], t_arr, cols)
-                else:
-                    _, res, inputs, rejects, skipped = item
-                    t = res.t_ns
-                    rec = _estimate_record(res)
-                    w.write_json(self._ch_est, t, rec)
-                    if rec["overlay_enable"] != self._last_enable:
-                        self._last_enable = rec["overlay_enable"]
-                        w.write_json(self._ch_events, t, {"overlay_enable": self._last_enable})
-                    w.write_json(self._ch_in, t, _inputs_record(inputs))
-                    if res.timing is not None:
-                        w.write_json(self._ch_diag, t, _diag_record(res, skipped, rejects))
+            self._write_steps(blocks, timings)
             _sync(w)
         except (OSError, ValueError) as exc:  # disk full, closed file: stop recording, keep the loop
             log.error("recording to %s failed, recording stopped: %s", self.path, exc)
             q.clear()
             self.failed = True
+
+    def _write_steps(self, blocks: list[StepBlock], timings: list[Timing]) -> None:
+        """The step rows collected so far, as one columnar write (then cleared)."""
+        if not blocks:
+            return
+        block = StepBlock.concat(blocks)
+        timing = Timing.concat(timings) if len(timings) == len(blocks) else None
+        self._steps.write(block, timing)
+        blocks.clear()
+        timings.clear()
 
     # ------------------------------------------------------------------ end
     def close(self) -> None:

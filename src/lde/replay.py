@@ -1,36 +1,27 @@
-"""Batch replay: log -> FrameBatch -> signals -> 3.9 ms grid -> estimator -> overlay -> CSV / MCAP.
+"""Batch replay: a log through the one data path (:class:`lde.engine.Engine`) -> CSV / MCAP.
 
-The same semantics as the live service (:mod:`lde.service`), over whole arrays::
+Replay runs exactly what the live service runs (:mod:`lde.pipeline`): the same receiver, grid,
+corrections, estimator backend, output finalisation, overlay limiter and output encoding, over the
+log's received frames (``is_rx``; lde's own sent frames in a recording are left out) in time order.
 
-    frames (rx only)  --lde.signals.decode_batch-->  accepted samples per input (E2E receiver)
-                      --lde.grid.build_grid------->  inputs on the step grid (sample-and-hold)
-                      --backend run_batch--------->  Fw, Mw, T_align, status per step
-                      --lde.overlay--------------->  T_overlay per step (zeros until lde.overlay has
-                                                     ``run_batch_overlay``)
-
-Decoding (:func:`decode`) and the filter loop (:func:`estimate`) are separate functions so that each
-can be timed and tested alone; :func:`replay` runs both. Step times are the grid anchored at the
-first accepted MDPS frame, or, for an lde recording (``/can/tx`` and ``/lde/estimate`` present), the
-recorded step times, so that a live run is reproduced exactly.
-
-Segments: a silence of the inputs longer than :data:`lde.grid.MAX_GAP_NS` (60 s) splits the grid
-into segments, each anchored again at its own first MDPS frame (see :mod:`lde.grid`); a log that
-joins two time bases (relative and epoch timestamps) thus replays as two segments. The steps then
-jump between segments: :attr:`ReplayResult.duration_s` is the stepped time (steps x 3.9 ms) and
-:attr:`ReplayResult.segments` counts the segments; ``t`` keeps each segment's own time base.
+Step times are the anchored grid of :mod:`lde.grid` (from the first accepted MDPS frame; a silence
+of the inputs longer than :data:`lde.grid.MAX_GAP_NS` starts a new segment), or, for an lde
+recording (``/can/tx`` and ``/lde/estimate`` present), the recorded step times together with the
+recorded overlay enable input and deadline-miss bits (``/lde/events``), so that a live run is
+reproduced exactly. :attr:`ReplayResult.duration_s` is the stepped time (steps x 3.9 ms) and
+:attr:`ReplayResult.segments` counts the grid's segments; ``t`` keeps each segment's own time base.
 
 The CAN profile of a replay is the one given; when none is given (:func:`replay_log` with
 ``profile=None``, ``lde replay`` without ``--profile``), the one named in the log's ``lde`` metadata
 record (:func:`recorded_profile`: lde recordings, ``lde sim --mcap`` files), else ``lde``.
 
 Outputs: :func:`write_csv` (one row per step; ``t`` in seconds in the log's own time base) and
-:func:`write_recording` (an MCAP recording that itself replays to the same estimates; its ``lde``
-metadata record names the profile, see :func:`profile_metadata`).
+:func:`write_recording` (an MCAP recording that itself replays to the same estimates, written with
+the live recorder's topic definitions, :class:`lde.recording.StepTopicWriter`).
 """
 
 from __future__ import annotations
 
-import importlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -39,41 +30,46 @@ from typing import Any
 
 import numpy as np
 
-from .conditioning import check_profile
-from .e2e import E2EStatus
+from .backends import get_backend
+from .e2e import ReceiverStats
+from .engine import OUTPUT_MESSAGES, Engine, StepBlock
 from .errors import ConfigError, LogFormatError
 from .frames import FrameBatch
-from .grid import MAX_GAP_NS, InputGrid, build_grid
+from .grid import MAX_GAP_NS, InputGrid
 from .logio import LogData, McapWriter, read_log
 from .logio.textfmt import Column, format_rows, time_column
 from .params import Vehicle
 from .profiles import PROFILE_NAMES, Profile, load_profile
-
-# the recording format's channels and field names are lde.recording's (one definition)
-from .recording import DIAG_TOPIC, ESTIMATE_TOPIC, EVENTS_TOPIC, INPUT_FIELDS, INPUTS_TOPIC, STATUS_BITS
-from .signals import Decoded, decode_batch
+from .recording import ESTIMATE_TOPIC, EVENTS_TOPIC, StepTopicWriter
+from .status import DEADLINE_MISS, VALID
 from .units import STEP_NS
 
 __all__ = [
     "ReplayResult",
     "FrameCounts",
-    "decode",
-    "estimate",
     "replay",
     "replay_log",
     "recorded_step_times",
+    "recorded_events",
     "recorded_profile",
     "profile_metadata",
     "no_valid_note",
     "resolve_backend",
-    "receiver_diag",
     "write_csv",
     "write_recording",
+    "run_replay",
+    "read_inputs",
+    "LogInputs",
+    "ReplaySummary",
+    "CsvWriter",
+    "RecordingWriter",
+    "output_frames",
     "CSV_COLUMNS",
-    "ESTIMATE_TOPIC",
-    "INPUTS_TOPIC",
-    "DIAG_TOPIC",
+    "DEFAULT_BACKEND",
 ]
+
+#: the backend of ``lde replay`` / ``lde run`` when none is named (SPEC section 4)
+DEFAULT_BACKEND = "fixed"
 
 #: CSV columns: name, decimals, unit/meaning (the first four are the SPEC's contract)
 CSV_COLUMNS: tuple[tuple[str, int, str], ...] = (
@@ -94,30 +90,14 @@ CSV_COLUMNS: tuple[tuple[str, int, str], ...] = (
 
 # ----------------------------------------------------------------------------- results
 @dataclass(frozen=True)
-class MessageCounts:
-    """Receiver counts of one input message over the replay."""
-
-    received: int
-    used: int
-    lost: int
-    repeated: int
-    wrong_sequence: int
-    wrong_crc: int
-    malformed: int
-
-    @property
-    def rejected(self) -> int:
-        return self.repeated + self.wrong_sequence + self.wrong_crc + self.malformed
-
-
-@dataclass(frozen=True)
 class FrameCounts:
-    """Frames of a replay: total, lde's own (tx, not inputs), ignored ids, per input message."""
+    """Frames of a replay: total, lde's own (tx, not inputs), ignored ids, per input message
+    (:class:`lde.e2e.ReceiverStats`: received = used + rejected + resync; malformed apart)."""
 
     total: int
     tx: int
     ignored: int
-    messages: dict[str, MessageCounts]
+    messages: dict[str, ReceiverStats]
 
     @property
     def used(self) -> int:
@@ -125,7 +105,12 @@ class FrameCounts:
 
     @property
     def rejected(self) -> int:
-        return sum(m.rejected for m in self.messages.values())
+        """E2E rejections plus malformed frames."""
+        return sum(m.rejected + m.malformed for m in self.messages.values())
+
+    @property
+    def resync(self) -> int:
+        return sum(m.resync for m in self.messages.values())
 
     def rejected_by_cause(self) -> dict[str, int]:
         out = {"repeated": 0, "wrong_sequence": 0, "wrong_crc": 0, "malformed": 0}
@@ -140,22 +125,21 @@ class ReplayResult:
     """One row per estimator step (SI, ISO 8855 signs; ``t_align`` with the paper's sign).
 
     Attributes:
+        block: the engine's rows (:class:`lde.engine.StepBlock`: every column, the output frames).
         t_ns: int64 step times [ns], the log's own time base.
         fw [N], mw [Nm], t_align [Nm], t_overlay [Nm], beta [rad], yaw_rate [rad/s]: float64.
-        status: uint8 ``LDE_Estimate.Status`` bits.
-        overlay_state: uint8 limiter state; overlay_active: bool.
-        grid: the estimator inputs on the grid.
-        frames: frame counts (used / rejected by cause).
-        backend: ``"float"`` or ``"fixed"``; overlay: False when T_overlay is zeros (no lde.overlay).
+        status: uint8 ``LDE_Estimate.Status`` bits; overlay_state: uint8; overlay_active: bool.
+        grid: the estimator inputs at the steps.
+        frames: frame counts (used / rejected by cause / re-synchronising).
+        backend: the backend's name.
         recorded_steps: True when the step times came from a recording.
-        timings: seconds spent per stage (decode, grid, filter, overlay).
-        diag: per-step receiver diagnostics (:func:`receiver_diag`): ``frames_used`` (input frames
-            accepted since the previous step), ``e2e_rejects`` (frames rejected since the start).
-        profile: the CAN profile used (set by :func:`replay_log`; None from :func:`replay`).
-        profile_origin: where it came from: ``"given"``, ``"recording"`` (the log's ``lde``
-            metadata record) or ``"default"`` (``lde``); empty from :func:`replay`.
+        timings: seconds spent per stage.
+        diag: per step ``frames_used`` (input frames accepted since the previous step) and
+            ``e2e_rejects`` (frames rejected since the start), as the live ``LDE_Diag``.
+        profile: the CAN profile used; profile_origin: ``"given"``, ``"recording"`` or ``"default"``.
     """
 
+    block: StepBlock
     t_ns: np.ndarray
     fw: np.ndarray
     mw: np.ndarray
@@ -169,12 +153,33 @@ class ReplayResult:
     grid: InputGrid
     frames: FrameCounts
     backend: str
-    overlay: bool
     recorded_steps: bool = False
     timings: dict[str, float] = field(default_factory=dict)
     diag: dict[str, np.ndarray] = field(default_factory=dict)
     profile: Profile | None = None
     profile_origin: str = ""
+
+    @classmethod
+    def of(cls, block: StepBlock, frames: FrameCounts, backend: str, **kw: Any) -> ReplayResult:
+        b = block
+        return cls(
+            block=b,
+            t_ns=b.t_ns,
+            fw=b.fw.copy(),
+            mw=b.mw.copy(),
+            t_align=b.t_align.copy(),
+            t_overlay=b.t_overlay,
+            status=b.status,
+            overlay_state=b.overlay_state,
+            overlay_active=b.overlay_active,
+            beta=b.beta.copy(),
+            yaw_rate=b.yaw_rate.copy(),
+            grid=InputGrid.from_columns(b.t_ns, b.inputs, b.ages, b.valid_mask, b.ok),
+            frames=frames,
+            backend=backend,
+            diag={"frames_used": b.frames_used, "e2e_rejects": b.e2e_rejects},
+            **kw,
+        )
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -213,117 +218,111 @@ class ReplayResult:
 
 # ----------------------------------------------------------------------------- backends
 def resolve_backend(backend: str | None) -> tuple[str, Callable[..., Any], str]:
-    """(name, run_batch, note). ``None`` -> ``fixed`` if :mod:`firmware_model` has ``run_batch``,
-    else ``float`` with a note. Unknown names and an unavailable ``fixed`` raise ConfigError."""
-    fixed = None
-    try:
-        fm = importlib.import_module("firmware_model")
-        fixed = getattr(fm, "run_batch", None)
-    except ImportError:
-        fm = None
-    if backend is None:
-        if fixed is not None:
-            return "fixed", fixed, ""
-        from .step import run_batch
-
-        return "float", run_batch, "fixed-point backend not available (firmware_model.run_batch): using float"
-    if backend == "float":
-        from .step import run_batch
-
-        return "float", run_batch, ""
-    if backend == "fixed":
-        if fixed is None:
-            raise ConfigError("backend 'fixed' is not available: firmware_model has no run_batch")
-        return "fixed", fixed, ""
-    raise ConfigError(f"unknown backend {backend!r}: use 'fixed' or 'float'")
+    """(name, the backend's array-API ``run_batch``, note) from the registry (:mod:`lde.backends`);
+    ``None`` is :data:`DEFAULT_BACKEND`. An unknown name raises ConfigError (never a fallback)."""
+    b = get_backend(DEFAULT_BACKEND if backend is None else backend)
+    return b.name, b.run_batch, ""
 
 
-# ----------------------------------------------------------------------------- pipeline
-def decode(frames: FrameBatch, profile: Profile) -> tuple[Decoded, int]:
-    """Decode the received frames (``is_rx``); returns (decoded, number of tx frames left out)."""
-    rx = frames.is_rx
-    n_tx = int(np.count_nonzero(~rx))
-    return decode_batch(profile, frames if n_tx == 0 else frames.select(rx)), n_tx
+# ----------------------------------------------------------------------------- the path
+#: frames per call of the engine: bounds the memory of a replay, whatever the log's length
+CHUNK_FRAMES = 1 << 18
+
+Sink = Callable[[FrameBatch, StepBlock], None]
 
 
-def _frame_counts(decoded: Decoded, n_tx: int) -> FrameCounts:
-    msgs = {}
-    for name, m in decoded.messages.items():
-        s = m.stats
-        msgs[name] = MessageCounts(
-            received=s.received,
-            used=s.used,
-            lost=s.lost,
-            repeated=s.repeated,
-            wrong_sequence=s.wrong_sequence,
-            wrong_crc=s.wrong_crc,
-            malformed=s.malformed,
-        )
-    return FrameCounts(total=decoded.n_frames + n_tx, tx=n_tx, ignored=decoded.n_ignored, messages=msgs)
+@dataclass
+class ReplaySummary:
+    """What a streamed replay reports (its rows went to the sinks).
+
+    Attributes:
+        steps: rows produced; valid_steps: rows with the VALID bit; segments: runs of steps without a
+            gap longer than :data:`lde.grid.MAX_GAP_NS`; frames: frame counts; backend; recorded_steps;
+            timings [s]; profile, profile_origin (as :class:`ReplayResult`).
+    """
+
+    steps: int
+    valid_steps: int
+    segments: int
+    frames: FrameCounts
+    backend: str
+    recorded_steps: bool = False
+    timings: dict[str, float] = field(default_factory=dict)
+    profile: Profile | None = None
+    profile_origin: str = ""
+
+    def __len__(self) -> int:
+        return self.steps
+
+    @property
+    def duration_s(self) -> float:
+        """Stepped time [s]: steps x STEP_NS."""
+        return self.steps * STEP_NS * 1e-9
 
 
-_REJECTED = (E2EStatus.REPEATED, E2EStatus.WRONGSEQUENCE, E2EStatus.WRONGCRC)
-
-
-def receiver_diag(decoded: Decoded, t_ns: np.ndarray) -> dict[str, np.ndarray]:
-    """Per step k (time t_k): ``frames_used`` = input frames accepted in (t_{k-1}, t_k] (all up to
-    t_0 for the first step) and ``e2e_rejects`` = frames rejected (E2E repeated / wrong sequence /
-    wrong CRC, or a wrong length) with time <= t_k, like the live service's ``LDE_Diag``."""
-    t = np.asarray(t_ns, np.int64)
-    used = np.zeros(t.size, np.int64)
-    rejects = np.zeros(t.size, np.int64)
-    for m in decoded.messages.values():
-        acc_t = m.t_ns[m.accepted]
-        used += np.searchsorted(acc_t, t, side="right")
-        bad_t = np.sort(np.concatenate([m.t_ns[np.isin(m.status, _REJECTED)], m.malformed_t_ns]))
-        rejects += np.searchsorted(bad_t, t, side="right")
-    frames_used = np.diff(used, prepend=0)
-    return {"frames_used": frames_used, "e2e_rejects": rejects}
-
-
-def estimate(grid: InputGrid, vehicle: Vehicle, run_batch: Callable[..., Any]) -> Any:
-    """The filter loop over the grid (a backend's ``run_batch``) -> its BatchResult."""
-    return run_batch(
-        grid.t_ns,
-        grid.speed,
-        grid.steering_angle,
-        grid.yaw_rate,
-        grid.column_torque,
-        grid.assist_torque,
-        grid.mdps_ok,
-        grid.esc_ok,
-        vehicle,
-        steering_rate=grid.steering_rate,
+def run_replay(
+    frames: FrameBatch,
+    profile: Profile,
+    vehicle: Vehicle,
+    backend: str | None = "float",
+    *,
+    sinks: tuple[Sink, ...] = (),
+    step_times_ns: np.ndarray | None = None,
+    tx_frames: int | None = None,
+    overlay_enable: np.ndarray | None = None,
+    extra_status: np.ndarray | None = None,
+    output_frames: bool = True,
+    chunk_frames: int = CHUNK_FRAMES,
+) -> ReplaySummary:
+    """Stream ``frames`` (any order) through the data path in chunks; every chunk's rows go to each
+    sink as ``sink(chunk_frames, rows)``. Arguments as :func:`replay`."""
+    name = DEFAULT_BACKEND if backend is None else backend
+    t0 = time.perf_counter()
+    explicit = step_times_ns is not None
+    engine = Engine(profile, vehicle, name, explicit=explicit, encode_outputs=output_frames)
+    fs = frames.sort()
+    n_tx = int(np.count_nonzero(~fs.is_rx))
+    steps = valid = gaps = 0
+    last_t: int | None = None
+    t_sinks = 0.0
+    n = len(fs)
+    starts = range(0, max(n, 1), chunk_frames)
+    for k, a in enumerate(starts):
+        chunk = fs if n <= chunk_frames else fs.take(np.arange(a, min(a + chunk_frames, n)))
+        kw: dict[str, Any] = {}
+        if explicit and k == 0:
+            times = np.ascontiguousarray(step_times_ns, np.int64)
+            en = overlay_enable if overlay_enable is not None and len(overlay_enable) == len(times) else None
+            ex = extra_status if extra_status is not None and len(extra_status) == len(times) else None
+            kw = {"step_times": times, "enable": en, "extra_status": ex}
+        block = engine.feed(chunk, final=k == len(starts) - 1, **kw)
+        m = len(block)
+        if m:
+            steps += m
+            valid += int(np.count_nonzero(block.status & VALID))
+            t = block.t_ns
+            gaps += int(np.count_nonzero(np.diff(t) > MAX_GAP_NS))
+            if last_t is not None and int(t[0]) - last_t > MAX_GAP_NS:
+                gaps += 1
+            last_t = int(t[-1])
+        ts = time.perf_counter()
+        for sink in sinks:
+            sink(chunk, block)
+        t_sinks += time.perf_counter() - ts
+    counts = FrameCounts(
+        total=n,
+        tx=n_tx if tx_frames is None else tx_frames,
+        ignored=engine.n_ignored,
+        messages=engine.stats(),
     )
-
-
-def _overlay(
-    est: Any, grid: InputGrid, vehicle: Vehicle, enable: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    """T_overlay [Nm], limiter state, active per step from :func:`lde.overlay.run_batch_overlay` (the
-    live limiter's kernel), or zeros when :mod:`lde.overlay` is not there. ``enable``: the limiter's
-    enable input per step (a recording's, see :func:`recorded_overlay_enable`; default all on)."""
-    n = len(grid)
-    try:
-        from .overlay import run_batch_overlay
-    except ImportError:
-        return np.zeros(n), np.zeros(n, np.uint8), np.zeros(n, np.bool_), False
-    t_ov, active, state = run_batch_overlay(
-        grid.t_ns,
-        est.fw,
-        est.mw,
-        est.status,
-        grid.speed,
-        grid.steering_angle,
-        grid.column_torque,
-        vehicle,
-        enable=enable,
-    )
-    return (
-        np.asarray(t_ov, np.float64),
-        np.asarray(state).astype(np.uint8),
-        np.asarray(active).astype(np.bool_),
-        True,
+    return ReplaySummary(
+        steps=steps,
+        valid_steps=valid,
+        segments=(gaps + 1) if steps else 0,
+        frames=counts,
+        backend=engine.backend.name,
+        recorded_steps=explicit,
+        timings={"engine": time.perf_counter() - t0 - t_sinks, "outputs": t_sinks},
     )
 
 
@@ -336,54 +335,39 @@ def replay(
     step_times_ns: np.ndarray | None = None,
     tx_frames: int | None = None,
     overlay_enable: np.ndarray | None = None,
+    extra_status: np.ndarray | None = None,
+    output_frames: bool = True,
 ) -> ReplayResult:
-    """Replay ``frames`` (any order) through the estimator.
+    """Replay ``frames`` (any order) through the data path; every row is kept (:class:`ReplayResult`).
 
     Args:
         frames: the log's frames; only received ones (``is_rx``) are inputs.
         profile: CAN profile (:func:`lde.profiles.load_profile`).
         vehicle: parameters and tuning (:func:`lde.params.load_vehicle`).
-        backend: ``"float"``, ``"fixed"`` or None (fixed if available, else float).
-        step_times_ns: explicit step times (a recording's); default the grid from the first
-            accepted MDPS frame to the last frame.
+        backend: a registered backend name (None: :data:`DEFAULT_BACKEND`).
+        step_times_ns: explicit step times (a recording's; non-decreasing); default the anchored grid.
         tx_frames: the log's count of frames lde sent, when the reader did not return them all.
-        overlay_enable: the overlay limiter's enable input per step (bool, one per step of
-            ``step_times_ns``; a recording's, so that a run ended by a signal replays exactly).
+        overlay_enable: the overlay limiter's enable input per step of ``step_times_ns`` (a
+            recording's, so that a run ended by a signal replays exactly); default all on.
+        extra_status: status bits to add per step of ``step_times_ns`` (a recording's DEADLINE_MISS).
+        output_frames: encode lde's output frames (needed by :func:`write_recording`).
     """
-    name, run_batch, _note = resolve_backend(backend)
-    check_profile(vehicle, profile.steering_rate_signed, profile.name)
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    decoded, n_tx = decode(frames, profile)
-    t1 = time.perf_counter()
-    grid = build_grid(decoded, profile, step_times_ns=step_times_ns)
-    t2 = time.perf_counter()
-    est = estimate(grid, vehicle, run_batch)
-    t3 = time.perf_counter()
-    if overlay_enable is not None and len(overlay_enable) != len(grid):
-        overlay_enable = None  # not this grid's steps (e.g. --no-recorded-steps): all on
-    t_ov, ov_state, ov_active, have_overlay = _overlay(est, grid, vehicle, overlay_enable)
-    t4 = time.perf_counter()
-    diag = receiver_diag(decoded, grid.t_ns)
-    timings.update(decode=t1 - t0, grid=t2 - t1, filter=t3 - t2, overlay=t4 - t3)
-    return ReplayResult(
-        t_ns=np.asarray(grid.t_ns, np.int64),
-        fw=np.asarray(est.fw, np.float64),
-        mw=np.asarray(est.mw, np.float64),
-        t_align=np.asarray(est.t_align, np.float64),
-        t_overlay=t_ov,
-        status=np.asarray(est.status).astype(np.uint8),
-        overlay_state=ov_state,
-        overlay_active=ov_active,
-        beta=np.asarray(est.beta, np.float64),
-        yaw_rate=np.asarray(est.yaw_rate, np.float64),
-        grid=grid,
-        frames=_frame_counts(decoded, n_tx if tx_frames is None else tx_frames),
-        backend=name,
-        overlay=have_overlay,
-        recorded_steps=step_times_ns is not None,
-        timings=timings,
-        diag=diag,
+    blocks: list[StepBlock] = []
+    summary = run_replay(
+        frames,
+        profile,
+        vehicle,
+        backend,
+        sinks=(lambda _frames, rows: blocks.append(rows),),
+        step_times_ns=step_times_ns,
+        tx_frames=tx_frames,
+        overlay_enable=overlay_enable,
+        extra_status=extra_status,
+        output_frames=output_frames,
+    )
+    block = StepBlock.concat(blocks) if len(blocks) != 1 else blocks[0]
+    return ReplayResult.of(
+        block, summary.frames, summary.backend, recorded_steps=summary.recorded_steps, timings=summary.timings
     )
 
 
@@ -399,21 +383,30 @@ def recorded_step_times(log: LogData) -> np.ndarray | None:
     return np.asarray(m.times[ESTIMATE_TOPIC], np.int64)
 
 
-def recorded_overlay_enable(log: LogData, step_times_ns: np.ndarray | None) -> np.ndarray | None:
-    """The overlay limiter's enable input at each recorded step, from the sparse ``/lde/events``
-    channel (sample-and-hold: an event at t_k applies from step t_k on); None when the log has none."""
+def recorded_events(
+    log: LogData, step_times_ns: np.ndarray | None
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(overlay enable, extra status) at each recorded step from the sparse ``/lde/events`` channel:
+    the limiter's enable input sample-and-hold (an event at t_k applies from step t_k on) and
+    DEADLINE_MISS at the steps whose event says so. (None, None) when the log has no events."""
     m = log.mcap
     if m is None or step_times_ns is None or EVENTS_TOPIC not in m.json:
-        return None
+        return None, None
     ev = m.json[EVENTS_TOPIC]
     t_ev = np.asarray(ev.get("log_time", []), np.int64)
     val = np.asarray(ev.get("overlay_enable", []))
     if len(t_ev) == 0 or len(val) != len(t_ev):
-        return None
+        return None, None
     order = np.argsort(t_ev, kind="stable")
     t_ev, val = t_ev[order], val[order]
     idx = np.searchsorted(t_ev, step_times_ns, side="right") - 1
-    return np.where(idx >= 0, val[np.maximum(idx, 0)] != 0, True)
+    enable = np.where(idx >= 0, val[np.maximum(idx, 0)] != 0, True)
+    extra = np.zeros(len(step_times_ns), np.uint8)
+    miss = np.asarray(ev.get("deadline_miss", np.zeros(len(order))))[order]
+    t_miss = t_ev[np.nan_to_num(miss) != 0]
+    if t_miss.size:
+        extra[np.isin(step_times_ns, t_miss)] = DEADLINE_MISS
+    return enable, extra
 
 
 def profile_metadata(profile: Profile) -> dict[str, str]:
@@ -449,10 +442,13 @@ def recorded_profile(log: LogData) -> str | None:
     return None
 
 
-def no_valid_note(res: ReplayResult) -> str | None:
+def no_valid_note(res: ReplayResult | ReplaySummary) -> str | None:
     """A one-line explanation when a replay has steps but not one VALID estimate (all zeros: most
     often the wrong CAN profile), else None."""
-    if len(res) == 0 or np.any(res.status & 1):
+    if isinstance(res, ReplaySummary):
+        if res.steps == 0 or res.valid_steps:
+            return None
+    elif len(res) == 0 or np.any(res.status & VALID):
         return None
     anchor = res.profile.anchor_message if res.profile is not None else ""
     m = res.frames.messages.get(anchor)
@@ -469,20 +465,31 @@ def no_valid_note(res: ReplayResult) -> str | None:
     return f"no valid estimate: {why} — wrong --profile? (used {res.profile.name}, {origin})"
 
 
-def replay_log(
+@dataclass
+class LogInputs:
+    """A log read for a replay: the frames and what an lde recording adds (step times, events)."""
+
+    log: LogData
+    profile: Profile
+    profile_origin: str
+    step_times_ns: np.ndarray | None
+    overlay_enable: np.ndarray | None
+    extra_status: np.ndarray | None
+    tx_frames: int | None
+    read_s: float
+
+
+def read_inputs(
     path: str | Path,
     profile: Profile | None,
-    vehicle: Vehicle,
-    backend: str | None = "float",
     *,
     use_recorded_steps: bool = True,
     profiles: dict[str, Profile] | None = None,
-) -> tuple[LogData, ReplayResult]:
-    """Read a log (any format of :func:`lde.logio.read_log`) and replay it.
-
-    An lde recording is replayed on its recorded step times unless ``use_recorded_steps`` is False.
-    ``profile`` None: the profile the log names (:func:`recorded_profile`), else ``lde``;
-    ``profiles`` caches loaded profiles by name across calls.
+) -> LogInputs:
+    """Read a log (any format of :func:`lde.logio.read_log`) for a replay. ``profile`` None: the
+    profile the log names (:func:`recorded_profile`), else ``lde``; ``profiles`` caches loaded
+    profiles by name across calls. An lde recording's step times are used unless
+    ``use_recorded_steps`` is False.
 
     Raises:
         LogFormatError: unreadable log. ConfigError: a recorded profile that cannot be loaded.
@@ -499,102 +506,160 @@ def replay_log(
             cache[key] = load_profile(key)
         profile = cache[key]
     steps = recorded_step_times(log) if use_recorded_steps else None
-    enable = recorded_overlay_enable(log, steps)
+    enable, extra = recorded_events(log, steps)
     n_tx = None
     if log.mcap is not None and "/can/tx" in log.mcap.topics:
         n_tx = log.mcap.topics["/can/tx"].count
-    t1 = time.perf_counter()
+    return LogInputs(log, profile, origin, steps, enable, extra, n_tx, time.perf_counter() - t0)
+
+
+def replay_log(
+    path: str | Path,
+    profile: Profile | None,
+    vehicle: Vehicle,
+    backend: str | None = "float",
+    *,
+    use_recorded_steps: bool = True,
+    profiles: dict[str, Profile] | None = None,
+    output_frames: bool = True,
+) -> tuple[LogData, ReplayResult]:
+    """Read a log (:func:`read_inputs`) and replay it, every row kept (:func:`replay`).
+
+    Raises:
+        LogFormatError: unreadable log. ConfigError: a recorded profile that cannot be loaded.
+    """
+    li = read_inputs(path, profile, use_recorded_steps=use_recorded_steps, profiles=profiles)
     res = replay(
-        log.frames, profile, vehicle, backend, step_times_ns=steps, tx_frames=n_tx, overlay_enable=enable
+        li.log.frames,
+        li.profile,
+        vehicle,
+        backend,
+        step_times_ns=li.step_times_ns,
+        tx_frames=li.tx_frames,
+        overlay_enable=li.overlay_enable,
+        extra_status=li.extra_status,
+        output_frames=output_frames,
     )
-    res.timings = {"read": t1 - t0, **res.timings}
-    res.profile, res.profile_origin = profile, origin
-    return log, res
+    res.timings = {"read": li.read_s, **res.timings}
+    res.profile, res.profile_origin = li.profile, li.profile_origin
+    return li.log, res
 
 
 # ----------------------------------------------------------------------------- outputs
-def _csv_columns(res: ReplayResult) -> list[Column]:
+def _csv_columns(b: StepBlock) -> list[Column]:
     data: dict[str, np.ndarray] = {
-        "Fw": res.fw,
-        "Mw": res.mw,
-        "T_overlay": res.t_overlay,
-        "T_align": res.t_align,
-        "status": res.status,
-        "overlay_state": res.overlay_state,
-        "beta": res.beta,
-        "yaw_rate": res.yaw_rate,
-        "speed": res.grid.speed,
-        "mdps_ok": res.grid.mdps_ok,
-        "esc_ok": res.grid.esc_ok,
+        "Fw": b.fw,
+        "Mw": b.mw,
+        "T_overlay": b.t_overlay,
+        "T_align": b.t_align,
+        "status": b.status,
+        "overlay_state": b.overlay_state,
+        "beta": b.beta,
+        "yaw_rate": b.yaw_rate,
+        "speed": b.input("speed"),
+        "mdps_ok": b.mdps_ok,
+        "esc_ok": b.esc_ok,
     }
-    cols = [time_column("t", res.t_ns)]
+    cols = [time_column("t", b.t_ns)]
     cols += [Column(name, data[name], dec) for name, dec, _ in CSV_COLUMNS[1:]]
     return cols
 
 
+class CsvWriter:
+    """The replay CSV (:data:`CSV_COLUMNS`; NaN as ``nan``) written block by block: a sink of
+    :func:`run_replay`. ``t`` is the step time in seconds in the log's own time base, printed exactly
+    from the integer ns (6 decimals when every step time of a block is a whole microsecond, else 9)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        try:
+            self._fh = open(self.path, "wb")  # noqa: SIM115 - closed by close()
+            self._fh.write((",".join(name for name, _, _ in CSV_COLUMNS) + "\n").encode())
+        except OSError as exc:
+            raise LogFormatError(f"{path}: cannot write: {exc}") from exc
+
+    def write(self, block: StepBlock) -> None:
+        if len(block) == 0:
+            return
+        cols = _csv_columns(block)
+        text, _ = format_rows(cols, [""] + [","] * (len(cols) - 1), "\n")
+        try:
+            self._fh.write(text.data)
+        except OSError as exc:
+            raise LogFormatError(f"{self.path}: cannot write: {exc}") from exc
+
+    def __call__(self, _frames: FrameBatch, block: StepBlock) -> None:
+        self.write(block)
+
+    def close(self) -> None:
+        try:
+            self._fh.close()
+        except OSError as exc:
+            raise LogFormatError(f"{self.path}: cannot write: {exc}") from exc
+
+    def __enter__(self) -> CsvWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def write_csv(path: str | Path, res: ReplayResult) -> None:
-    """CSV with a header and one row per step (columns :data:`CSV_COLUMNS`; NaN as ``nan``).
-
-    ``t`` is the step time in seconds in the log's own time base, printed exactly from the integer
-    ns (6 decimals when all step times are whole microseconds, else 9).
-    """
-    cols = _csv_columns(res)
-    text, _ = format_rows(cols, [""] + [","] * (len(cols) - 1), "\n")
-    try:
-        with open(path, "wb") as fh:
-            fh.write((",".join(c.name for c in cols) + "\n").encode())
-            fh.write(text.data)
-    except OSError as exc:
-        raise LogFormatError(f"{path}: cannot write: {exc}") from exc
+    """A replay's rows as CSV (:class:`CsvWriter`)."""
+    with CsvWriter(path) as w:
+        w.write(res.block)
 
 
-def _json_payloads(columns: list[Column]) -> tuple[np.ndarray, np.ndarray]:
-    seps = [("{" if i == 0 else ",") + f'"{c.name}":' for i, c in enumerate(columns)]
-    return format_rows(columns, seps, "}", nan_text="null")
+class RecordingWriter:
+    """An lde MCAP recording of a replay, written block by block (a sink of :func:`run_replay`):
+    the input frames (``/can/rx``), lde's output frames (``/can/tx``, as the engine encoded them) and
+    the step topics (:class:`lde.recording.StepTopicWriter`). It replays to the same estimates."""
+
+    def __init__(self, path: str | Path, profile: Profile, metadata: dict[str, str] | None = None) -> None:
+        self._w = McapWriter(path, metadata=metadata)
+        self._steps = StepTopicWriter(self._w)
+        self._ids = np.array([profile.spec(m).frame_id for m in OUTPUT_MESSAGES], np.uint32)
+        self._lens = np.array([profile.spec(m).length for m in OUTPUT_MESSAGES], np.uint8)
+
+    def __call__(self, frames: FrameBatch, block: StepBlock) -> None:
+        rx = frames.select(frames.is_rx) if not frames.is_rx.all() else frames
+        self._w.write_frames(rx)
+        self.write_block(block)
+
+    def write_block(self, block: StepBlock, extra_frames: FrameBatch | None = None) -> None:
+        self._w.write_frames(_output_frames(block, self._ids, self._lens))
+        if extra_frames is not None:
+            self._w.write_frames(extra_frames)
+        self._steps.write(block)
+
+    def close(self) -> None:
+        self._w.close()
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _output_frames(b: StepBlock, ids: np.ndarray, lens: np.ndarray) -> FrameBatch:
+    n, k = len(b), len(ids)
+    return FrameBatch(
+        t_ns=np.repeat(b.t_ns, k),
+        can_id=np.tile(ids, n),
+        is_extended=np.zeros(n * k, np.bool_),
+        dlc=np.tile(lens, n),
+        data=b.frames.reshape(n * k, 8),
+        is_rx=np.zeros(n * k, np.bool_),
+    )
 
 
 def output_frames(res: ReplayResult, profile: Profile) -> FrameBatch:
-    """lde's sent frames per step, ``LDE_Estimate`` then ``LDE_Overlay`` (E2E counters and CRCs by
-    :func:`lde.codec.encode_batch`), stamped with the step time, ``is_rx`` False."""
-    from .codec import encode_batch
-
-    n = len(res)
-    est = encode_batch(
-        profile,
-        "LDE_Estimate",
-        {
-            "LatForce": np.nan_to_num(res.fw),
-            "YawMoment": np.nan_to_num(res.mw),
-            "AligningTorque": np.nan_to_num(res.t_align),
-            "Status": res.status.astype(np.float64),
-        },
-    )
-    ovl = encode_batch(
-        profile,
-        "LDE_Overlay",
-        {
-            "OverlayTorque": np.nan_to_num(res.t_overlay),
-            "Active": res.overlay_active.astype(np.float64),
-            "State": res.overlay_state.astype(np.float64),
-        },
-    )
-    batches = []
-    for name, data in (("LDE_Estimate", est), ("LDE_Overlay", ovl)):
-        spec = profile.spec(name)
-        batches.append(
-            FrameBatch(
-                t_ns=res.t_ns,
-                can_id=np.full(n, spec.frame_id),
-                is_extended=np.zeros(n, np.bool_),
-                dlc=np.full(n, spec.length),
-                data=data,
-                is_rx=np.zeros(n, np.bool_),
-            )
-        )
-    # interleave per step: estimate, overlay (stable sort keeps this order at equal times)
-    both = FrameBatch.concat(batches, sort=False)
-    order = np.argsort(np.concatenate([np.arange(n) * 2, np.arange(n) * 2 + 1]), kind="stable")
-    return both.take(order)
+    """lde's sent frames per step as the engine encoded them (:data:`lde.engine.OUTPUT_MESSAGES`:
+    ``LDE_Estimate`` then ``LDE_Overlay``), stamped with the step time, ``is_rx`` False."""
+    ids = np.array([profile.spec(m).frame_id for m in OUTPUT_MESSAGES], np.uint32)
+    lens = np.array([profile.spec(m).length for m in OUTPUT_MESSAGES], np.uint8)
+    return _output_frames(res.block, ids, lens)
 
 
 def write_recording(
@@ -606,46 +671,9 @@ def write_recording(
     metadata: dict[str, str] | None = None,
     extra_frames: FrameBatch | None = None,
 ) -> None:
-    """An lde MCAP recording of a replay: the input frames (``/can/rx``), the frames lde sends
-    (``/can/tx``), and per step ``/lde/estimate``, ``/lde/inputs``, ``/lde/diag`` (JSON).
-
-    Replaying it (:func:`replay_log`) uses the recorded step times and gives the same estimates.
-    ``extra_frames`` are recorded too (``/can/rx`` or ``/can/tx`` by their ``is_rx``).
-    """
-    rx = frames.select(frames.is_rx) if not frames.is_rx.all() else frames
-    with McapWriter(path, metadata=metadata) as w:
-        w.write_frames(rx)
-        w.write_frames(output_frames(res, profile))
-        if extra_frames is not None:
-            w.write_frames(extra_frames)
-        t = res.t_ns
-        bits = {b: (res.status >> i) & 1 for i, b in enumerate(STATUS_BITS)}
-        est_cols = [
-            Column("t_ns", t, 0),
-            time_column("t", t),
-            Column("Fw", res.fw, 3),
-            Column("Mw", res.mw, 3),
-            Column("T_align", res.t_align, 4),
-            Column("T_overlay", res.t_overlay, 4),
-            Column("overlay_state", res.overlay_state, 0),
-            Column("overlay_active", res.overlay_active, 0),
-            Column("status", res.status, 0),
-            Column("beta", res.beta, 7),
-            Column("yaw_rate", res.yaw_rate, 6),
-            *[Column(b, v, 0) for b, v in bits.items()],
-        ]
-        _write_json_channel(w, ESTIMATE_TOPIC, "lde.Estimate", t, est_cols)
-        g = res.grid
-        in_cols = [Column("t_ns", t, 0)] + [Column(n, g.values(n), 6) for n in INPUT_FIELDS]
-        in_cols += [Column("mdps_ok", g.mdps_ok, 0), Column("esc_ok", g.esc_ok, 0)]
-        _write_json_channel(w, INPUTS_TOPIC, "lde.Inputs", t, in_cols)
-        diag_cols = [Column("t_ns", t, 0), Column("status", res.status, 0)]
-        diag_cols += [Column(k, v, 0) for k, v in res.diag.items()]
-        _write_json_channel(w, DIAG_TOPIC, "lde.Diag", t, diag_cols)
-
-
-def _write_json_channel(w: McapWriter, topic: str, title: str, t: np.ndarray, cols: list[Column]) -> None:
-    props = {c.name: {"type": "integer" if (c.decimals == 0 and not c.prescaled) else "number"} for c in cols}
-    cid = w.add_json_channel(topic, props, title=title)
-    text, off = _json_payloads(cols)
-    w.write_json_payloads(cid, t, text, off)
+    """An lde MCAP recording of a replay (:class:`RecordingWriter` over all of it at once).
+    ``extra_frames`` are recorded too (``/can/rx`` or ``/can/tx`` by their ``is_rx``)."""
+    with RecordingWriter(path, profile, metadata) as w:
+        rx = frames.select(frames.is_rx) if not frames.is_rx.all() else frames
+        w._w.write_frames(rx)
+        w.write_block(res.block, extra_frames)

@@ -1,4 +1,4 @@
-"""The live service: one estimator step every 3.9 ms on absolute deadlines.
+"""The live service: one step of the data path every 3.9 ms on absolute deadlines.
 
 One step (:meth:`Service.step_once`) at step time ``t_k``:
 
@@ -8,22 +8,22 @@ One step (:meth:`Service.step_once`) at step time ``t_k``:
    reached the socket only after that step's drain: seen in user-mode Linux with a real-time
    sender) is re-stamped to the first microsecond after the previous step and counted
    (``Service.late_rx``), so that the recording says when it could be used;
-2. feed the E2E receiver (:class:`lde.signals.Receiver`) with exactly the frames whose receive
-   timestamp is ``<= t_k``, in timestamp order; later frames stay buffered for the next step;
-3. sample the latest valid inputs (sample-and-hold, staleness) at ``t_k``;
-4. one Kalman step (backend ``fixed`` = :mod:`firmware_model` or ``float`` = :mod:`lde.step`);
-5. the overlay feed-forward law and limiter (:mod:`lde.overlay`);
-6. send ``LDE_Estimate`` and ``LDE_Overlay`` (counters and CRCs by :mod:`lde.codec`), then
-   ``LDE_Diag`` with this step's timing;
-7. hand the received and sent frames, the estimate and the diagnostics to the recorder (a queue:
-   the writing happens in the recorder's thread).
+2. run the data path (:class:`lde.engine.Engine`, explicit step times) with the pending frames in
+   time order: exactly those with receive time ``<= t_k`` are fed, then the step at ``t_k`` runs
+   (inputs, corrections, backend step, finalisation, overlay limiter, output frames), a late start
+   adding DEADLINE_MISS to its status; later frames stay pending for the next step;
+3. send the engine's ``LDE_Estimate`` and ``LDE_Overlay`` frames, then ``LDE_Diag`` with this step's
+   timing;
+4. hand the received and sent frames, the step's row and its timing to the recorder (a queue: the
+   writing happens in the recorder's thread).
 
-Determinism: the step uses nothing but (the frames with receive time ``<= t_k``, ``t_k``), so a replay
-of the recording on the recorded step times (``/lde/estimate`` field ``t_ns``) with the same
-receiver and grid semantics gives the same ``Fw``, ``Mw`` and ``T_overlay`` bit for bit.
+Determinism: the step uses nothing but (the frames with receive time ``<= t_k``, ``t_k``, the
+overlay enable input, the deadline-miss bit), all of which the recording keeps, so a replay of the
+recording (:func:`lde.replay.replay_log`) runs the same engine on the same inputs and gives the same
+rows bit for bit.
 
 Time bases: the loop's deadlines live on the service's :class:`lde.clock` clock (monotonic live,
-simulated in the demo); step times ``t_k`` handed to the estimator and written to the recording live
+simulated in the demo); step times ``t_k`` handed to the engine and written to the recording live
 in the *bus's* time base (the frames' receive timestamps: epoch time for SocketCAN and python-can's
 virtual bus). ``t_k = t_clock + offset`` with ``offset`` measured once at start
 (``time.time_ns() - clock.now_ns()`` for a live clock, 0 for a simulated one).
@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import gc
 import logging
-import math
 import threading
 import time
 from collections.abc import Callable
@@ -41,21 +40,27 @@ from dataclasses import dataclass
 from typing import Any
 
 import can
+import numpy as np
 
-from .conditioning import check_profile
+from .clock import SimulatedClock
+from .codec import MessageEncoder
 from .diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummary, diag_signals
-from .errors import BusError, ConfigError
-from .frames import ns_to_seconds, seconds_to_ns
+from .engine import Engine, StepBlock
+from .errors import BusError
+from .frames import FrameBatch, ns_to_seconds, seconds_to_ns
+from .params import Vehicle, load_vehicle
+from .profiles import Profile, load_profile
+from .recording import Timing
+from .signals import Receiver
+from .status import DEADLINE_MISS
 from .units import STEP_NS
 
-__all__ = ["Service", "StepResult", "STATUS_DEADLINE_MISS", "make_estimator"]
+__all__ = ["Service", "StepResult", "STATUS_DEADLINE_MISS", "open_bus"]
 
 log = logging.getLogger(__name__)
 
-STATUS_VALID = 0x01
-STATUS_DEGRADED = 0x02
 #: ``LDE_Estimate.Status`` bit7: this step ran more than 1 ms late (docs/ARCHITECTURE.md).
-STATUS_DEADLINE_MISS = 0x80
+STATUS_DEADLINE_MISS = DEADLINE_MISS
 
 #: a step may be at most this late before grid points are skipped (one whole period)
 _SKIP_AFTER_NS = STEP_NS
@@ -78,8 +83,8 @@ class StepResult:
         overlay_state: limiter state (0 off, 1 ramp-in, 2 active, 3 ramp-out, 4 fault).
         overlay_active: the Active bit sent.
         status: ``LDE_Estimate.Status`` bit map sent (incl. bit7 DEADLINE_MISS).
-        frames_used: input frames fed to the receiver in this step.
-        timing: this step's timing (None in lockstep mode without timing).
+        frames_used: input frames accepted since the previous step.
+        timing: this step's timing.
         overlay_enable: the limiter's ``enable`` input (False: overlay switched off or shutting
             down); a replay needs it to reproduce a shutdown ramp-out.
     """
@@ -97,54 +102,6 @@ class StepResult:
     overlay_enable: bool = True
 
 
-def _finite(x: float) -> float:
-    return x if math.isfinite(x) else 0.0
-
-
-def make_estimator(vehicle: Any, backend: str = "fixed") -> Any:
-    """The estimator for ``backend``: ``fixed`` (firmware model, float shadow) or ``float`` (lde.step).
-
-    Both have ``step(t_ns, inputs)`` and ``reset()``. ``fixed`` falls back to ``float`` with a warning
-    while the firmware model is not installed.
-    """
-    if backend not in ("fixed", "float"):
-        raise ConfigError(f"unknown backend {backend!r} (choose fixed or float)")
-    if backend == "fixed":
-        try:
-            from firmware_model import FixedEstimator
-        except ImportError:
-            try:
-                from firmware_model.fast import FixedEstimator
-            except ImportError:
-                log.warning("backend 'fixed': firmware_model.FixedEstimator not available, using 'float'")
-                FixedEstimator = None  # noqa: N806
-        if FixedEstimator is not None:
-            return FixedEstimator(vehicle)
-    from .step import Estimator
-
-    return Estimator(vehicle)
-
-
-def _load_profile(profile: Any) -> Any:
-    if isinstance(profile, str):
-        from .profiles import load_profile
-
-        return load_profile(profile)
-    return profile
-
-
-def _load_vehicle(vehicle: Any) -> Any:
-    if vehicle is None or isinstance(vehicle, str):
-        from .params import load_vehicle
-
-        return load_vehicle(vehicle)
-    return vehicle
-
-
-def _is_simulated(clock: Any) -> bool:
-    return type(clock).__name__ == "SimulatedClock"
-
-
 class Service:
     """The live estimator service on one python-can bus.
 
@@ -153,7 +110,7 @@ class Service:
         profile: a CAN profile object or name (``lde``, ``hyundai``).
         vehicle: a :class:`lde.params.Vehicle`, a shipped vehicle name or None (reference).
         clock: a :mod:`lde.clock` clock (``now_ns()``, ``sleep_until(t_ns)``).
-        backend: ``fixed`` (default) or ``float``.
+        backend: a registered backend name (:mod:`lde.backends`): ``fixed`` (default) or ``float``.
         recorder: optional :class:`lde.recording.Recorder` (already started).
         overlay_enabled: False keeps the overlay request at zero (the demo's "without overlay" run).
         timebase_offset_ns: bus time minus clock time [ns]; None: measured at start (0 for a
@@ -164,8 +121,8 @@ class Service:
     def __init__(
         self,
         bus: can.BusABC,
-        profile: Any,
-        vehicle: Any,
+        profile: Profile | str,
+        vehicle: Vehicle | str | None,
         clock: Any,
         backend: str = "fixed",
         recorder: Any = None,
@@ -174,34 +131,33 @@ class Service:
         timebase_offset_ns: int | None = None,
         log_period_s: float = 10.0,
     ) -> None:
-        from .codec import MessageEncoder
-        from .overlay import OverlayLimiter
-        from .signals import Receiver
-
         self.bus = bus
-        self.profile = _load_profile(profile)
-        self.vehicle = _load_vehicle(vehicle)
+        self.profile = load_profile(profile) if isinstance(profile, str) else profile
+        self.vehicle = vehicle if isinstance(vehicle, Vehicle) else load_vehicle(vehicle)
         self.clock = clock
         self.backend = backend
         self.recorder = recorder
         self.overlay_enabled = overlay_enabled
         if timebase_offset_ns is None:
-            timebase_offset_ns = 0 if _is_simulated(clock) else time.time_ns() - clock.now_ns()
+            simulated = isinstance(clock, SimulatedClock)
+            timebase_offset_ns = 0 if simulated else time.time_ns() - clock.now_ns()
         self.offset_ns = int(timebase_offset_ns)
         self.log_period_ns = int(log_period_s * 1e9)
 
-        self.receiver = Receiver(self.profile)
-        check_profile(self.vehicle, self.profile.steering_rate_signed, self.profile.name)
-        self.estimator = make_estimator(self.vehicle, backend)
-        self.limiter = OverlayLimiter(self.vehicle)
-        self._enc_estimate = MessageEncoder(self.profile, "LDE_Estimate")
-        self._enc_overlay = MessageEncoder(self.profile, "LDE_Overlay")
+        self.engine = Engine(self.profile, self.vehicle, backend, explicit=True)
+        self._block = StepBlock.empty(1, len(self.engine.outputs.names))
+        self._tk = np.zeros(1, np.int64)
+        self._enable = np.ones(1, np.bool_)
+        self._extra = np.zeros(1, np.uint8)
+        self._out_msgs = [
+            can.Message(arbitration_id=int(fid), is_extended_id=False, dlc=int(n), data=bytearray(int(n)))
+            for fid, n in zip(self.engine.outputs.frame_id, self.engine.outputs.length, strict=True)
+        ]
         self._enc_diag = MessageEncoder(self.profile, "LDE_Diag")
-
         self._warm_up()
         self.stats = TimingStats()
-        self._pending: list[tuple[int, can.Message]] = []  # (t_rx_ns, msg), not yet used
-        self._newest_input_ns = -1  # receive time of the newest frame used so far
+        self._pending: list[tuple[int, can.Message]] = []  # (t_rx_ns, msg), not yet fed
+        self._newest_input_ns = -1  # receive time of the newest frame fed so far
         self._restamp: bool | None = None  # stamp frames on receipt (decided at the first frame)
         self._last_t_k: int | None = None  # step time of the last step run [ns, bus time base]
         self.late_rx = 0  # frames delivered after a step later than their timestamp: re-stamped
@@ -212,18 +168,15 @@ class Service:
         self.last: StepResult | None = None
 
     def _warm_up(self) -> None:
-        """Run the compiled kernels once on throwaway objects so the first real step is not late
+        """Run the compiled loop once on a throwaway engine, so the first real step is not late
         (numba loads or compiles a kernel at its first call)."""
-        from .overlay import OverlayLimiter
-        from .signals import Receiver
+        e = Engine(self.profile, self.vehicle, self.backend, explicit=True)
+        e.feed(FrameBatch.empty(), step_times=np.arange(3, dtype=np.int64) * STEP_NS, final=True)
 
-        rx = Receiver(self.profile)
-        est = make_estimator(self.vehicle, self.backend)
-        lim = OverlayLimiter(self.vehicle)
-        for k in range(3):
-            t = k * STEP_NS
-            inputs = rx.sample(t)
-            lim.step(t, est.step(t, inputs), inputs, enable=True)
+    @property
+    def receiver(self) -> Receiver:
+        """The engine's receiver state as a :class:`lde.signals.Receiver` (a view, not a copy)."""
+        return Receiver.bound(self.profile, self.engine.rx_tables, self.engine.rx)
 
     # ------------------------------------------------------------------ one step
     def now_ns(self) -> int:
@@ -278,24 +231,36 @@ class Service:
                 off / 1e9,
             )
 
-    def _feed_ready(self, t_k: int) -> int:
-        """Feed the receiver with the pending frames received at or before ``t_k`` (time order)."""
+    def _run_engine(self, t_k: int, enable: bool, miss: bool) -> int:
+        """The engine over the pending frames (time order) and the step ``t_k``; returns the
+        number of frames it fed (those with receive time <= t_k), which leave the pending buffer."""
         pending = self._pending
-        if not pending:
-            return 0
-        ready = [p for p in pending if p[0] <= t_k]
-        if not ready:
-            return 0
-        if len(ready) == len(pending):
-            pending.clear()
-        else:
-            self._pending = [p for p in pending if p[0] > t_k]
-        ready.sort(key=lambda p: p[0])  # stable: arrival order among equal timestamps
-        feed = self.receiver.feed
-        for t_rx, msg in ready:
-            feed(t_rx, msg.arbitration_id, msg.data, msg.dlc, msg.is_extended_id)
-        self._newest_input_ns = ready[-1][0]
-        return len(ready)
+        pending.sort(key=lambda p: p[0])  # stable: arrival order among equal timestamps
+        n = len(pending)
+        t = np.empty(n, np.int64)
+        ids = np.empty(n, np.uint32)
+        ext = np.empty(n, np.bool_)
+        dlc = np.empty(n, np.uint8)
+        words = np.empty(n, np.uint64)
+        for k, (t_rx, msg) in enumerate(pending):
+            t[k] = t_rx
+            ids[k] = msg.arbitration_id
+            ext[k] = msg.is_extended_id
+            dlc[k] = msg.dlc
+            words[k] = int.from_bytes(bytes(msg.data[:8]), "little")
+        self._tk[0] = t_k
+        self._enable[0] = enable
+        self._extra[0] = DEADLINE_MISS if miss else 0
+        fed, steps = self.engine.run_arrays(
+            t, ids, ext, dlc, words, np.ones(n, np.bool_), self._block,
+            step_times=self._tk, enable=self._enable, extra_status=self._extra, final=True,
+        )  # fmt: skip
+        if steps != 1:  # the engine runs every given step when final: a broken invariant
+            raise RuntimeError(f"the engine ran {steps} steps for one step time")
+        if fed:
+            self._newest_input_ns = int(t[fed - 1])
+            del pending[:fed]
+        return fed
 
     def step_once(self, t_k: int, t_start: int | None = None) -> StepResult:
         """Run one step at step time ``t_k`` [ns, bus time base] and send its outputs.
@@ -306,58 +271,48 @@ class Service:
         if t_start is None:
             t_start = self.now_ns()
         self._drain()
-        n_used = self._feed_ready(t_k)
-        self._last_t_k = t_k
-        inputs = self.receiver.sample(t_k)
-        est = self.estimator.step(t_k, inputs)
-        enable = self.overlay_enabled and not self._stopping
-        ov = self.limiter.step(t_k, est, inputs, enable=enable)
-
         period_error = t_start - t_k
         miss = period_error > DEADLINE_MISS_NS
-        status = int(est.status) | (STATUS_DEADLINE_MISS if miss else 0)
-        fw, mw, t_align = float(est.fw), float(est.mw), float(est.t_align)
-        t_ov = float(ov.torque)
-        if not (math.isfinite(fw) and math.isfinite(mw) and math.isfinite(t_align) and math.isfinite(t_ov)):
-            # never put NaN on the bus: zeros, VALID cleared, DEGRADED set
-            fw, mw, t_align, t_ov = _finite(fw), _finite(mw), _finite(t_align), _finite(t_ov)
-            status = (status & ~STATUS_VALID) | STATUS_DEGRADED
-        m_est = self._enc_estimate.message(
-            {"LatForce": fw, "YawMoment": mw, "AligningTorque": t_align, "Status": status}, t_k
-        )
-        m_ov = self._enc_overlay.message(
-            {"OverlayTorque": t_ov, "Active": int(ov.active), "State": int(ov.state)}, t_k
-        )
-        self._send(m_est)
-        self._send(m_ov)
+        enable = self.overlay_enabled and not self._stopping
+        self._run_engine(t_k, enable, miss)
+        self._last_t_k = t_k
+        b = self._block
+        for j, msg in enumerate(self._out_msgs):
+            msg.data[:] = b.frames[0, j, : msg.dlc].tobytes()
+            self._send(msg)
         t_sent = self.now_ns()
         latency = t_sent - self._newest_input_ns if self._newest_input_ns >= 0 else -1
         timing = self.stats.record(period_error, t_sent - t_start, latency)
-        rejects = self._e2e_rejects()
-        m_diag = self._enc_diag.message(diag_signals(timing, rejects), t_k)
-        self._send(m_diag)
+        rejects = int(b.e2e_rejects[0])
+        self._send(self._enc_diag.message(diag_signals(timing, rejects), t_k))
 
         self.steps += 1
+        status = int(b.status[0])
         res = StepResult(
             t_ns=t_k,
-            fw=fw,
-            mw=mw,
-            t_align=t_align,
-            t_overlay=t_ov,
-            overlay_state=int(ov.state),
-            overlay_active=bool(ov.active),
+            fw=float(b.est[0, 0]),
+            mw=float(b.est[0, 1]),
+            t_align=float(b.est[0, 2]),
+            t_overlay=float(b.t_overlay[0]),
+            overlay_state=int(b.overlay_state[0]),
+            overlay_active=bool(b.overlay_state[0] in (1, 2)),
             status=status,
-            frames_used=n_used,
+            frames_used=int(b.frames_used[0]),
             timing=timing,
             overlay_enable=enable,
         )
         self.last = res
         if self.recorder is not None:
-            self.recorder.step(res, inputs, rejects, self.stats.skipped)
+            tm = Timing(
+                np.array([timing.period_error_ns]),
+                np.array([timing.step_time_ns]),
+                np.array([timing.latency_ns]),
+                np.array([int(timing.deadline_miss)]),
+                np.array([timing.deadline_misses]),
+                np.array([self.stats.skipped]),
+            )
+            self.recorder.steps(b.copy(), tm)
         return res
-
-    def _e2e_rejects(self) -> int:
-        return int(getattr(self.receiver, "e2e_rejects", 0))
 
     def _send(self, msg: can.Message) -> None:
         msg.timestamp = self.now_ns() / 1e9

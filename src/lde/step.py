@@ -41,7 +41,6 @@ reference counting of the array arguments of the small kernels (a build without 
 
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass
 
@@ -65,23 +64,11 @@ from .model import (
     params_vector,
 )
 from .params import Vehicle
+from .status import DEGRADED, ESC_FAULT, LOW_SPEED, MDPS_FAULT, NOT_CONVERGED, VALID, Status
 from .units import STEP_S
 
-
-class Status(enum.IntFlag):
-    """``LDE_Estimate.Status`` bit map (docs/ARCHITECTURE.md)."""
-
-    VALID = 1
-    DEGRADED = 2
-    MDPS_FAULT = 4
-    ESC_FAULT = 8
-    LOW_SPEED = 16
-    NOT_CONVERGED = 32
-    SHADOW_DEVIATION = 64
-    DEADLINE_MISS = 128
-
-
-_VALID, _DEGRADED, _MDPS_FAULT, _ESC_FAULT, _LOW_SPEED, _NOT_CONVERGED = 1, 2, 4, 8, 16, 32
+_VALID, _DEGRADED, _MDPS_FAULT, _ESC_FAULT = VALID, DEGRADED, MDPS_FAULT, ESC_FAULT
+_LOW_SPEED, _NOT_CONVERGED = LOW_SPEED, NOT_CONVERGED
 
 # --- auxiliary state slots (besides x and P) ----------------------------------------------------
 # float slots
@@ -118,8 +105,12 @@ def new_workspace() -> tuple[np.ndarray, ...]:
     )
 
 
-# --- output slots -------------------------------------------------------------------------------
-O_FW, O_MW, O_T_ALIGN, O_BETA, O_YAW = 0, 1, 2, 3, 4
+# --- output slots: the contract of every backend's step (lde.pipeline reads them) ----------------
+O_FW = 0  #: disturbance force Fw [N], left positive
+O_MW = 1  #: disturbance yaw moment Mw [Nm], left positive
+O_T_ALIGN = 2  #: aligning torque estimate T_align_hat [Nm], paper sign
+O_BETA = 3  #: side slip beta [rad]
+O_YAW = 4  #: yaw rate r [rad/s]
 N_OUT = 5
 
 
@@ -209,7 +200,7 @@ class BatchResult:
 # --- compiled kernels ---------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _set_p0(p, P):  # pragma: no cover - compiled
     for i in range(4):
         for j in range(4):
@@ -234,7 +225,7 @@ def reset_kernel(p, x, P, fs, ints):  # pragma: no cover - compiled
     ints[I_UPDATES] = 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def step_kernel(
     p,
     x,

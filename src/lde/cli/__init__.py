@@ -7,7 +7,9 @@ Start-up: when the command line names a subcommand, only that subcommand's modul
 others get a bare placeholder parser), so ``lde replay`` does not pay for the service, the
 calibrator or the study's imports. ``lde``, ``lde --help`` and an unknown command import them all
 (the help lists every subcommand). A module's ``add_parser`` should stay cheap: heavy imports belong
-inside its ``run``.
+inside its ``run`` (the one place where lde imports inside functions: measured with
+``python -X importtime``, ``import lde.cli`` takes 8 ms, ``lde.replay`` 0.76 s, ``lde.service`` 1.0 s,
+``lde.study`` with dask 1-2 s; ``tests/test_replay.py`` checks that ``--help`` stays light).
 """
 
 from __future__ import annotations

@@ -69,8 +69,8 @@ def run(args: argparse.Namespace) -> int:
 
     from ..params import load_vehicle as _load
     from ..profiles import load_profile
-    from ..replay import estimate
-    from ..step import Status, run_batch
+    from ..replay import replay
+    from ..status import VALID
 
     base = load_vehicle(args.vehicle)
     profile = load_profile(args.profile)
@@ -104,8 +104,8 @@ def run(args: argparse.Namespace) -> int:
 
     # self-check on the same drive: it has no disturbance, so the estimate should be ~0
     def rms(vehicle):  # (RMS Fw [N], RMS Mw [Nm]) over the valid steps
-        r = estimate(grid, vehicle, run_batch)
-        ok = (r.status & Status.VALID) != 0
+        r = replay(log.frames, profile, vehicle, "float")
+        ok = (r.status & VALID) != 0
         if not ok.any():
             return float("nan"), float("nan")
         return float(np.sqrt(np.mean(r.fw[ok] ** 2))), float(np.sqrt(np.mean(r.mw[ok] ** 2)))

@@ -128,12 +128,11 @@ def _summary(path: Path, log, res, elapsed: float) -> str:
         f"{path}: {log.format}, {f.total} frames, {len(res)} steps = {res.duration_s:.3f} s stepped"
         f" in {res.segments} segment{'' if res.segments == 1 else 's'}"
         f" ({'recorded step times' if res.recorded_steps else 'grid from the first MDPS frame'})",
-        f"  frames used {f.used}, rejected {f.rejected} ({causes}), ignored ids {f.ignored}, lde's own {f.tx}"
-        + (f"; not read: {', '.join(extra)}" if extra else ""),
+        f"  frames used {f.used}, rejected {f.rejected} ({causes}), re-synchronising {f.resync},"
+        f" ignored ids {f.ignored}, lde's own {f.tx}" + (f"; not read: {', '.join(extra)}" if extra else ""),
         f"  profile {res.profile.name if res.profile else '?'}"
         f"{' (from the recording)' if res.profile_origin == 'recording' else ''},"
-        f" backend {res.backend}, overlay "
-        f"{'lde.overlay' if res.overlay else 'not available (T_overlay = 0)'};"
+        f" backend {res.backend};"
         f" took {elapsed:.3f} s (" + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in res.timings.items()) + ")",
     ]
     if len(res) == 0:
@@ -147,12 +146,13 @@ def run(args: argparse.Namespace) -> int:
     from ..params import load_vehicle
     from ..profiles import load_profile
     from ..replay import (
+        CsvWriter,
+        RecordingWriter,
         no_valid_note,
         profile_metadata,
-        replay_log,
+        read_inputs,
         resolve_backend,
-        write_csv,
-        write_recording,
+        run_replay,
     )
 
     logs = [Path(p) for p in args.logs]
@@ -190,35 +190,38 @@ def run(args: argparse.Namespace) -> int:
         bar = tqdm(total=len(logs), unit="log", disable=args.quiet or None, file=sys.stderr)
     for path in logs:
         t0 = time.perf_counter()
-        log, res = replay_log(
-            path,
-            profile,
-            vehicle,
-            backend,
-            use_recorded_steps=not args.no_recorded_steps,
-            profiles=profiles,
-        )
+        li = read_inputs(path, profile, use_recorded_steps=not args.no_recorded_steps, profiles=profiles)
+        log = li.log
         csv_path, mcap_path = outs[path]
+        sinks: list = []
         if csv_path is not None:
-            t1 = time.perf_counter()
-            write_csv(csv_path, res)
-            res.timings["csv"] = time.perf_counter() - t1
+            sinks.append(CsvWriter(csv_path))
         if mcap_path is not None:
-            assert res.profile is not None  # replay_log always sets it
-            t1 = time.perf_counter()
-            write_recording(
-                mcap_path,
+            meta = {
+                "source": str(path),
+                **profile_metadata(li.profile),
+                "vehicle": vehicle.name,
+                "backend": backend,
+            }
+            sinks.append(RecordingWriter(mcap_path, li.profile, meta))
+        try:
+            res = run_replay(
                 log.frames,
-                res,
-                res.profile,
-                metadata={
-                    "source": str(path),
-                    **profile_metadata(res.profile),
-                    "vehicle": vehicle.name,
-                    "backend": res.backend,
-                },
+                li.profile,
+                vehicle,
+                backend,
+                sinks=tuple(sinks),
+                step_times_ns=li.step_times_ns,
+                tx_frames=li.tx_frames,
+                overlay_enable=li.overlay_enable,
+                extra_status=li.extra_status,
+                output_frames=mcap_path is not None,
             )
-            res.timings["mcap"] = time.perf_counter() - t1
+        finally:
+            for sink in sinks:
+                sink.close()
+        res.timings = {"read": li.read_s, **res.timings}
+        res.profile, res.profile_origin = li.profile, li.profile_origin
         elapsed = time.perf_counter() - t0
         if bar is not None:
             bar.update(1)

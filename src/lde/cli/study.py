@@ -31,6 +31,7 @@ from pathlib import Path
 
 from .. import study
 from ..errors import ConfigError
+from .engine import engine
 
 
 def add_cluster_arguments(p: argparse.ArgumentParser) -> None:
@@ -55,32 +56,45 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--estimator",
-        choices=("replay", "adaptive"),
+        choices=("replay", "adaptive", "cli"),
         default="replay",
-        help="replay: the product pipeline (lde.replay); adaptive: the prototype extensions (lde.adaptive)",
+        help="replay: the product pipeline (lde.replay) in process; adaptive: the prototype extensions "
+        "(lde.adaptive); cli: `lde replay` on a written log, as a user runs it",
     )
-    g.add_argument("--backend", choices=("float", "fixed"), default="float", help="replay backend")
-    g.add_argument("--profile", default="lde", help="CAN profile of the simulated bus: lde or hyundai")
+    g.add_argument("--backend", choices=("float", "fixed"), default=None, help="replay backend (float)")
+    g.add_argument("--profile", default=None, help="CAN profile of the simulated bus: lde (default), hyundai")
     g.add_argument(
         "--sim-option",
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="simulator option for every run (repeatable), e.g. steering_friction_Nm=0.8",
+        help="simulator option for every run (repeatable), e.g. friction_Nm=0.8 (lde.study.SimOptions)",
     )
     g.add_argument(
         "--est-option",
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="prototype estimator option (repeatable), e.g. friction_Nm=0.8",
+        help="estimator option (repeatable), e.g. calibrate=lane_change, steering_friction_Nm=0.35 "
+        "(lde.study.EstOptions)",
     )
 
 
 def cluster_config(args: argparse.Namespace) -> study.ClusterConfig:
-    if args.workers < 0:
+    workers = 2 if args.workers is None else args.workers
+    if workers < 0:
         raise ConfigError("--workers must be >= 0")
-    return study.ClusterConfig(scheduler=args.scheduler, n_workers=args.workers)
+    return study.ClusterConfig(scheduler=args.scheduler, n_workers=workers)
+
+
+def sim_options(args: argparse.Namespace) -> study.SimOptions:
+    """The typed simulator options of ``--sim-option`` (an unknown name is an error here)."""
+    return study.SimOptions.parse(parse_options(args.sim_option, "--sim-option"), strict=True)
+
+
+def est_options(args: argparse.Namespace) -> study.EstOptions:
+    """The typed estimator options of ``--est-option`` (an unknown name is an error here)."""
+    return study.EstOptions.parse(parse_options(args.est_option, "--est-option"), strict=True)
 
 
 def parse_options(items: list[str], flag: str) -> tuple[tuple[str, study.OptionValue], ...]:
@@ -154,10 +168,10 @@ def run(args: argparse.Namespace) -> int:
         payloads=args.payloads,
         duration=args.duration,
         estimator=args.estimator,
-        backend=args.backend,
-        profile=args.profile,
-        sim_options=parse_options(args.sim_option, "--sim-option"),
-        est_options=parse_options(args.est_option, "--est-option"),
+        backend=args.backend or "float",
+        profile=args.profile or "lde",
+        sim_options=sim_options(args),
+        est_options=est_options(args),
     )
     if args.preset in ("paper", "smoke"):
         winner = _sweep(ctx, args.preset, args.candidates, sweep_kw, "Table 1 sets as shipped")
@@ -169,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
             ctx, "paper_fig12", tuple(tire_files.values()), sweep_kw, "Table 1 sets with the Fig. 12 tires"
         )
         winner = winner or Path(best).stem.removesuffix("_fig12")
-        cal_kw = dict(sweep_kw, est_options=(("calibrate", "lane_change"),))
+        cal_kw = dict(sweep_kw, est_options=study.EstOptions(calibrate="lane_change"))
         winner_cal = _sweep(ctx, "paper_calibrated", cands, cal_kw, "Table 1 sets + lde calibrate")
     if args.preset in ("ladder", "faults", "all"):
         winner = winner or "est3"
@@ -273,7 +287,7 @@ def _fig12(ctx: _Ctx, candidates) -> dict[str, str]:
 
 def _run(specs, name: str, ctx: _Ctx):
     print(f"lde study: {name}: {len(specs)} runs", file=sys.stderr)
-    results = study.run_specs(specs, ctx.cluster, progress=ctx.progress)
+    results = study.run_specs(specs, ctx.cluster, progress=ctx.progress, engine=engine)
     bad = [r for r in results if not r.ok]
     for r in bad[:10]:
         print(f"FAILED {r.spec.label}: {r.error}", file=sys.stderr)

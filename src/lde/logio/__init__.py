@@ -36,6 +36,7 @@ from .mcapfile import (
     can_payloads,
     read_mcap,
 )
+from .pycan import pycan_suffixes, read_pycan
 
 __all__ = [
     "LogData",
@@ -213,7 +214,6 @@ def _gunzip(p: Path) -> tuple[bytes, bool]:
 
 
 def _pycan_suffixes() -> set[str]:
-    from .pycan import pycan_suffixes
 
     return pycan_suffixes() - {".mcap"}
 
@@ -253,8 +253,6 @@ def read_log(
             raise LogFormatError(f"{p}: cannot read: {exc}") from exc
         out = _candump_data(p, raw)
     else:
-        from .pycan import read_pycan
-
         parsed_pc = read_pycan(p)
         stats = ReadStats(
             frames=len(parsed_pc.frames),

@@ -49,7 +49,11 @@ from typing import IO, Any
 
 import numba
 import numpy as np
+from mcap.data_stream import ReadDataStream
+from mcap.reader import SeekingReader, make_reader
+from mcap.records import Channel, Schema
 
+from .. import __version__ as lde_version
 from ..errors import LogFormatError
 from ..frames import FrameBatch
 
@@ -291,7 +295,6 @@ class McapWriter:
         self._n_chunks = 0
         self._closed = False
         self._crc = zlib.crc32(MAGIC)
-        from .. import __version__ as lde_version
 
         self._write(MAGIC, crc=False)
         self._write(_record(OP_HEADER, _str(profile) + _str(f"lde {lde_version}")))
@@ -724,7 +727,6 @@ def _decompress(compression: str, data: bytes, size: int) -> bytes:
 
 
 def _summary(f: io.BufferedReader):
-    from mcap.reader import SeekingReader
 
     return SeekingReader(f).get_summary()
 
@@ -909,8 +911,6 @@ def _scan_top_level(raw) -> _Scan | None:
     Raises:
         LogFormatError: the file is cut before or inside its first chunk (nothing to recover).
     """
-    from mcap.data_stream import ReadDataStream
-    from mcap.records import Channel, Schema
 
     schemas: dict[int, Any] = {}
     channels: dict[int, Any] = {}
@@ -1119,7 +1119,6 @@ def _finish_topics(out: McapData, kind: np.ndarray, counts: np.ndarray) -> None:
 
 def _read_library(fh: IO[bytes]) -> McapData:
     """The reference path: the ``mcap`` library's reader, one Python object per message."""
-    from mcap.reader import make_reader
 
     reader = make_reader(fh)
     t: list[int] = []

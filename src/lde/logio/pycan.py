@@ -12,6 +12,7 @@ from pathlib import Path
 
 import can
 import numpy as np
+from can.io import player
 
 from ..errors import LogFormatError
 from ..frames import FrameBatch, seconds_to_ns
@@ -21,7 +22,6 @@ __all__ = ["PycanParse", "read_pycan", "pycan_suffixes"]
 
 def pycan_suffixes() -> set[str]:
     """File suffixes python-can has a reader for (built-in and plugins)."""
-    from can.io import player
 
     player._update_reader_plugins()
     return set(player.MESSAGE_READERS)

@@ -1,0 +1,202 @@
+"""The study's ``cli`` engine: score exactly what a user runs, ``lde replay`` on a log file.
+
+It lives in the CLI layer because it runs the command line in process (:func:`lde.cli.main`); the
+study (:mod:`lde.study`, below the CLI) receives it as the ``engine`` of
+:func:`lde.study.run_specs` from ``lde evaluate`` / ``lde study`` (:func:`engine`).
+
+For one :class:`~lde.study.spec.RunSpec` (on a worker):
+
+1. simulate the run (seeded) and write its candump ``-L`` log, as ``lde sim --log`` does;
+2. write the estimator's vehicle file: the simulated car's spec sheet (``est_vehicle =
+   "spec-sheet"``, :mod:`lde.study.specsheet`) or the file the spec names;
+3. cold: run the command line in process,
+   ``lde.cli.main(["replay", LOG, "--profile", P, "--backend", B, "--vehicle", FILE, "--csv", OUT])``;
+   warm (``est_options.learned_prior``): first ``lde replay PRIOR --learned S`` on an earlier drive
+   of the same car (the named scenario, seed + :data:`PRIOR_SEED_OFFSET`), then
+   ``lde replay LOG --learned S --csv OUT`` (the same options as cold);
+4. read the CSV (``t``, ``Fw``, ``Mw``, ``status``) and hand it to the metric with the truth.
+
+The files live in a temporary directory removed after scoring, or under ``spec.work_dir`` (kept).
+A non-zero exit status of ``lde`` fails the run with its last error line.
+
+Warm mode needs ``lde replay --learned FILE``; until ``lde replay --help`` lists it,
+:func:`require_learned` raises one clear line (:data:`WARM_UNAVAILABLE`) and nothing is faked.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import io
+import tempfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vcan_sim.output import write_outputs
+
+from ..errors import ConfigError, LdeError, LogFormatError
+from ..status import VALID
+from ..study.engine import (
+    check_plant,
+    load_sim_vehicle,
+    plant_name,
+    simulate_and_estimate,
+    simulate_run,
+    truth_of,
+)
+from ..study.spec import SPEC_SHEET, Estimate, Estimator, RunSpec
+from ..study.specsheet import write_spec_sheet
+from . import main
+
+#: the prior drive of a warm run uses the run's seed + this (another drive of the same car)
+PRIOR_SEED_OFFSET = 500
+WARM_UNAVAILABLE = (
+    "warm mode needs `lde replay --learned FILE`, which this lde does not have yet "
+    "(`lde replay --help` does not list --learned)"
+)
+
+
+@dataclass(frozen=True)
+class CliRun:
+    """One in-process ``lde`` command: its argv, exit status and what it printed on stderr."""
+
+    argv: tuple[str, ...]
+    code: int
+    stderr: str
+
+    def error_line(self) -> str:
+        lines = [ln for ln in self.stderr.splitlines() if ln.strip()]
+        err = [ln for ln in lines if "error" in ln]
+        return (err or lines or [f"exit status {self.code}"])[-1]
+
+
+def run_cli(argv: list[str]) -> CliRun:
+    """``lde ARGV`` in this process (:func:`lde.cli.main`), stdout and stderr captured; LdeError on a
+    non-zero exit status (with the command's error line)."""
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        try:
+            code = main(argv)
+        except SystemExit as exc:  # argparse: a usage error
+            code = exc.code if isinstance(exc.code, int) else 2
+    run = CliRun(tuple(argv), int(code), err.getvalue())
+    if run.code != 0:
+        raise LdeError(f"`lde {' '.join(argv)}` exited with {run.code}: {run.error_line()}")
+    return run
+
+
+def replay_argv(
+    log: Path,
+    profile: str,
+    backend: str,
+    vehicle: Path | str,
+    csv: Path | None = None,
+    learned: Path | None = None,
+) -> list[str]:
+    """The ``lde replay`` command line of a run (cold without ``learned``)."""
+    argv = ["replay", str(log), "--profile", profile, "--backend", backend, "--vehicle", str(vehicle)]
+    if learned is not None:
+        argv += ["--learned", str(learned)]
+    if csv is not None:
+        argv += ["--csv", str(csv)]
+    return argv
+
+
+@functools.lru_cache(maxsize=1)
+def learned_available() -> bool:
+    """Whether ``lde replay --help`` lists ``--learned`` (the warm mode's prerequisite)."""
+    out = io.StringIO()
+    quiet = contextlib.redirect_stderr(io.StringIO())
+    with contextlib.redirect_stdout(out), quiet, contextlib.suppress(SystemExit):
+        main(["replay", "--help"])
+    return "--learned" in out.getvalue()
+
+
+def require_learned() -> None:
+    """ConfigError (:data:`WARM_UNAVAILABLE`) unless ``lde replay`` takes ``--learned``."""
+    if not learned_available():
+        raise ConfigError(WARM_UNAVAILABLE)
+
+
+def run_dir_name(spec: RunSpec) -> Path:
+    """The run's directory below ``spec.work_dir``: plant/profile-backend/scenario-sSEED[-warm]."""
+    warm = "-warm" if spec.est_options.learned_prior else ""
+    return (
+        Path(plant_name(spec.sim_vehicle))
+        / f"{spec.profile}-{spec.backend}"
+        / f"{spec.scenario}-s{spec.seed}{warm}"
+    )
+
+
+@contextlib.contextmanager
+def _run_dir(spec: RunSpec) -> Iterator[Path]:
+    if spec.work_dir:
+        d = Path(spec.work_dir) / run_dir_name(spec)
+        d.mkdir(parents=True, exist_ok=True)
+        yield d
+    else:
+        with tempfile.TemporaryDirectory(prefix="lde-zoo-") as tmp:
+            yield Path(tmp)
+
+
+#: the CSV columns the metric reads (lde.replay.CSV_COLUMNS)
+_CSV_USE = ("t", "Fw", "Mw", "status")
+
+
+def read_estimate_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(t [s], Fw [N], Mw [Nm], status) from an ``lde replay --csv`` file."""
+    try:
+        with path.open() as fh:
+            header = fh.readline().strip().split(",")
+        idx = [header.index(c) for c in _CSV_USE]
+    except (OSError, ValueError) as exc:
+        raise LogFormatError(f"{path}: not an lde replay CSV with columns {', '.join(_CSV_USE)}") from exc
+    data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=idx, ndmin=2)
+    if data.shape[0] == 0:
+        raise LogFormatError(f"{path}: no estimator step")
+    return data[:, 0], data[:, 1], data[:, 2], data[:, 3].astype(np.int64)
+
+
+def estimate_with_cli(spec: RunSpec) -> Estimate:
+    """The ``cli`` engine (see the module docstring)."""
+    opts = spec.est_options
+    rejected = [k for k, v in opts if k != "learned_prior"]
+    if rejected:
+        raise ConfigError(
+            f"the cli engine runs `lde replay` as a user does: estimator options {sorted(rejected)} "
+            "do not apply (put corrections in the vehicle file)"
+        )
+    if opts.learned_prior:
+        require_learned()
+    sim = simulate_run(spec, spec.scenario, spec.seed)
+    check_plant(sim.truth)
+    with _run_dir(spec) as d:
+        log = d / "drive.log"
+        write_outputs(sim, log=log, truth=d / "truth.csv" if spec.work_dir else None)
+        vehicle: Path | str = spec.est_vehicle  # a shipped name or a path, as --vehicle takes it
+        if spec.est_vehicle == SPEC_SHEET:
+            vehicle = write_spec_sheet(load_sim_vehicle(spec.sim_vehicle), d / "spec_sheet.toml")
+        learned = None
+        if opts.learned_prior:
+            prior = simulate_run(spec, opts.learned_prior, spec.seed + PRIOR_SEED_OFFSET)
+            check_plant(prior.truth)
+            prior_log = d / "prior.log"
+            write_outputs(prior, log=prior_log)
+            learned = d / "learned"
+            run_cli(replay_argv(prior_log, spec.profile, spec.backend, vehicle, learned=learned))
+        out = d / "estimate.csv"
+        run_cli(replay_argv(log, spec.profile, spec.backend, vehicle, csv=out, learned=learned))
+        t, fw, mw, status = read_estimate_csv(out)
+    valid = (status & int(VALID)) != 0
+    return Estimate(t, fw, mw, valid, truth_of(sim))
+
+
+def engine(spec: RunSpec) -> Estimate:
+    """The engine of ``lde evaluate`` / ``lde study``: the ``cli`` estimator runs the command line
+    (:func:`estimate_with_cli`), the others the in-process study engine."""
+    if spec.estimator == Estimator.CLI.value:
+        return estimate_with_cli(spec)
+    return simulate_and_estimate(spec)

@@ -1,0 +1,339 @@
+"""THE compiled loop of the data path, live and in replay (one step's work exists only here).
+
+For the frames handed in (time order) and the step times the grid makes due (:mod:`lde.grid`),
+:func:`run_loop` interleaves::
+
+    frame  -> receiver (decode, E2E, latest sample)                    lde.signals.rx_feed
+    step k -> inputs at t_k (sample-and-hold, staleness, trust)        lde.signals.rx_sample
+           -> input corrections ([corrections]; none by default)       lde.conditioning.condition_kernel
+           -> estimator step (backend: float | fixed, t_k passed in)   lde.backends
+           -> status | extra bits (DEADLINE_MISS live, as recorded in replay)
+           -> overlay law + limiter                                    lde.overlay.overlay_kernel
+           -> finalise: a non-finite Fw, Mw, T_align or T_overlay is sent as 0 with VALID cleared
+              and DEGRADED set (never NaN on the bus)
+           -> output frames LDE_Estimate, LDE_Overlay (counters, CRCs)   lde.codec.encode_word
+              (``encode`` False: a replay whose frames nobody reads; the counters then stay put)
+           -> one row of every output column
+
+The live service calls it once per step with the frames drained so far and one explicit step time;
+replay calls it per chunk of a log with the anchored grid (or a recording's step times). The state
+(receiver, grid, estimator, limiter, output counters) lives in arrays owned by
+:class:`lde.engine.Engine` and survives between calls, so a log cut into chunks, or a live run step
+by step, gives the same rows as one call over everything.
+
+The backend step (``step(bp, bs, t_ns, speed, steering_angle, yaw_rate, column_torque,
+assist_torque, lat_accel, steering_rate, mdps_ok, esc_ok, out) -> status``, SI inputs after the
+corrections, ``out`` the ``O_*`` slots) is bound into its own compiled copy of the loop by
+:func:`make_loop` (one per backend, each cached on disk): numba's function-typed arguments would
+make every call go through a function pointer and could not be cached.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import types
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from .bitfield import word_to_bytes
+from .codec import encode_word
+from .conditioning import condition_kernel
+from .e2e import S_ACCEPTED, S_N_REPEATED, S_N_WRONGCRC, S_N_WRONGSEQ, advance_counter
+from .grid import (
+    G_FINISH,
+    G_K,
+    G_MODE,
+    G_OVERFLOW,
+    MODE_EXPLICIT,
+    grid_due,
+    grid_finish,
+    grid_frame,
+    grid_step_done,
+)
+from .overlay import LS_STATE, overlay_kernel
+from .signals import (
+    I_ASSIST_TORQUE,
+    I_COLUMN_TORQUE,
+    I_LAT_ACCEL,
+    I_SPEED,
+    I_STEERING_ANGLE,
+    I_STEERING_RATE,
+    I_YAW_RATE,
+    rx_feed,
+    rx_msg_of,
+    rx_sample,
+)
+from .status import DEGRADED, VALID
+from .step import O_FW, O_MW, O_T_ALIGN
+
+__all__ = [
+    "V_FW",
+    "V_MW",
+    "V_T_ALIGN",
+    "V_STATUS",
+    "V_T_OVERLAY",
+    "V_ACTIVE",
+    "V_STATE",
+    "V_ZERO",
+    "N_V",
+    "make_loop",
+    "finalise",
+]
+
+# --- the values an output frame's signals are taken from (lde.engine.OUTPUT_SOURCES) ----------
+V_FW, V_MW, V_T_ALIGN, V_STATUS, V_T_OVERLAY, V_ACTIVE, V_STATE, V_ZERO = range(8)
+N_V = 8
+
+
+@njit(cache=True, inline="always")
+def finalise(est, torque, status):  # pragma: no cover - compiled
+    """The one output finalisation: a non-finite Fw, Mw, T_align or T_overlay becomes 0, VALID is
+    cleared and DEGRADED set. Mutates ``est``; returns (torque, status)."""
+    bad = False
+    for k in (O_FW, O_MW, O_T_ALIGN):
+        if not math.isfinite(est[k]):
+            est[k] = 0.0
+            bad = True
+    if not math.isfinite(torque):
+        torque = 0.0
+        bad = True
+    if bad:
+        status = (status & ~VALID) | DEGRADED
+    return torque, status
+
+
+@njit(cache=True, inline="always")
+def _rejects(e2e, malformed):  # pragma: no cover - compiled
+    """Frames rejected so far: E2E (repeated, wrong sequence, wrong CRC) plus malformed."""
+    n = 0
+    for m in range(e2e.shape[0]):
+        n += e2e[m, S_N_REPEATED] + e2e[m, S_N_WRONGSEQ] + e2e[m, S_N_WRONGCRC] + malformed[m]
+    return n
+
+
+@njit(cache=True, inline="always")
+def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cover - compiled
+    """Encode every output message (``otab``: lde.engine.OutputTable.kernel_args) from ``vals``
+    into ``frames_row`` (n_msg, 8); advances the counters. ``values``: scratch, one slot per signal."""
+    (
+        m_start,
+        m_stop,
+        m_length,
+        m_kind,
+        m_id,
+        m_ctr,
+        m_chk,
+        m_mod,
+        m_inv,
+        shift,
+        nbits,
+        le,
+        signed,
+        scale,
+        offset,
+        lo,
+        hi,
+        is_value,
+        source,
+    ) = otab
+    for j in range(m_start.shape[0]):
+        a, b = m_start[j], m_stop[j]
+        for k in range(a, b):
+            values[k - a] = vals[source[k]]
+        w = encode_word(
+            values[: b - a],
+            shift[a:b],
+            nbits[a:b],
+            le[a:b],
+            signed[a:b],
+            scale[a:b],
+            offset[a:b],
+            lo[a:b],
+            hi[a:b],
+            is_value[a:b],
+            m_length[j],
+            m_kind[j],
+            m_id[j],
+            m_ctr[j],
+            m_chk[j],
+            counters[j],
+        )
+        word_to_bytes(w, frames_row[j])
+        counters[j] = advance_counter(counters[j], m_mod[j], m_inv[j])
+
+
+#: the backend's compiled step inside a specialised loop (:func:`make_loop` binds it)
+STEP: Any = None
+
+
+def _run_loop(
+    bp,
+    bs,
+    tb,
+    st,
+    g,
+    explicit,
+    ex_enable,
+    ex_extra,
+    cvec,
+    corrects,
+    lp,
+    lsi,
+    lsf,
+    otab,
+    counters,
+    encode,
+    used_since,
+    final,
+    t_end,
+    have_end,
+    i0,
+    t,
+    can_id,
+    is_ext,
+    dlc,
+    words,
+    is_rx,
+    anchor,
+    o_t,
+    o_status,
+    o_est,
+    o_tov,
+    o_ovst,
+    o_enable,
+    o_in,
+    o_age,
+    o_mask,
+    o_ok,
+    o_used,
+    o_rej,
+    o_frames,
+):  # pragma: no cover - compiled
+    """Interleave frames and due steps (module docstring) from frame ``i0`` on. ``final``: no frame
+    follows these; once they are fed the grid finishes (:func:`lde.grid.grid_finish` with ``t_end``
+    when ``have_end``) and the remaining steps run.
+
+    Returns (next frame index, rows written). Stops when the rows are full, when the grid has no
+    due step and no frame is left (a later call continues), with explicit step times when none is
+    left (the frames after it stay unfed), or when the grid overflows (``g[G_OVERFLOW]``). Frames with
+    ``is_rx`` False (lde's own, in a recording) are skipped.
+    """
+    e2e = st[0]
+    malformed = st[1]
+    nf = t.shape[0]
+    cap = o_t.shape[0]
+    vals = np.zeros(N_V)
+    scratch = np.empty(otab[9].shape[0])
+    i = i0
+    n = 0
+    while n < cap:
+        while i < nf and not is_rx[i]:
+            i += 1
+        have = i < nf
+        if not have and final and g[G_FINISH] == 0:
+            grid_finish(g, t_end, have_end)
+        t_next = t[i] if have else np.int64(0)
+        is_input = have and rx_msg_of(tb, np.int64(can_id[i]), is_ext[i]) >= 0
+        due, tk = grid_due(g, explicit, have, t_next, is_input)
+        if g[G_OVERFLOW] == 1:
+            break
+        if due:
+            enable = True
+            extra = 0
+            if g[G_MODE] == MODE_EXPLICIT:
+                j = g[G_K]
+                if ex_enable.shape[0] > j:
+                    enable = ex_enable[j]
+                if ex_extra.shape[0] > j:
+                    extra = ex_extra[j]
+            vin = o_in[n]
+            mask, ok_m, ok_e = rx_sample(tb, st, tk, vin, o_age[n])
+            angle = vin[I_STEERING_ANGLE]
+            rate = vin[I_STEERING_RATE]
+            yaw = vin[I_YAW_RATE]
+            col = vin[I_COLUMN_TORQUE]
+            if corrects:
+                angle, yaw, col = condition_kernel(cvec, angle, rate, yaw, col)
+            est = o_est[n]
+            status = STEP(
+                bp,
+                bs,
+                tk,
+                vin[I_SPEED],
+                angle,
+                yaw,
+                col,
+                vin[I_ASSIST_TORQUE],
+                vin[I_LAT_ACCEL],
+                rate,
+                ok_m,
+                ok_e,
+                est,
+            )
+            status |= extra
+            torque = overlay_kernel(
+                lp,
+                lsi,
+                lsf,
+                tk,
+                est[O_FW],
+                est[O_MW],
+                status,
+                vin[I_SPEED],
+                vin[I_STEERING_ANGLE],
+                vin[I_COLUMN_TORQUE],
+                enable,
+            )
+            torque, status = finalise(est, torque, status)
+            state = lsi[LS_STATE]
+            vals[V_FW] = est[O_FW]
+            vals[V_MW] = est[O_MW]
+            vals[V_T_ALIGN] = est[O_T_ALIGN]
+            vals[V_STATUS] = status
+            vals[V_T_OVERLAY] = torque
+            vals[V_ACTIVE] = 1.0 if (state == 1 or state == 2) else 0.0
+            vals[V_STATE] = state
+            if encode:
+                _encode_outputs(otab, vals, counters, o_frames[n], scratch)
+            o_t[n] = tk
+            o_status[n] = status
+            o_tov[n] = torque
+            o_ovst[n] = state
+            o_enable[n] = enable
+            o_mask[n] = mask
+            o_ok[n, 0] = ok_m
+            o_ok[n, 1] = ok_e
+            o_used[n] = used_since[0]
+            used_since[0] = 0
+            o_rej[n] = _rejects(e2e, malformed)
+            grid_step_done(g)
+            n += 1
+            continue
+        if not have:
+            break
+        if g[G_MODE] == MODE_EXPLICIT and g[G_K] >= explicit.shape[0]:
+            break  # no step left: later frames wait for the steps they belong to (time order)
+        m, code = rx_feed(tb, st, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), words[i])
+        accepted = code >= 0 and e2e[m, S_ACCEPTED] != 0
+        if accepted:
+            used_since[0] += 1
+        grid_frame(g, t[i], m >= 0, m == anchor and accepted)
+        i += 1
+    return i, n
+
+
+def make_loop(step: Any, name: str) -> Any:
+    """The compiled loop (:func:`_run_loop`) with ``step`` bound as its backend step, under its own
+    name (its own on-disk cache entry). It releases the GIL: a batch runs a shadow engine beside it."""
+    code = _run_loop.__code__.replace(co_name=name)
+    if sys.version_info >= (3, 11):  # numba caches by qualified name
+        code = code.replace(co_qualname=name)
+    bound = dict(_run_loop.__globals__, STEP=step)
+    fn = types.FunctionType(code, bound, name, _run_loop.__defaults__)
+    fn.__module__ = _run_loop.__module__
+    fn.__qualname__ = name
+    fn.__doc__ = _run_loop.__doc__
+    return njit(cache=True, nogil=True)(fn)

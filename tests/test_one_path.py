@@ -1,0 +1,162 @@
+"""One data path: the live service and replay give the same rows for the same frames.
+
+The live service runs on python-can's virtual bus with a simulated clock and records; the same
+frames then go through ``lde replay`` twice: from the recording (recorded step times, enable input
+and deadline bits), and as a bare candump log with explicit step times. The CSV columns and the
+status must be identical at every step, including the first steps, whose inputs are not finite yet
+(no frame received), a stretch where the ESC frames stop (stale inputs), corrupted frames, a late
+step (DEADLINE_MISS) and the shutdown ramp-out.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from lde.clock import SimulatedClock
+from lde.codec import MessageEncoder, si_to_dbc
+from lde.diagnostics import DEADLINE_MISS_NS
+from lde.frames import FrameBatch
+from lde.params import load_vehicle
+from lde.profiles import load_profile
+from lde.recording import Recorder, read_recording
+from lde.replay import CSV_COLUMNS, replay, replay_log, write_csv
+from lde.service import Service
+from lde.status import DEADLINE_MISS, ESC_FAULT, MDPS_FAULT, NOT_CONVERGED, VALID
+from lde.units import DEG, KMH, STEP_NS
+
+T0 = 1_700_000_000_000_000_000
+_channels = itertools.count()
+
+
+def _feed(bus: can.BusABC, profile, t_from: int, t_to: int, state: dict) -> None:
+    """MDPS every 3.9 ms (300 us before the grid), ESC every 10 ms, with a disturbance ramp; ESC
+    silent in [2.0 s, 2.3 s); every 997th MDPS frame has a corrupted CRC."""
+    mdps, esc = state["mdps"], state["esc"]
+    while min(state["next_m"], state["next_e"]) <= t_to:
+        if state["next_m"] <= state["next_e"]:
+            t = state["next_m"]
+            if t >= t_from:
+                s = (t - T0) * 1e-9
+                vals = si_to_dbc(
+                    profile,
+                    "MDPS_Sensors",
+                    {
+                        "column_torque": 0.6 + 0.3 * np.sin(s),
+                        "assist_torque": 1.0 + 0.5 * np.sin(s),
+                        "steering_angle": (0.4 + 0.2 * np.sin(2 * s)) * DEG,
+                        "steering_rate": 0.4 * np.cos(2 * s) * DEG,
+                    },
+                )
+                msg = mdps.message(vals, t)
+                state["n_m"] += 1
+                if state["n_m"] % 997 == 0:
+                    msg.data[0] ^= 0x5A
+                bus.send(msg)
+            state["next_m"] += STEP_NS
+        else:
+            t = state["next_e"]
+            s = (t - T0) * 1e-9
+            if t >= t_from and not (2.0 <= s < 2.3):
+                vals = si_to_dbc(
+                    profile,
+                    "ESC_Motion",
+                    {"yaw_rate": 0.002 * np.sin(s), "lat_accel": 0.1, "speed": 100 * KMH},
+                )
+                bus.send(esc.message(vals, t))
+            state["next_e"] += 10_000_000
+
+
+def _csv(path: Path) -> dict[str, list[str]]:
+    with path.open() as fh:
+        rows = list(csv.reader(fh))
+    head = rows[0]
+    return {h: [r[i] for r in rows[1:]] for i, h in enumerate(head)}
+
+
+@pytest.mark.parametrize("backend", ["float", "fixed"])
+def test_live_and_replay_give_identical_rows(tmp_path: Path, backend: str) -> None:
+    profile, vehicle = load_profile("lde"), load_vehicle("reference")
+    ch = f"lde-one-path-{next(_channels)}"
+    feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    tap = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)  # every frame on the bus
+    rec_path = tmp_path / "live.mcap"
+    clock = SimulatedClock(T0)
+    state = {
+        "mdps": MessageEncoder(profile, "MDPS_Sensors"),
+        "esc": MessageEncoder(profile, "ESC_Motion"),
+        "next_m": T0 + 20 * STEP_NS - 300_000,  # the first 20 steps have no input at all
+        "next_e": T0 + 22 * STEP_NS,
+        "n_m": 0,
+    }
+    live = []
+    rec = Recorder(rec_path)
+    try:
+        svc = Service(svc_bus, profile, vehicle, clock, backend=backend, recorder=rec, log_period_s=0)
+        for k in range(1800):
+            t_k = T0 + k * STEP_NS
+            _feed(feed_bus, profile, T0, t_k, state)
+            clock.sleep_until(t_k)
+            late = k == 700  # one step starts late: DEADLINE_MISS, recorded and replayed
+            live.append(svc.step_once(t_k, t_start=t_k + DEADLINE_MISS_NS + 1 if late else t_k))
+        svc.request_stop()  # ramp-out: the limiter's enable input goes to 0
+        for k in range(1800, 2100):
+            t_k = T0 + k * STEP_NS
+            _feed(feed_bus, profile, T0, t_k, state)
+            clock.sleep_until(t_k)
+            live.append(svc.step_once(t_k))
+    finally:
+        rec.close()
+        feed_bus.shutdown()
+        svc_bus.shutdown()
+    frames = []
+    while (m := tap.recv(0.0)) is not None:
+        if m.arbitration_id in (0x2A0, 0x2A8):
+            frames.append(m)
+    tap.shutdown()
+
+    status = np.array([r.status for r in live])
+    # the test covers what it says it does
+    assert np.all(status[:20] & (MDPS_FAULT | ESC_FAULT))  # no input yet: NaN inputs
+    assert np.any(status & VALID)
+    assert np.any(status[400:] & ESC_FAULT)  # the ESC frames stop for 0.3 s
+    assert status[700] & DEADLINE_MISS and np.count_nonzero(status & DEADLINE_MISS) == 1
+    assert np.any(status & NOT_CONVERGED) and abs(live[1799].t_overlay) > 0 and live[-1].t_overlay == 0.0
+
+    # 1. the recording, replayed on its recorded step times
+    live_csv = tmp_path / "live.csv"
+    _, res = replay_log(rec_path, None, vehicle, backend)
+    write_csv(live_csv, res)
+    np.testing.assert_array_equal(res.t_ns, [r.t_ns for r in live])
+    np.testing.assert_array_equal(res.status, status)
+    np.testing.assert_array_equal(res.fw, [r.fw for r in live])
+    np.testing.assert_array_equal(res.mw, [r.mw for r in live])
+    np.testing.assert_array_equal(res.t_overlay, [r.t_overlay for r in live])
+    np.testing.assert_array_equal(res.overlay_state, [r.overlay_state for r in live])
+    rec_data = read_recording(rec_path)
+    np.testing.assert_array_equal(rec_data.estimate["Fw"], res.fw)  # exact floats in the recording
+
+    # 2. the bare frames (no recording): the same rows with the live step times, enable and bits
+    fb = FrameBatch.from_messages(frames)
+    enable = np.array([r.overlay_enable for r in live])
+    res2 = replay(
+        fb,
+        profile,
+        vehicle,
+        backend,
+        step_times_ns=res.t_ns,
+        overlay_enable=enable,
+        extra_status=(status & DEADLINE_MISS).astype(np.uint8),
+    )
+    bare_csv = tmp_path / "bare.csv"
+    write_csv(bare_csv, res2)
+    a, b = _csv(live_csv), _csv(bare_csv)
+    assert list(a) == [c for c, _, _ in CSV_COLUMNS]
+    for col in a:
+        assert a[col] == b[col], col

@@ -1,0 +1,290 @@
+"""The zoo evaluation: spec sheets, typed study options, the cli engine (what a user runs), warm mode's
+missing prerequisite, the per-plant table and the summary lines, ``lde evaluate --zoo``."""
+
+from __future__ import annotations
+
+import csv
+import math
+
+import numpy as np
+import pytest
+
+from lde import metrics
+from lde.cli import engine as cli_engine
+from lde.cli import main
+from lde.errors import ConfigError
+from lde.params import load_vehicle
+from lde.study import EstOptions, RunResult, RunSpec, SimOptions, zoo
+from lde.study.specsheet import SPEC_SHEET_KEYS, spec_sheet_vehicle
+
+vcan_zoo = pytest.importorskip("vcan_sim.zoo")
+
+
+# --- spec sheets ------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("plant", ["indep_twin", "loaded_twin", "suv_slow"])
+def test_spec_sheet_gives_only_the_sheet_and_the_generic_defaults(tmp_path, plant):
+    car = vcan_zoo.load_plant(plant)
+    est = spec_sheet_vehicle(car, tmp_path)
+    ref = load_vehicle("reference")
+    # what a spec sheet gives: the car's (unloaded) body and steering ratio
+    assert est.body == car.body
+    assert est.steering.ratio == car.steering.ratio
+    assert {k for _, k, _, _ in SPEC_SHEET_KEYS} == {
+        "mass_kg",
+        "yaw_inertia_kgm2",
+        "lf_m",
+        "lr_m",
+        "track_front_m",
+        "track_rear_m",
+        "ratio",
+    }
+    # everything else the estimator reads is the shipped generic default, nothing from the plant
+    assert est.tires == ref.tires and est.tires != car.tires
+    assert est.estimator == ref.estimator
+    assert est.overlay == ref.overlay
+    assert est.corrections == ref.corrections and est.corrections.is_identity
+
+
+def test_reference_tires_are_labelled_generic():
+    from pathlib import Path
+
+    text = Path(load_vehicle("reference").source).read_text()
+    assert "generic mid-size-sedan" in text
+    assert "not in the zoo" in text
+
+
+# --- typed options ------------------------------------------------------------------------------------
+
+
+def test_options_are_typed_and_iterate_as_pairs():
+    s = RunSpec(
+        "light_load",
+        sim_options=(("friction_Nm", "0.6"), ("speed_kmh", 90)),
+        est_options=(("calibrate", "lane_change"), ("calibrate_tires", 0), ("steering_friction_Nm", 0.3)),
+    )
+    assert isinstance(s.sim_options, SimOptions) and s.sim_options.friction_Nm == 0.6
+    assert s.sim_options.speed_kmh == 90.0
+    assert isinstance(s.est_options, EstOptions)
+    assert s.est_options.calibrate == "lane_change" and s.est_options.calibrate_tires is False
+    assert s.est_options.corrections == (("steering_friction_Nm", 0.3),)
+    want = {"calibrate": "lane_change", "calibrate_tires": 0, "steering_friction_Nm": 0.3}
+    assert dict(s.est_options) == want
+    assert dict(s.sim_options) == {"friction_Nm": 0.6, "speed_kmh": 90.0}
+    with pytest.raises(ConfigError, match="known"):
+        SimOptions.parse([("frcition_Nm", 0.6)], strict=True)
+    with pytest.raises(ConfigError, match="expected a number"):
+        SimOptions.parse([("friction_Nm", "a lot")])
+    with pytest.raises(ConfigError, match="0/1"):
+        EstOptions.parse([("payload_known", 2)])
+
+
+def test_unknown_option_fails_its_run_not_the_sweep():
+    from lde.study import ClusterConfig, run_specs
+
+    res = run_specs(
+        [RunSpec("lane_change", duration=3.0, sim_options=(("warp_factor", 9),))],
+        ClusterConfig(n_workers=0),
+        progress=False,
+    )
+    assert not res[0].ok and "warp_factor" in res[0].error and "friction_Nm" in res[0].error
+
+
+# --- the cli engine: what a user runs -------------------------------------------------------------------
+
+
+def _zoo_spec(tmp_path, **kw):
+    args = dict(
+        scenario="wind_step",
+        est_vehicle="spec-sheet",
+        sim_vehicle="zoo:indep_twin",
+        duration=10.0,
+        estimator="cli",
+        backend="fixed",
+        work_dir=str(tmp_path / "runs"),
+    )
+    args.update(kw)
+    return RunSpec(**args)
+
+
+def test_cli_engine_scores_exactly_the_users_replay(tmp_path):
+    """The engine's CSV is byte for byte what `lde replay LOG --profile P --backend B --vehicle
+    SPEC_SHEET --csv OUT` writes, and its score is the metric of that CSV against the truth."""
+    from lde.study.engine import run_one
+
+    spec = _zoo_spec(tmp_path, profile="hyundai")
+    res = run_one(spec, cli_engine.engine)
+    assert res.ok, res.error
+    d = tmp_path / "runs" / "indep_twin" / "hyundai-fixed" / "wind_step-s0"
+    assert {p.name for p in d.iterdir()} == {"drive.log", "truth.csv", "spec_sheet.toml", "estimate.csv"}
+    out = tmp_path / "mine.csv"
+    argv = ["replay", str(d / "drive.log"), "--profile", "hyundai", "--backend", "fixed"]
+    assert main(argv + ["--vehicle", str(d / "spec_sheet.toml"), "--csv", str(out), "-q"]) == 0
+    assert out.read_bytes() == (d / "estimate.csv").read_bytes()
+    t, fw, mw, status = cli_engine.read_estimate_csv(out)
+    truth = np.genfromtxt(d / "truth.csv", delimiter=",", names=True)
+    acc = metrics.accuracy(
+        t,
+        fw,
+        mw,
+        metrics.Truth(truth["t"], truth["Fw"], truth["Mw"], truth["Mw_ref"]),
+        valid=(status & 1) != 0,
+    )
+    assert acc.nrmse_fw == pytest.approx(res.accuracy.nrmse_fw, rel=1e-3)
+    assert acc.nrmse_mw == pytest.approx(res.accuracy.nrmse_mw, rel=1e-3)
+    # the estimate follows the 12 m/s crosswind step (a broken chain gives ~100 %)
+    assert res.accuracy.kind is metrics.Kind.DISTURBED and res.accuracy.nrmse_fw < 0.5
+
+
+def test_cli_engine_reports_lde_errors_as_a_failed_run(tmp_path):
+    from lde.study.engine import run_one
+
+    res = run_one(
+        _zoo_spec(tmp_path, est_vehicle=str(tmp_path / "missing.toml"), work_dir=""), cli_engine.engine
+    )
+    assert not res.ok and "exited with 2" in res.error and "vehicle file not found" in res.error
+
+
+def test_warm_mode_is_one_clear_line_until_replay_has_learned(capsys, tmp_path):
+    assert not cli_engine.learned_available()  # `lde replay --help` does not list --learned yet
+    code = main(["evaluate", "--zoo", "--warm", "--plants", "indep_twin", "--out", str(tmp_path)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert err == [f"lde: error: {cli_engine.WARM_UNAVAILABLE}"]
+    with pytest.raises(ConfigError, match="--learned"):
+        cli_engine.require_learned()
+
+
+def test_warm_mode_plumbing_once_replay_takes_learned(tmp_path, monkeypatch):
+    """With --learned available the warm run replays the prior drive with --learned S, then the run
+    with --learned S --csv OUT (the option is simulated here by dropping it before the real CLI)."""
+    calls = []
+    real = cli_engine.run_cli
+
+    def fake_run_cli(argv):
+        calls.append(list(argv))
+        i = argv.index("--learned")
+        return real(argv[:i] + argv[i + 2 :])
+
+    monkeypatch.setattr(cli_engine, "learned_available", lambda: True)
+    monkeypatch.setattr(cli_engine, "run_cli", fake_run_cli)
+    (spec,) = zoo.zoo_specs(
+        ["indep_twin"], scenarios=("wind_step",), profiles=("lde",), backends=("float",), mode=zoo.Mode.WARM
+    )
+    assert spec.est_options.learned_prior == zoo.PRIOR_SCENARIO
+    from lde.study.engine import run_one
+
+    res = run_one(RunSpec(**{**spec.__dict__, "duration": 8.0, "work_dir": str(tmp_path)}), cli_engine.engine)
+    assert res.ok, res.error
+    prior, run = calls
+    d = tmp_path / "indep_twin" / "lde-float" / "wind_step-s0-warm"
+    assert prior[:2] == ["replay", str(d / "prior.log")] and "--csv" not in prior
+    assert prior[prior.index("--learned") + 1] == str(d / "learned")
+    assert run[:2] == ["replay", str(d / "drive.log")]
+    assert run[run.index("--learned") + 1] == str(d / "learned")
+    assert run[run.index("--csv") + 1] == str(d / "estimate.csv")
+    for argv in (prior, run):
+        assert argv[argv.index("--vehicle") + 1] == str(d / "spec_sheet.toml")
+
+
+# --- tables and summary -----------------------------------------------------------------------------------
+
+
+def _acc(kind, f, m, m_true=None, rms=(0.0, 0.0)):
+    m_true = m if m_true is None else m_true
+    return metrics.Accuracy(kind, 100, rms[0], rms[1], rms[1], 1000.0, 500.0, 500.0, f, m_true, m)
+
+
+def _res(plant, scenario, acc, profile="lde", backend="fixed"):
+    spec = RunSpec(
+        scenario,
+        est_vehicle="spec-sheet",
+        sim_vehicle=f"zoo:{plant}",
+        estimator="cli",
+        backend=backend,
+        profile=profile,
+        group=plant,
+    )
+    return RunResult(spec, acc, "" if acc is not None else "boom")
+
+
+def test_plant_table_and_summary():
+    D, U = metrics.Kind.DISTURBED, metrics.Kind.UNDISTURBED
+    results = [
+        _res("indep_twin", "wind_step", _acc(D, 0.05, 0.08)),
+        _res("indep_twin", "lane_change", _acc(U, math.nan, math.nan, rms=(65.0, 8.0))),
+        _res("loaded_twin", "wind_step", _acc(D, 0.06, 0.12, m_true=0.07)),
+        _res("loaded_twin", "lane_change", None),
+        _res("indep_twin", "wind_step", _acc(D, 0.2, 0.02), profile="hyundai"),
+    ]
+    md = zoo.plant_table_markdown(results, backend="fixed").splitlines()
+    assert md[0] == "| plant | profile | wind_step | lane_change | met |"
+    assert md[2] == "| indep_twin | lde | 5.0 / 8.0 | **65 N / 8 Nm** | 1/2 |"
+    # Mw about the spec sheet's CG decides; the payload plant shows Mw about the true CG in brackets
+    assert md[3] == "| loaded_twin | lde | **6.0 / 12.0 (7.0)** | **failed** | 0/2 |"
+    assert md[4] == "| indep_twin | hyundai | **20.0 / 2.0** |  | 0/1 |"
+    rows = zoo.plant_table_rows(results)
+    assert rows[1]["wind_step_mw"] == 0.12 and rows[1]["wind_step_mw_true_cg"] == 0.07
+    assert rows[0]["targets_met"] == 1 and rows[0]["runs"] == 2
+    lines = zoo.summary_lines(results)
+    assert lines[0].startswith("cold, crosswind/bank scenarios, NRMSE <= 10 % Fw and Mw")
+    assert "met in 1 of 3 runs" in lines[0]
+    assert "worst Fw 20.0 % (indep_twin, wind_step, hyundai, fixed)" in lines[0]
+    assert "worst Mw 12.0 % (loaded_twin, wind_step, lde, fixed)" in lines[0]
+    assert lines[1].startswith("cold, disturbance-free drive, RMS <= 60 N / 20 Nm: met in 0 of 1 runs")
+    assert "1 run(s) failed" in lines[2]
+
+
+def test_zoo_specs_cover_the_product_of_the_selection():
+    specs = zoo.zoo_specs(["indep_twin", "suv_slow"], scenarios=("wind_step", "lane_change"))
+    assert len(specs) == 2 * 2 * 2 * 2
+    assert {(s.profile, s.backend) for s in specs} == {
+        ("lde", "fixed"),
+        ("lde", "float"),
+        ("hyundai", "fixed"),
+        ("hyundai", "float"),
+    }
+    assert all(s.estimator == "cli" and s.est_vehicle == "spec-sheet" for s in specs)
+    with pytest.raises(ConfigError, match="no_such"):
+        zoo.zoo_specs(["no_such"])
+    with pytest.raises(ConfigError, match="scenario"):
+        zoo.zoo_specs(["indep_twin"], scenarios=("no_such_drive",))
+
+
+@pytest.mark.slow
+def test_lde_evaluate_zoo_end_to_end(tmp_path, capsys):
+    out = tmp_path / "zoo"
+    argv = ["evaluate", "--zoo", "--plants", "compact_quick", "--scenarios", "wind_step,lane_change"]
+    argv += ["--profiles", "lde", "--backends", "fixed", "--duration", "10", "--workers", "0"]
+    assert main(argv + ["--out", str(out), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "cold, crosswind/bank scenarios" in printed and "| compact_quick | lde |" in printed
+    assert (out / "spec_sheets" / "compact_quick.toml").is_file()
+    runs = list(csv.DictReader((out / "zoo_runs.csv").open()))
+    assert [r["scenario"] for r in runs] == ["wind_step", "lane_change"]
+    assert all(r["error"] == "" for r in runs)
+    table = list(csv.DictReader((out / "zoo_table.csv").open()))
+    assert table[0]["plant"] == "compact_quick" and float(table[0]["lane_change_fw"]) > 0
+    md = (out / "zoo_table.md").read_text()
+    assert "lde evaluate --zoo --plants compact_quick" in md and "## backend fixed" in md
+
+
+def test_a_disturbance_free_scenario_is_scored_by_rms_whatever_the_aero_side_force():
+    """A large car's own side slip makes ~20 N of aero side force on a lane change; the run is still
+    scored as disturbance-free (RMS), not as an NRMSE over a 20 N maximum."""
+    from lde.study import Estimate
+    from lde.study.engine import run_one
+
+    def engine(spec):
+        t = np.arange(0.0, 10.0, 0.01)
+        fw = 25.0 * np.sin(t)  # the aero side force of the car's side slip
+        return Estimate(
+            t, fw + 30.0, np.full_like(t, 5.0), np.ones(t.size, bool), metrics.Truth(t, fw, 0 * t, 0 * t)
+        )
+
+    res = run_one(RunSpec("lane_change"), engine=engine)
+    assert res.accuracy.kind is metrics.Kind.UNDISTURBED
+    assert res.accuracy.rms_fw == pytest.approx(30.0) and res.accuracy.rms_mw == pytest.approx(5.0)
+    disturbed = run_one(RunSpec("wind_step"), engine=engine)
+    assert disturbed.accuracy.kind is metrics.Kind.FORCE_ONLY  # decided from the truth (no moment)
