@@ -239,7 +239,12 @@ fi
 console_tail() { echo "--- UML console (last 25 lines) ---" >&2; tail -n 25 "$work/console.log" >&2 || true; }
 
 if [[ -f $work/rc ]]; then
-    exit "$(cat "$work/rc")"
+    rc=$(cat "$work/rc")
+    if [[ $rc -ge 128 ]]; then  # killed by a signal inside the guest: say whether the OOM killer did it
+        echo "run_in_uml: the command died of signal $((rc - 128)) inside the guest (mem=$mem)" >&2
+        grep -iE "out of memory|killed process|oom-kill" "$work/console.log" | tail -n 5 >&2 || true
+    fi
+    exit "$rc"
 fi
 if [[ $uml_rc == 124 || $uml_rc == 137 ]]; then
     echo "run_in_uml: timed out after ${timeout_s} s" >&2

@@ -67,6 +67,9 @@ SERVICE_STOP_S = 120.0  # SIGTERM to exit: ramp-out (<= 3 s) and closing the rec
 
 
 def _sim_cmd(tmp: Path, name: str, *extra: str) -> list[str]:
+    # --rt-priority switches the simulator's main thread only, after its imports (measured: started
+    # under `chrt -f 90` instead, with every thread of the process real-time from the start, it left
+    # the service 7 % of its steps instead of 70-88 %)
     cmd = [*LDE, "sim", "-i", "socketcan", "-c", CHANNEL, "--scenario", SCENARIO, "--seed", "5"]
     # --rt-priority above the service's 80: the simulator stands for the car's other ECUs, which have
     # CPUs of their own; on UML's one CPU its frames must not wait behind the service, candump or
