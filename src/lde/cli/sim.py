@@ -73,7 +73,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--rt-priority",
         type=int,
         metavar="N",
-        help="live bus: run the simulator SCHED_FIFO at priority N (1..99; warns where refused)",
+        help="live bus: run the simulator SCHED_FIFO at priority N (1..99; warns where refused); it never "
+        "waits for another process (sleeps until its next frame, reads the overlay without blocking)",
     )
     p.add_argument(
         "--nice",
@@ -193,9 +194,12 @@ def run(args: argparse.Namespace) -> int:
     if live:
         from lde.service import open_bus
         from vcan_sim.closed_loop import OverlayReceiver
-        from vcan_sim.emitter import LATE_S, pump
+        from vcan_sim.emitter import LATE_S, MAX_LAG_S, pump
 
         realtime = True if args.realtime is None else args.realtime
+        if args.rt_priority is not None and not realtime:
+            # --fast never sleeps: at a real-time priority it would starve everything below it
+            raise ConfigError("--rt-priority needs real-time pacing: drop --fast")
         receiver = None if args.open_loop else OverlayReceiver(sim.profile)
         kw = bus_kwargs(args)
         # the kernel (SocketCAN) hands the simulator only the frames it reads: LDE_Overlay. Without
@@ -215,12 +219,20 @@ def run(args: argparse.Namespace) -> int:
             bus.shutdown()
         if st is not None:
             used = receiver.stats.used if receiver else 0
+            # closed loop: the steps that found no new overlay frame ran on the last request
+            stale = (
+                f", steps on the last overlay request {st.stale_overlay_steps} of {st.steps}"
+                if receiver
+                else ""
+            )
             print(
                 f"lde sim: {args.scenario}: sent {st.sent} frames over {st.sim_s:.2f} s simulated in "
                 f"{st.wall_s:.2f} s wall ({'real time' if realtime else 'fast'}, CPU {st.cpu_s:.2f} s); "
-                f"overlay frames used {used}, send errors {st.send_errors}, "
+                f"overlay frames used {used}{stale}, send errors {st.send_errors}, "
                 f"max lateness {st.max_late_s * 1e3:.2f} ms, "
-                f"frames late > {LATE_S * 1e3:.0f} ms {st.late_frames}",
+                f"frames late > {LATE_S * 1e3:.0f} ms {st.late_frames}, "
+                f"schedule slipped {st.slips}x by {st.slipped_s * 1e3:.0f} ms "
+                f"(> {MAX_LAG_S * 1e3:.1f} ms behind)",
                 file=sys.stderr,
             )
     else:
