@@ -140,12 +140,14 @@ def test_wait_for_runs_until_a_new_frame_and_times_out(lde_bench: Bench) -> None
     esc = lde_bench.wait_for("ESC_Motion", timeout_s=0.1)
     assert esc.t_ns == T0 + 12_500_000 and lde_bench.now_ns == esc.t_ns  # it stops at that instant
     assert esc["VehicleSpeed"] == pytest.approx(100.0, abs=0.1) and esc.e2e_ok
-    nxt = lde_bench.wait_for("ESC_Motion", timeout_s=0.1)  # the next one, not the same again
-    assert nxt.t_ns == esc.t_ns + 10 * MS
+    nxt = lde_bench.wait_for("ESC_Motion", timeout_s=0.010)  # the next one, not the same again:
+    assert nxt.t_ns == esc.t_ns + 10 * MS  # due exactly at the timeout, which counts
     slow = lde_bench.wait_for("ESC_Motion", timeout_s=1.0, where=lambda f: f.t_ns >= T0 + 100 * MS)
     assert slow.t_ns == T0 + 102_500_000
+    before = lde_bench.now_ns
     with pytest.raises(BenchTimeout, match=r"LDE_Overlay frame .* 0.05 s .* MDPS_Sensors: \d+"):
         lde_bench.wait_for("LDE_Overlay", timeout_s=0.05)
+    assert lde_bench.now_ns == before + 50 * MS
     with pytest.raises(ConfigError, match="has no message 'NoSuchMessage'"):
         lde_bench.wait_for("NoSuchMessage")
 

@@ -18,7 +18,7 @@ same frames, run after run, on ``virtual`` and on ``socketcan``.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -122,7 +122,7 @@ class Bench:
         name: str = "user",
         *,
         preserve_timestamps: bool = False,
-        drop: Any = (),
+        drop: Iterable[int] = (),
         can_filters: Any = None,
     ) -> BenchBus:
         """A new bus on the bench for one participant (closed with the bench); see :class:`BenchBus`."""
@@ -164,7 +164,7 @@ class Bench:
         backend: str = "fixed",
         vehicle: Vehicle | str | None = None,
         overlay: bool = True,
-        drop: Any = (),
+        drop: Iterable[str] = (),
         phase_s: float = 0.0,
         record: str | Path | None = None,
         learned: str | Path | None = None,
@@ -294,7 +294,7 @@ class Bench:
         if condition():
             return
         t_start = self.now_ns
-        if not self.scheduler.run(end_ns=t_start + seconds_to_ns(timeout_s) + 1, stop=condition):
+        if not self.scheduler.run(t_start + seconds_to_ns(timeout_s), stop=condition, inclusive=True):
             raise BenchTimeout(
                 f"{what} did not happen within {timeout_s} s of bench time "
                 f"(from t = {(t_start - self.t0_ns) / 1e9:.4f} s); frames seen: {self._summary()}"

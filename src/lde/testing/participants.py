@@ -369,7 +369,7 @@ class BenchService:
                 overlay_enabled=overlay,
                 log_period_s=0,
             )
-        except BaseException:
+        except Exception:  # close the recording's file, then re-raise
             if self.recorder is not None:
                 self.recorder.close()
             raise

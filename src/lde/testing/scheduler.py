@@ -113,8 +113,11 @@ class Scheduler:
             heapq.heappop(self._heap)
         return self._heap[0][0] if self._heap else None
 
-    def run(self, end_ns: int | None = None, stop: Callable[[], bool] | None = None) -> bool:
-        """Run the actions due before ``end_ns`` (exclusive), then set the clock to ``end_ns``.
+    def run(
+        self, end_ns: int | None = None, stop: Callable[[], bool] | None = None, *, inclusive: bool = False
+    ) -> bool:
+        """Run the actions due before ``end_ns`` (at or before it with ``inclusive``), then set the
+        clock to ``end_ns``.
 
         ``stop()`` is asked after each instant (once every action due at it has run); True ends the
         run at that instant and is returned. With neither ``end_ns`` nor ``stop`` the run ends when
@@ -125,7 +128,7 @@ class Scheduler:
         settle = self._settle
         while heap:
             t, _, _, task = heap[0]
-            if end_ns is not None and t >= end_ns:
+            if end_ns is not None and (t > end_ns if inclusive else t >= end_ns):
                 break
             heapq.heappop(heap)
             if not task.active:
