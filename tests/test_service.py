@@ -9,6 +9,7 @@ lockstep, driven by hand.
 from __future__ import annotations
 
 import itertools
+import json
 import math
 
 import can
@@ -241,7 +242,7 @@ def test_sigterm_ends_lde_run_cleanly(tmp_path) -> None:
 
     from lde.recording import read_recording
 
-    path = tmp_path / "term.mcap"
+    path, learned = tmp_path / "term.mcap", tmp_path / "car.learned"
     cmd = [
         sys.executable,
         "-m",
@@ -252,9 +253,11 @@ def test_sigterm_ends_lde_run_cleanly(tmp_path) -> None:
         "--channel",
         "term",
         "--backend",
-        "float",
+        "lateral",
         "--record",
         str(path),
+        "--learned",
+        str(learned),
     ]
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, env=dict(os.environ, PYTHONUNBUFFERED="1"))
     try:
@@ -272,6 +275,9 @@ def test_sigterm_ends_lde_run_cleanly(tmp_path) -> None:
     rec = read_recording(path)
     assert rec.complete  # summary and footer written: the recorder was closed
     assert len(rec.step_times_ns) > 10
+    # the learned state's last write (no input: nothing learned, no driving time, one drive)
+    doc = json.loads(learned.read_text())
+    assert doc["format"] == "lde-learned" and doc["drives"] == 1 and doc["seconds"] == 0.0
 
 
 def test_bus_timestamps_in_another_time_base_are_restamped(rig) -> None:

@@ -21,7 +21,7 @@ from ..errors import ConfigError
 from ..frames import ns_to_seconds, seconds_to_ns
 from ..params import Vehicle
 from ..profiles import Profile
-from ..recording import Recorder
+from ..recording import LEARNED_START_KEY, Recorder
 from ..service import Service, StepResult
 from ..units import STEP_NS
 from .scheduler import Rank
@@ -315,8 +315,8 @@ class BenchService:
         phase_s: the first step this long after the bench's start (default 0: in step with the
             simulator's periods).
         record: write the service's MCAP recording there (as ``lde run --record``).
-        learned: the learned-state file of ``lde run --learned`` - the hook for it; the service does
-            not take one yet, so anything but None is a ConfigError.
+        learned: the learned-state file of ``lde run --learned``: read at the start when it exists,
+            written every 60 s of bench time and at :meth:`close` (a learning backend).
         name: the participant's name.
     """
 
@@ -333,11 +333,6 @@ class BenchService:
         learned: str | Path | None = None,
         name: str = "lde",
     ) -> None:
-        if learned is not None:
-            # the hook: pass the file to Service once it reads/writes learned state (SPEC section 4)
-            raise ConfigError(
-                f"learned={str(learned)!r}: this lde's Service does not take a learned-state file yet"
-            )
         profile = bench.profile
         drop = tuple(drop)
         for m in drop:
@@ -347,32 +342,27 @@ class BenchService:
         self.name = name
         self.bus = bench.bus(name, drop=[profile.outputs[m].frame_id for m in drop])
         veh = bench.vehicle if vehicle is None else vehicle
+        self.service = Service(
+            self.bus,
+            profile,
+            veh,
+            bench.clock,
+            backend,
+            overlay_enabled=overlay,
+            log_period_s=0,
+            learned=learned,
+        )
         self.recorder: Recorder | None = None
         if record is not None:
-            self.recorder = Recorder(
-                record,
-                metadata={
-                    "profile": profile.name,
-                    "backend": backend,
-                    "step_ns": str(STEP_NS),
-                    "bench": bench.channel,
-                },
-            )
-        try:
-            self.service = Service(
-                self.bus,
-                profile,
-                veh,
-                bench.clock,
-                backend,
-                self.recorder,
-                overlay_enabled=overlay,
-                log_period_s=0,
-            )
-        except Exception:  # close the recording's file, then re-raise
-            if self.recorder is not None:
-                self.recorder.close()
-            raise
+            meta = {
+                "profile": profile.name,
+                "backend": backend,
+                "step_ns": str(STEP_NS),
+                "bench": bench.channel,
+            }
+            if self.service.learned_start:
+                meta[LEARNED_START_KEY] = self.service.learned_start
+            self.recorder = self.service.recorder = Recorder(record, metadata=meta)
         self.results: list[StepResult] = []
         self.task = bench.every(STEP_NS / 1e9, self._step, phase_s=phase_s, rank=Rank.SERVICE, name=name)
 
@@ -397,6 +387,12 @@ class BenchService:
         self.service.request_stop()
 
     def close(self) -> None:
+        try:
+            self.service.close()
+        finally:
+            self._close_recorder()
+
+    def _close_recorder(self) -> None:
         if self.recorder is not None:
             self.recorder.close()
             self.recorder = None
