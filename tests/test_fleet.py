@@ -125,3 +125,23 @@ def test_an_unreachable_scheduler_is_one_line(logs, tmp_path):
     assert proc.returncode == 2, proc.stderr
     assert [ln for ln in proc.stderr.splitlines() if ln.startswith("lde: error:")], proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("opt", [["--jobs", "2"], ["--scheduler", "tcp://127.0.0.1:9"]])
+def test_learned_with_jobs_or_scheduler_is_one_line(logs, tmp_path, opt):
+    """--learned passes one file from log to log in order: parallel jobs cannot share it."""
+    learned = tmp_path / "car.learned"
+    out = tmp_path / "csv"
+    proc = subprocess.run(
+        [sys.executable, "-m", "lde", "replay", *map(str, logs), "--backend", "lateral"]
+        + ["--learned", str(learned), "--csv", str(out), *opt],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)])),
+    )
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("lde: error: --learned"), proc.stderr
+    assert opt[0] in lines[0]
+    assert not learned.exists() and not out.exists()  # nothing read, nothing written

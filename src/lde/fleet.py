@@ -46,7 +46,8 @@ class ReplayJob:
     """One log to replay and where its outputs go (paths as the worker sees them).
 
     ``profile`` None: the profile the log names, else ``lde``; ``vehicle``: a TOML path or a
-    shipped name; ``reorder_window_ns`` None: text logs sorted whole.
+    shipped name; ``reorder_window_ns`` None: text logs sorted whole; ``learned``: a learned-state
+    file read at the start (when it exists) and written at the end (:func:`lde.replay.run_replay`).
     """
 
     log: Path
@@ -59,6 +60,7 @@ class ReplayJob:
     reorder_window_ns: int | None = REORDER_WINDOW_NS
     mcap_index: bool = False
     shadow_thread: bool = False
+    learned: Path | None = None
 
 
 @dataclass
@@ -87,6 +89,8 @@ class LogReport:
     timings: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     host: str = ""
+    learned: str = ""  # what the learner holds at the end (empty without a learner)
+    learned_origin: str = ""  # where learning started: a --learned file, the recording, "" (vehicle)
 
     @property
     def ok(self) -> bool:
@@ -167,6 +171,8 @@ def _replay(job: ReplayJob, rep: LogReport) -> None:
             extra_status=li.extra_status,
             output_frames=job.mcap is not None,
             shadow_thread=job.shadow_thread,
+            learned=job.learned,
+            learned_start=li.learned_start,
         )
         for sink in sinks:
             sink.close()
@@ -188,6 +194,7 @@ def _replay(job: ReplayJob, rep: LogReport) -> None:
     rep.skipped = {k: int(getattr(stats, k)) for k in _SKIPPED if getattr(stats, k)}
     rep.profile, rep.profile_origin, rep.backend = li.profile.name, li.profile_origin, res.backend
     rep.timings = {"open": li.read_s, **res.timings}
+    rep.learned, rep.learned_origin = res.learned, res.learned_origin
     rep.warnings = [w for w in (no_valid_note(res), late_note(stats, job.reorder_window_ns)) if w]
 
 

@@ -41,7 +41,12 @@ def cache_dirs() -> list[Path]:
     return [pkg / "__pycache__", Path(xdg) / "numba" / _subpath(pkg)]
 
 
-def is_warm(loops: tuple[str, ...] = ("run_fixed", "run_float")) -> bool:
+#: the compiled data-path loops, one per backend (:data:`lde.backends.BACKENDS`, named by
+#: :func:`lde.pipeline.make_loop`): fixed, float, lateral
+LOOPS = ("run_paper_fixed", "run_paper", "run_lateral")
+
+
+def is_warm(loops: tuple[str, ...] = LOOPS) -> bool:
     """True when a compiled data-path loop (:mod:`lde.pipeline`, any of ``loops``) is cached for
     this Python. A stale entry (another numba, changed sources) still counts as warm here: the
     compile notice then comes with the first compilation (:func:`lde.cli.jit.announce_compiles`)."""

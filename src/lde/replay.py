@@ -53,7 +53,7 @@ from .logio.stream import split
 from .logio.textfmt import Column, format_rows, time_column
 from .params import Vehicle
 from .profiles import PROFILE_NAMES, Profile, load_profile
-from .recording import ESTIMATE_TOPIC, EVENTS_TOPIC, StepTopicWriter
+from .recording import ESTIMATE_TOPIC, EVENTS_TOPIC, LEARNED_START_KEY, StepTopicWriter
 from .status import DEADLINE_MISS, VALID
 from .units import STEP_NS
 
@@ -99,6 +99,10 @@ CSV_COLUMNS: tuple[tuple[str, int, str], ...] = (
     ("speed", 4, "m/s, input speed (sample-and-hold)"),
     ("mdps_ok", 0, "1: MDPS inputs fresh and trusted"),
     ("esc_ok", 0, "1: ESC inputs fresh and trusted"),
+    ("Fw_wind", 3, "N, the wind's part of Fw, left positive (nan: the backend does not tell wind from bank)"),
+    ("Mw_wind", 3, "Nm, the wind's yaw moment, left positive (nan: not told apart)"),
+    ("bank_deg", 4, "deg, road bank angle, road's left side lower positive (nan: not told apart)"),
+    ("learn_state", 0, "tire values: 0 not learned, 1 learning, 2 learned, 3 the backend does not learn"),
 )
 
 
@@ -231,8 +235,8 @@ class ReplayResult:
 
 
 # ----------------------------------------------------------------------------- backends
-def resolve_backend(backend: str | None) -> tuple[str, Callable[..., Any], str]:
-    """(name, the backend's array-API ``run_batch``, note) from the registry (:mod:`lde.backends`);
+def resolve_backend(backend: str | None) -> tuple[str, Callable[..., Any] | None, str]:
+    """(name, the backend's array-API ``run_batch`` or None, note) from the registry (:mod:`lde.backends`);
     ``None`` is :data:`DEFAULT_BACKEND`. An unknown name raises ConfigError (never a fallback)."""
     b = get_backend(DEFAULT_BACKEND if backend is None else backend)
     return b.name, b.run_batch, ""
@@ -261,6 +265,8 @@ class ReplaySummary:
     timings: dict[str, float] = field(default_factory=dict)
     profile: Profile | None = None
     profile_origin: str = ""
+    learned: str = ""  # what the learner holds at the end (one line; empty without a learner)
+    learned_origin: str = ""  # where learning started: a --learned file, the recording, "" (vehicle)
 
     def __len__(self) -> int:
         return self.steps
@@ -285,6 +291,8 @@ def run_replay(
     output_frames: bool = True,
     chunk_frames: int = CHUNK_FRAMES,
     shadow_thread: bool = False,
+    learned: str | Path | None = None,
+    learned_start: str | None = None,
 ) -> ReplaySummary:
     """Stream frames through the data path; every piece's rows go to each sink as
     ``sink(piece, rows)``, the steps after the log's last frame with an empty piece.
@@ -293,8 +301,12 @@ def run_replay(
     iterable of pieces already in time order (a :class:`lde.logio.LogStream`), read one at a time.
     ``tx_frames``: the log's count of frames lde sent when the pieces do not hold them all (or a
     function giving it once the pieces are read). ``shadow_thread``: the fixed backend's float
-    shadow in a second thread (:class:`lde.engine.Engine`; default inline: one core). Other
-    arguments as :func:`replay`.
+    shadow in a second thread (:class:`lde.engine.Engine`; default inline: one core).
+    ``learned``: a learned-state file (``--learned``), read first when it exists and written
+    (atomically) at the end. ``learned_start``: the text of the learned state a live run started
+    from (its recording's ``learned_start``): used by a learning backend when ``learned`` names no
+    existing file, so that the recording replays to the live estimates. Other arguments as
+    :func:`replay`.
     """
     name = DEFAULT_BACKEND if backend is None else backend
     t0 = time.perf_counter()
@@ -302,6 +314,12 @@ def run_replay(
     engine = Engine(
         profile, vehicle, name, explicit=explicit, encode_outputs=output_frames, shadow_thread=shadow_thread
     )
+    origin = ""
+    if learned is not None and engine.load_learned(learned) is not None:
+        origin = str(learned)
+    elif learned_start and engine.learns:
+        engine.load_learned_text(learned_start, "the recording's learned start")
+        origin = "the recording's learned start"
     pieces = split(frames.sort(), chunk_frames) if isinstance(frames, FrameBatch) else frames
     n = n_tx = 0
     steps = valid = gaps = 0
@@ -349,6 +367,8 @@ def run_replay(
         ignored=engine.n_ignored,
         messages=engine.stats(),
     )
+    if learned is not None:
+        engine.save_learned(learned, valid * STEP_NS * 1e-9)
     return ReplaySummary(
         steps=steps,
         valid_steps=valid,
@@ -361,6 +381,8 @@ def run_replay(
             "engine": time.perf_counter() - t0 - t_sinks - t_read,
             "outputs": t_sinks,
         },
+        learned=engine.learn_summary,
+        learned_origin=origin,
     )
 
 
@@ -375,6 +397,8 @@ def replay(
     overlay_enable: np.ndarray | None = None,
     extra_status: np.ndarray | None = None,
     output_frames: bool = True,
+    learned: str | Path | None = None,
+    learned_start: str | None = None,
 ) -> ReplayResult:
     """Replay ``frames`` (any order) through the data path; every row is kept (:class:`ReplayResult`).
 
@@ -389,6 +413,8 @@ def replay(
             recording's, so that a run ended by a signal replays exactly); default all on.
         extra_status: status bits to add per step of ``step_times_ns`` (a recording's DEADLINE_MISS).
         output_frames: encode lde's output frames (needed by :func:`write_recording`).
+        learned: a learned-state file (read when it exists, written at the end).
+        learned_start: a recording's learned start (:func:`run_replay`).
     """
     blocks: list[StepBlock] = []
     summary = run_replay(
@@ -402,6 +428,8 @@ def replay(
         overlay_enable=overlay_enable,
         extra_status=extra_status,
         output_frames=output_frames,
+        learned=learned,
+        learned_start=learned_start,
     )
     block = StepBlock.concat(blocks) if len(blocks) != 1 else blocks[0]
     return ReplayResult.of(
@@ -534,6 +562,7 @@ class LogInputs:
     overlay_enable: np.ndarray | None
     extra_status: np.ndarray | None
     read_s: float
+    learned_start: str | None = None  # the learned state a live run started from (its recording's)
 
     def tx_frames(self) -> int | None:
         """The count of frames lde sent (``/can/tx``) of an MCAP log, else None."""
@@ -580,7 +609,17 @@ def read_inputs(
     except BaseException:
         stream.close()
         raise
-    return LogInputs(stream, profile, origin, steps, enable, extra, time.perf_counter() - t0)
+    meta = stream.mcap.metadata.get("lde", {}) if stream.mcap is not None else {}
+    return LogInputs(
+        stream,
+        profile,
+        origin,
+        steps,
+        enable,
+        extra,
+        time.perf_counter() - t0,
+        meta.get(LEARNED_START_KEY) or None,
+    )
 
 
 def replay_log(
@@ -592,6 +631,7 @@ def replay_log(
     use_recorded_steps: bool = True,
     profiles: dict[str, Profile] | None = None,
     output_frames: bool = True,
+    learned: str | Path | None = None,
 ) -> tuple[LogData, ReplayResult]:
     """Read a log (:func:`read_inputs`) and replay it, every row and every frame kept
     (:class:`lde.logio.LogData`, :class:`ReplayResult`).
@@ -619,6 +659,8 @@ def replay_log(
             overlay_enable=li.overlay_enable,
             extra_status=li.extra_status,
             output_frames=output_frames,
+            learned=learned,
+            learned_start=li.learned_start,
         )
         frames = FrameBatch.concat(pieces, sort=False)
         log = LogData(stream.path, stream.format, frames, stream.stats, mcap=_mcap_data(stream.mcap, frames))
@@ -663,6 +705,10 @@ def _csv_columns(b: StepBlock) -> list[Column]:
         "speed": b.input("speed"),
         "mdps_ok": b.mdps_ok,
         "esc_ok": b.esc_ok,
+        "Fw_wind": b.fw_wind,
+        "Mw_wind": b.mw_wind,
+        "bank_deg": np.degrees(b.bank),
+        "learn_state": b.learn_state,
     }
     cols = [time_column("t", b.t_ns)]
     cols += [Column(name, data[name], dec) for name, dec, _ in CSV_COLUMNS[1:]]

@@ -3,12 +3,13 @@
 Each part runs a tiny workload through its kernels, so numba compiles them and writes its on-disk
 cache (:mod:`lde.jitcache`); parts can run in parallel processes (one core each):
 
-=========  ========================================================================================
-``fixed``  the data path with the fixed-point backend and its float shadow (lde.pipeline's loop)
-``float``  the data path with the float backend
-``logio``  candump parser and writer, MCAP writer and reader, CSV / JSON row formatting
-``sim``    the vehicle simulator (``lde demo``, ``lde sim``) and the batch decoder and grid
-=========  ========================================================================================
+===========  ======================================================================================
+``fixed``    the data path with the fixed-point backend and its float shadow (lde.pipeline's loop)
+``float``    the data path with the float backend
+``lateral``  the data path with the lateral backend (its filter and learner)
+``logio``    candump parser and writer, MCAP writer and reader, CSV / JSON row formatting
+``sim``      the vehicle simulator (``lde demo``, ``lde sim``) and the batch decoder and grid
+===========  ======================================================================================
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from .signals import decode_batch
 
 __all__ = ["PARTS", "warm_up"]
 
-PARTS = ("fixed", "float", "logio", "sim")
+PARTS = ("fixed", "float", "lateral", "logio", "sim")
 
 
 def _frames() -> FrameBatch:
@@ -83,6 +84,7 @@ def _sim() -> None:
 _RUN: dict[str, Callable[[], None]] = {
     "fixed": lambda: _engine("fixed"),
     "float": lambda: _engine("float"),
+    "lateral": lambda: _engine("lateral"),
     "logio": _logio,
     "sim": _sim,
 }

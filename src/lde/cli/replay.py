@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from ..errors import ConfigError, LdeError
+from . import BACKEND_CHOICES
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -37,7 +38,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
     p.add_argument(
         "--backend",
-        choices=("fixed", "float"),
+        choices=BACKEND_CHOICES,
         default=None,
         help="estimator step: fixed-point firmware model or float (default: fixed when available)",
     )
@@ -82,6 +83,14 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         metavar="ADDR",
         help="replay the LOGs on an existing dask.distributed scheduler (tcp://host:8786); its workers "
         "must see the LOGs, the outputs and lde under the same paths",
+    )
+    p.add_argument(
+        "--learned",
+        type=Path,
+        metavar="FILE",
+        help="what the estimator learned about this car: read at start when FILE exists (checked against "
+        "the vehicle and profile), written at the end; several LOGs pass it on in the given order "
+        "(one after the other: not with --jobs / --scheduler)",
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no summary on stderr")
     p.set_defaults(func=run)
@@ -162,6 +171,8 @@ def _summary(rep) -> str:
         + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in rep.timings.items())
         + ")",
     ]
+    if rep.learned:
+        lines.append(f"  learned (from {rep.learned_origin or 'the vehicle file'}): {rep.learned}")
     if rep.steps == 0:
         lines.append(
             "  note: no estimator step: the log has no accepted frame of the profile's anchor (MDPS) message"
@@ -170,6 +181,13 @@ def _summary(rep) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.learned is not None and (args.jobs is not None or args.scheduler is not None):
+        # one file read at the start and written at the end of each log: parallel jobs would race
+        raise ConfigError(
+            f"--learned {args.learned} with --{'jobs' if args.jobs is not None else 'scheduler'}: "
+            "one learned file is passed from log to log in the given order; replay without "
+            "--jobs / --scheduler"
+        )
     from ..jitcache import is_warm, notice
 
     cold = not is_warm()
@@ -231,6 +249,8 @@ def run(args: argparse.Namespace) -> int:
         def absolute(p: Path | None) -> Path | None:
             return None if p is None else p.resolve()
 
+        learned = absolute(args.learned)
+
         profile = args.profile
         if profile is not None and Path(profile).suffix.lower() == ".dbc":
             profile = str(Path(profile).resolve())
@@ -246,6 +266,7 @@ def run(args: argparse.Namespace) -> int:
                 reorder_window_ns=window,
                 mcap_index=args.mcap_index,
                 shadow_thread=args.shadow_thread,
+                learned=learned,
             )
             for p in logs
         ]

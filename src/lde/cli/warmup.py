@@ -1,4 +1,4 @@
-"""``lde warmup [--parts fixed,float,logio,sim] [--jobs N]``: compile lde's numba kernels now.
+"""``lde warmup [--parts fixed,float,lateral,logio,sim] [--jobs N]``: compile lde's numba kernels now.
 
 A first run after an install or an upgrade compiles them (20-40 s of CPU per backend); after
 ``lde warmup`` the first ``lde replay``, ``lde run`` or ``lde demo`` starts warm. Run it once
@@ -22,8 +22,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--parts",
-        default="fixed,float,logio,sim",
-        help="comma-separated: fixed, float (the data path per backend), logio, sim (default: all)",
+        default="fixed,float,lateral,logio,sim",
+        help="comma-separated: fixed, float, lateral (the data path per backend), logio, sim (default: all)",
     )
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="compile in N processes")
     p.set_defaults(func=run)
