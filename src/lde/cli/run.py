@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import sys
 import threading
@@ -125,6 +126,8 @@ def run(args: argparse.Namespace) -> int:
     from ..profiles import load_profile
     from ..units import STEP_NS
 
+    if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
+        raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
     logging.getLogger("lde.service").setLevel(logging.INFO)
     # the recorder's thread must not keep the loop from the GIL for the default 5 ms
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
