@@ -133,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
     profile = load_profile(args.profile)
     vehicle = load_vehicle(args.vehicle)
+    if vehicle.defaults:
+        log.info("%s", vehicle.defaults_note())
     if args.realtime:
         _realtime(args)
     elif args.cpu:
@@ -174,6 +176,8 @@ def run(args: argparse.Namespace) -> int:
                 "step_ns": str(STEP_NS),
                 "bus": str(getattr(bus, "channel_info", "")),
             }
+            if vehicle.defaults:  # what the vehicle file left to lde's defaults, as the log said
+                meta["vehicle_defaults"] = "; ".join(vehicle.defaults)
             if service.learned_start:
                 meta[LEARNED_START_KEY] = service.learned_start
             recorder = service.recorder = Recorder(args.record, metadata=meta)
