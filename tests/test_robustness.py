@@ -540,3 +540,10 @@ def test_read_log_of_a_log_with_no_data_frames_is_an_error(tmp_path):
     p.write_text("(1700000000.000000) vcan0 20000080#0000000000000000\n(1700000000.1) vcan0 2A0#R\n")
     with pytest.raises(LogFormatError, match="no CAN data frames"):
         read_log(p)
+
+
+def test_bad_run_duration_is_a_one_line_error(capsys):
+    """``lde run --duration`` must be positive and finite (checked before the bus is opened)."""
+    for bad in ("-1", "0", "nan", "inf"):
+        rc, _, err = run_cli(capsys, "run", "-i", "virtual", "-c", "lde-dur-test", "--duration", bad)
+        assert_one_line_error(rc, err, "--duration")

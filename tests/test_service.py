@@ -372,3 +372,29 @@ def test_frame_delivered_after_its_step_is_restamped_fed_next_step_and_counted(r
     assert len(restamped) == 1, [m.timestamp for m in cap.rx_msgs]
     # every frame received in this step (the regular ones and the late one) was fed to this step
     assert res.frames_used == len(cap.rx_msgs) >= 2
+
+
+def test_run_states_the_defaults_a_vehicle_file_leaves_out(tmp_path, caplog) -> None:
+    """A vehicle file without ``[estimator]``: lde run says which keys took lde's defaults, and the
+    recording's metadata keeps the same list (issue 13 item 5)."""
+    import re
+    from importlib.resources import files
+
+    from lde.cli import main
+    from lde.recording import read_recording
+
+    text = (files("lde") / "vehicles" / "reference.toml").read_text()
+    cut = re.sub(r"(?ms)^\[estimator\].*?(?=^\[|\Z)", "", text)
+    assert "[estimator]" not in cut and cut != text
+    car = tmp_path / "no_tuning.toml"
+    car.write_text(cut)
+    path = tmp_path / "run.mcap"
+    with caplog.at_level("INFO", logger="lde.service"):
+        rc = main(
+            ["run", "-i", "virtual", "-c", "lde-defaults", "--vehicle", str(car), "--duration", "0.2"]
+            + ["--backend", "float", "--record", str(path)]
+        )
+    assert rc == 0
+    note = [r.getMessage() for r in caplog.records if "defaults used for" in r.getMessage()]
+    assert note and "[estimator]" in note[0], caplog.text
+    assert "[estimator]" in read_recording(path).metadata["vehicle_defaults"]

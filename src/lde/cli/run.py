@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import sys
 import threading
@@ -125,11 +126,15 @@ def run(args: argparse.Namespace) -> int:
     from ..profiles import load_profile
     from ..units import STEP_NS
 
+    if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
+        raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
     logging.getLogger("lde.service").setLevel(logging.INFO)
     # the recorder's thread must not keep the loop from the GIL for the default 5 ms
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
     profile = load_profile(args.profile)
     vehicle = load_vehicle(args.vehicle)
+    if vehicle.defaults:
+        log.info("%s", vehicle.defaults_note())
     if args.realtime:
         _realtime(args)
     elif args.cpu:
@@ -171,6 +176,8 @@ def run(args: argparse.Namespace) -> int:
                 "step_ns": str(STEP_NS),
                 "bus": str(getattr(bus, "channel_info", "")),
             }
+            if vehicle.defaults:  # what the vehicle file left to lde's defaults, as the log said
+                meta["vehicle_defaults"] = "; ".join(vehicle.defaults)
             if service.learned_start:
                 meta[LEARNED_START_KEY] = service.learned_start
             recorder = service.recorder = Recorder(args.record, metadata=meta)

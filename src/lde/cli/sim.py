@@ -78,8 +78,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--rt-priority",
         type=int,
         metavar="N",
-        help="live bus: run the simulator SCHED_FIFO at priority N (1..99; warns where refused); it never "
-        "waits for another process (sleeps until its next frame, reads the overlay without blocking)",
+        help="live bus: run the simulator SCHED_FIFO at priority N (1..99; warns where refused), from its "
+        "start-up on; it never waits for another process (sleeps until its next frame, reads the overlay "
+        "without blocking)",
     )
     p.add_argument(
         "--nice",
@@ -197,13 +198,30 @@ def run(args: argparse.Namespace) -> int:
         return _print_list()
     if not args.scenario:
         raise ConfigError("--scenario NAME is required (lde sim --list names them)")
+    if args.t0 is not None and not math.isfinite(args.t0):
+        raise ConfigError(f"--t0 {args.t0}: need finite epoch seconds")
+    live = _live_requested(args)
+    if not live and not (args.log or args.truth or args.mcap):
+        raise ConfigError("nothing to do: give --log/--truth/--mcap, or a bus (--interface/--channel)")
+    _check_outputs(args)
+    realtime = True if args.realtime is None else args.realtime
+    if live:
+        if args.rt_priority is not None and not realtime:
+            # --fast never sleeps: at a real-time priority it would starve everything below it
+            raise ConfigError("--rt-priority needs real-time pacing: drop --fast")
+        if args.nice is not None:
+            _renice(args.nice)
+        if args.rt_priority is not None:
+            # before the imports and the set-up: started on one CPU beside a real-time service, the
+            # simulator's start-up at the normal scheduler got the few percent the service left it and
+            # sent nothing for 240 s (CI, user-mode Linux). Its start-up now goes first, once; the
+            # service counts the steps it could not make meanwhile.
+            _sched_fifo(args.rt_priority)
     from vcan_sim.faults import parse_fault
     from vcan_sim.output import write_outputs
     from vcan_sim.run import Simulation
     from vcan_sim.scenarios import get_scenario
 
-    if args.t0 is not None and not math.isfinite(args.t0):
-        raise ConfigError(f"--t0 {args.t0}: need finite epoch seconds")
     t0_ns = None if args.t0 is None else int(round(args.t0 * 1e6)) * 1000
     scenario = get_scenario(args.scenario)
     if args.fault:
@@ -217,30 +235,18 @@ def run(args: argparse.Namespace) -> int:
         t0_ns=t0_ns,
         speed_kmh=args.speed,
     )
-    live = _live_requested(args)
-    if not live and not (args.log or args.truth or args.mcap):
-        raise ConfigError("nothing to do: give --log/--truth/--mcap, or a bus (--interface/--channel)")
-    _check_outputs(args)
     wall = time.monotonic()
     if live:
         from lde.service import open_bus
         from vcan_sim.closed_loop import OverlayReceiver
         from vcan_sim.emitter import LATE_S, MAX_LAG_S, PumpStats, pump
 
-        realtime = True if args.realtime is None else args.realtime
-        if args.rt_priority is not None and not realtime:
-            # --fast never sleeps: at a real-time priority it would starve everything below it
-            raise ConfigError("--rt-priority needs real-time pacing: drop --fast")
         receiver = None if args.open_loop else OverlayReceiver(sim.profile)
         kw = bus_kwargs(args)
         # the kernel (SocketCAN) hands the simulator only the frames it reads: LDE_Overlay. Without
         # the filter every LDE_Estimate/LDE_Diag frame wakes it up too (3 wake-ups per service step
         # instead of 1), which on a slow single CPU (user-mode Linux) starves its own sending.
         kw.setdefault("can_filters", _overlay_filter(sim.profile))
-        if args.nice is not None:
-            _renice(args.nice)
-        if args.rt_priority is not None:
-            _sched_fifo(args.rt_priority)
         bus = open_bus(**kw)
         st: PumpStats | None = None
         print(
