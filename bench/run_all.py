@@ -595,7 +595,7 @@ def main() -> int:
         ]
         if args.ten_hours:
             ten = _logs(args.data, 10 * args.hours, "hour10")
-            steps.append(("rss", lambda: bench_rss_scaling(one, ten, tmp, max(1, rep // 2))))
+            steps.append(("rss", lambda: bench_rss_scaling(one, ten, tmp, max(3, rep // 2))))
         if args.fleet:
             steps.append(
                 (
