@@ -187,6 +187,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.interface == "udp_multicast":
         bus_kw["port"] = port
 
+    # as lde run does (lde.cli.run): another thread of the service's process (an older recorder's) must
+    # not keep the loop from the interpreter lock for CPython's default 5 ms
+    sys.setswitchinterval(min(sys.getswitchinterval(), 2e-4))
     load_before = os.getloadavg()
     hogs = _hogs(args.busy, set(args.cpu or ())) if args.busy else []
     rt_note = "normal scheduler"
@@ -352,7 +355,7 @@ def main(argv: list[str] | None = None) -> int:
         "send_errors": svc.send_errors,
         "gc_collections": getattr(svc, "gc_collections", None),
         "recording_failed": bool(rec.failed) if rec is not None else None,
-        "recording_dropped": list(rec.dropped) if rec is not None else None,
+        "recording_dropped": list(getattr(rec, "dropped", ())) if rec is not None else None,
         "sim": sim_line[-1] if sim_line else "",
     }
     if spy is not None:
