@@ -101,3 +101,63 @@ def test_with_body_revalidates() -> None:
     assert v.with_body(mass=1700.0).body.mass == 1700.0
     with pytest.raises(ConfigError):
         v.with_body(mass=math.inf)
+
+
+@pytest.mark.parametrize(
+    "table,text,key",
+    [
+        ("vehicle", "lf_m = 5.9\nlr_m = 5.9", "wheelbase 11.8 m outside 1.5..5"),  # the issue's 11.8 m
+        ("vehicle", "lf_m = 0.3\nlr_m = 2.5", "lf_m 0.3 is 0.11 of the wheelbase"),
+        ("vehicle", "yaw_inertia_kgm2 = 9000.0", "yaw_inertia_kgm2 9000 is 3.32 x mass lf lr"),
+        ("vehicle", "yaw_inertia_kgm2 = 900.0", "yaw_inertia_kgm2 900 is 0.33 x mass lf lr"),
+        ("vehicle", "track_rear_m = 3.1", "track_rear_m 3.1 outside 0.9..2.2"),
+        ("vehicle", "mass_kg = 40000.0", "mass_kg 40000 outside 300..8000"),
+        ("steering", "ratio = 3.0", "ratio 3 outside 8..30"),
+        ("tires", "cf_N_per_rad = 5000.0", "cf_N_per_rad 5000 is 1.1 x the static tire load"),
+        ("tires", "cr_N_per_rad = 400000.0", "cr_N_per_rad 400000"),
+        ("tires", "align_rate_Nm_per_rad = 40000.0", "trail 0.645 m, outside 0.02..0.3"),
+    ],
+)
+def test_implausible_vehicles_are_one_line_errors_naming_key_and_range(tmp_path, table, text, key):
+    f = tmp_path / "bad.toml"
+    f.write_text(f'extends = "reference"\nname = "bad"\n[{table}]\n{text}\n')
+    with pytest.raises(ConfigError) as exc:
+        load_vehicle(f)
+    msg = str(exc.value)
+    assert key in msg and f"[{table}]" in msg and str(f) in msg and "\n" not in msg, msg
+
+
+def test_each_plausibility_range_holds_at_its_boundary(tmp_path):
+    """The shipped ranges accept their own boundaries (a check that is off by one rejects them)."""
+    from lde.params import RATIO_RANGE, WHEELBASE_RANGE_M
+
+    for lo_hi in (RATIO_RANGE[0], RATIO_RANGE[1]):
+        f = tmp_path / "r.toml"
+        f.write_text(f'extends = "reference"\nname = "r"\n[steering]\nratio = {lo_hi}\n')
+        assert load_vehicle(f).steering.ratio == lo_hi
+    f = tmp_path / "w.toml"
+    # wheelbase exactly 5.0 m with the reference's axle shares and a matching yaw inertia
+    f.write_text(
+        'extends = "reference"\nname = "w"\n[vehicle]\nlf_m = 2.0\nlr_m = 3.0\nyaw_inertia_kgm2 = 8796.0\n'
+    )
+    assert load_vehicle(f).body.wheelbase == WHEELBASE_RANGE_M[1]
+
+
+def test_defaults_used_are_stated(tmp_path):
+    f = tmp_path / "min.toml"
+    f.write_text(
+        'name = "min"\n[vehicle]\nmass_kg = 1600.0\nyaw_inertia_kgm2 = 2900.0\nlf_m = 1.15\nlr_m = 1.65\n'
+        "track_front_m = 1.6\ntrack_rear_m = 1.6\n[steering]\nratio = 14.5\n"
+        "[tires]\ncf_N_per_rad = 60000.0\ncr_N_per_rad = 55000.0\nalign_rate_Nm_per_rad = 7000.0\n"
+        "[overlay]\nmax_torque_Nm = 2.0\n"
+    )
+    v = load_vehicle(f)
+    note = v.defaults_note()
+    assert "[estimator] all 17 keys" in note and "[corrections] all 6 keys" in note
+    assert "[overlay] max_rate_Nm_per_s" in note and "max_torque_Nm" not in note
+    assert load_vehicle("reference").defaults == ()  # the shipped file states every key
+    spec = tmp_path / "spec.toml"  # a spec sheet: no tires, generic ones from the axle loads
+    spec.write_text(f.read_text().split("[tires]")[0])
+    s = load_vehicle(spec)
+    assert "[tires] generic from the axle loads" in s.defaults_note()
+    assert s.tires.cf == pytest.approx(13.98 * 1600.0 * 9.80665 * 1.65 / 5.6, rel=1e-3)

@@ -128,7 +128,7 @@ def test_recording_replays_to_the_same_estimates(sample_replay, profile, vehicle
     assert rec_log.mcap is not None and {"/can/tx", "/lde/estimate", "/lde/inputs"} <= set(
         rec_log.mcap.topics
     )
-    assert res2.frames.tx == 2 * len(res)  # LDE_Estimate + LDE_Overlay per step
+    assert res2.frames.tx == 3 * len(res)  # LDE_Estimate, LDE_Overlay, LDE_Disturbance per step
     np.testing.assert_array_equal(res.t_ns, res2.t_ns)
     np.testing.assert_array_equal(res.fw, res2.fw)
     np.testing.assert_array_equal(res.mw, res2.mw)

@@ -391,7 +391,10 @@ def test_a_complete_vehicle_file_needs_no_name_and_no_optional_tables(tmp_path):
     [
         "mass_kg = 3000.0\nyaw_inertia_kgm2 = 7000.0\nlf_m = 1.6\nlr_m = 1.9\n[tires]\n"
         "cf_N_per_rad = 90000.0\ncr_N_per_rad = 90000.0\nalign_rate_Nm_per_rad = 12000.0\n",  # a van
-        "[tires]\ncf_N_per_rad = 150000.0\ncr_N_per_rad = 140000.0\n",  # stiff tires
+        # stiff tires (absolute values, what the fixed-point scaling sees) on a heavy sedan: on the
+        # reference body they would be 50 x the rear tire load per rad, which validation rejects
+        "mass_kg = 2600.0\nyaw_inertia_kgm2 = 4800.0\n"
+        "[tires]\ncf_N_per_rad = 150000.0\ncr_N_per_rad = 140000.0\n",
     ],
 )
 def test_fixed_backend_takes_heavy_or_stiff_vehicles(body, drive, profile, tmp_path):

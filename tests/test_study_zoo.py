@@ -4,6 +4,7 @@ missing prerequisite, the per-plant table and the summary lines, ``lde evaluate 
 from __future__ import annotations
 
 import csv
+import json
 import math
 
 import numpy as np
@@ -146,31 +147,19 @@ def test_cli_engine_reports_lde_errors_as_a_failed_run(tmp_path):
     assert not res.ok and "exited with 2" in res.error and "vehicle file not found" in res.error
 
 
-def test_warm_mode_is_one_clear_line_until_replay_has_learned(capsys, tmp_path):
-    assert not cli_engine.learned_available()  # `lde replay --help` does not list --learned yet
-    code = main(["evaluate", "--zoo", "--warm", "--plants", "indep_twin", "--out", str(tmp_path)])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2
-    assert err == [f"lde: error: {cli_engine.WARM_UNAVAILABLE}"]
-    with pytest.raises(ConfigError, match="--learned"):
-        cli_engine.require_learned()
-
-
-def test_warm_mode_plumbing_once_replay_takes_learned(tmp_path, monkeypatch):
-    """With --learned available the warm run replays the prior drive with --learned S, then the run
-    with --learned S --csv OUT (the option is simulated here by dropping it before the real CLI)."""
+def test_warm_mode_learns_on_the_prior_drive_then_replays_with_it(tmp_path, monkeypatch):
+    """Warm: `lde replay PRIOR --learned S` (no CSV) writes S, then `lde replay LOG --learned S --csv
+    OUT` starts from it. Both real CLI runs, the lateral backend."""
     calls = []
     real = cli_engine.run_cli
 
-    def fake_run_cli(argv):
+    def spy(argv):
         calls.append(list(argv))
-        i = argv.index("--learned")
-        return real(argv[:i] + argv[i + 2 :])
+        return real(argv)
 
-    monkeypatch.setattr(cli_engine, "learned_available", lambda: True)
-    monkeypatch.setattr(cli_engine, "run_cli", fake_run_cli)
+    monkeypatch.setattr(cli_engine, "run_cli", spy)
     (spec,) = zoo.zoo_specs(
-        ["indep_twin"], scenarios=("wind_step",), profiles=("lde",), backends=("float",), mode=zoo.Mode.WARM
+        ["indep_twin"], scenarios=("wind_step",), profiles=("lde",), backends=("lateral",), mode=zoo.Mode.WARM
     )
     assert spec.est_options.learned_prior == zoo.PRIOR_SCENARIO
     from lde.study.engine import run_one
@@ -178,7 +167,7 @@ def test_warm_mode_plumbing_once_replay_takes_learned(tmp_path, monkeypatch):
     res = run_one(RunSpec(**{**spec.__dict__, "duration": 8.0, "work_dir": str(tmp_path)}), cli_engine.engine)
     assert res.ok, res.error
     prior, run = calls
-    d = tmp_path / "indep_twin" / "lde-float" / "wind_step-s0-warm"
+    d = tmp_path / "indep_twin" / "lde-lateral" / "wind_step-s0-warm"
     assert prior[:2] == ["replay", str(d / "prior.log")] and "--csv" not in prior
     assert prior[prior.index("--learned") + 1] == str(d / "learned")
     assert run[:2] == ["replay", str(d / "drive.log")]
@@ -186,6 +175,15 @@ def test_warm_mode_plumbing_once_replay_takes_learned(tmp_path, monkeypatch):
     assert run[run.index("--csv") + 1] == str(d / "estimate.csv")
     for argv in (prior, run):
         assert argv[argv.index("--vehicle") + 1] == str(d / "spec_sheet.toml")
+    learned = json.loads((d / "learned").read_text())
+    assert learned["format"] == "lde-learned" and learned["drives"] >= 1
+    assert res.accuracy is not None and math.isfinite(res.accuracy.nrmse_fw)
+
+
+def test_evaluate_refuses_an_unknown_backend(capsys, tmp_path):
+    code = main(["evaluate", "--zoo", "--backends", "nope", "--plants", "indep_twin", "--out", str(tmp_path)])
+    assert code == 2
+    assert "unknown backend 'nope'" in capsys.readouterr().err
 
 
 # --- tables and summary -----------------------------------------------------------------------------------

@@ -1,22 +1,30 @@
 """The estimator backends, chosen through one explicit registry that fails loudly.
 
-=========  ======================================================================================
-``float``  :mod:`lde.step`: the float Kalman step (the reference).
-``fixed``  :mod:`firmware_model`: the integer (fixed-point) step of an MDPS ECU without FPU, with
-           the float step as a shadow at every step: a deviation beyond 5 N / 2 Nm sets
-           ``SHADOW_DEVIATION`` and is counted.
-=========  ======================================================================================
+===============  ==================================================================================
+``lateral``      :mod:`lde.estimator` + :mod:`lde.learner`: the lateral filter with the lateral
+                 acceleration (wind apart from bank) and online learning, float.
+``float``        :mod:`lde.step`: the paper's float Kalman step (states beta, r, Fw, Mw), with the
+                 vehicle file's input corrections (:mod:`lde.conditioning`).
+``fixed``        :mod:`firmware_model`: the paper's step in integers (an MDPS ECU without FPU), with
+                 the float step as a shadow at every step: a deviation beyond 5 N / 2 Nm sets
+                 ``SHADOW_DEVIATION`` and is counted.
+===============  ==================================================================================
 
-A backend is a compiled step with the :mod:`lde.pipeline` signature plus how to build its
-parameters and state for a vehicle. :func:`get_backend` raises :class:`lde.errors.ConfigError` for a
+A backend is a compiled step with the :mod:`lde.pipeline` signature::
+
+    step(bp, bs, t_ns, inputs, fresh, mdps_ok, esc_ok, out) -> status
+
+``inputs``: the sampled inputs in SI (:data:`lde.profiles.INPUT_NAMES` order, raw: each backend
+applies its own corrections); ``fresh``: bit i set when input i brought a new sample at this step;
+``out``: the ``lde.step.O_*`` slots. :func:`get_backend` raises :class:`lde.errors.ConfigError` for a
 name that is not registered; asking for ``fixed`` never yields ``float``. Each backend gets its own
-compiled entry point (``run``): :func:`lde.pipeline.run_loop` specialised on its step.
+compiled copy of the loop (``run``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -31,28 +39,54 @@ from firmware_model.shadow import FW_BOUND_N, MW_BOUND_NM
 from firmware_model.step import N_SAT
 from firmware_model.tables import tables_for
 
-from .conditioning import without_corrections
+from . import estimator as E
+from . import learner as Ln
+from .conditioning import condition_kernel, corrections_vector, is_active, without_corrections
 from .errors import ConfigError
 from .model import params_vector
 from .params import Vehicle
 from .pipeline import make_loop
-from .status import SHADOW_DEVIATION
-from .step import N_OUT, O_BETA, O_FW, O_MW, O_T_ALIGN, O_YAW, EstimatorState, new_workspace
+from .signals import (
+    I_ASSIST_TORQUE,
+    I_COLUMN_TORQUE,
+    I_LAT_ACCEL,
+    I_SPEED,
+    I_STEERING_ANGLE,
+    I_STEERING_RATE,
+    I_YAW_RATE,
+)
+from .status import SHADOW_DEVIATION, VALID
+from .step import (
+    LEARN_NONE,
+    N_OUT,
+    O_BANK,
+    O_BETA,
+    O_FW,
+    O_FW_WIND,
+    O_GAIN,
+    O_LEARN,
+    O_MW,
+    O_MW_WIND,
+    O_T_ALIGN,
+    O_YAW,
+    EstimatorState,
+    new_workspace,
+)
 from .step import run_batch as float_run_batch
 from .step import step_kernel as float_step_kernel
 from .units import STEP_S
 
-__all__ = ["Backend", "BackendState", "BACKENDS", "get_backend", "backend_names"]
+__all__ = ["Backend", "BackendState", "BACKENDS", "get_backend", "backend_names", "make_backend_state"]
 
 
 @dataclass
 class BackendState:
     """A backend's compiled parameters and mutable state (tuples of arrays), plus named views for
-    Python (``info``: e.g. the shadow counters)."""
+    Python (``info``: e.g. the shadow counters, the learner's state)."""
 
     params: tuple
     state: tuple
-    info: dict[str, Any]
+    info: dict[str, Any] = field(default_factory=dict)
     shadow: str | None = None  # a backend whose estimates this one compares with (precomputable)
 
     def with_shadow(self, pre: np.ndarray) -> None:
@@ -63,94 +97,77 @@ class BackendState:
 
 @dataclass(frozen=True)
 class Backend:
-    """One registered backend: its name, what it is, how to make its state, and its compiled loop."""
+    """One registered backend: its name, what it is, how to make its state, its compiled loop."""
 
     name: str
     description: str
-    make: Callable[[Vehicle, float], BackendState]
+    make: Callable[[Vehicle, float, bool], BackendState]  # (vehicle, dt, angle_above_torsion_bar)
     run: Any  # the compiled loop of lde.pipeline, specialised on this backend's step
-    run_batch: Callable[..., Any]  # the step over arrays of inputs on a grid (lde.step.run_batch API)
+    run_batch: Callable[..., Any] | None = None  # the step over arrays on a grid (lde.step.run_batch API)
+    learns: bool = False
 
 
-# ------------------------------------------------------------------------------------ float
+# -------------------------------------------------------------------- the paper's step, float
 
 
 @njit(cache=True, inline="always")
-def float_step(
-    bp,
-    bs,
-    t_ns,
-    speed,
-    steering_angle,
-    yaw_rate,
-    column_torque,
-    assist_torque,
-    lat_accel,
-    steering_rate,
-    mdps_ok,
-    esc_ok,
-    out,
-):  # pragma: no cover
-    """:func:`lde.step.step_kernel` with the pipeline's signature."""
+def _conditioned(cvec, corrects, inp):  # pragma: no cover - compiled
+    """(steering_angle, yaw_rate, column_torque) after the vehicle file's corrections."""
+    angle, yaw, col = inp[I_STEERING_ANGLE], inp[I_YAW_RATE], inp[I_COLUMN_TORQUE]
+    if corrects:
+        angle, yaw, col = condition_kernel(cvec, angle, inp[I_STEERING_RATE], yaw, col)
+    return angle, yaw, col
+
+
+@njit(cache=True, inline="always")
+def _no_lateral(out):  # pragma: no cover - compiled
+    out[O_FW_WIND] = np.nan
+    out[O_MW_WIND] = np.nan
+    out[O_BANK] = np.nan
+    out[O_LEARN] = LEARN_NONE
+    out[O_GAIN] = np.nan
+
+
+@njit(cache=True)
+def paper_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
+    """:func:`lde.step.step_kernel` after the vehicle file's corrections."""
+    p, cvec, corrects = bp
     x, P, fs, ints, wk = bs
-    return float_step_kernel(
-        bp[0],
-        x,
-        P,
-        fs,
-        ints,
-        wk,
-        t_ns,
-        speed,
-        steering_angle,
-        yaw_rate,
-        column_torque,
-        assist_torque,
-        mdps_ok,
-        esc_ok,
-        out,
+    angle, yaw, col = _conditioned(cvec, corrects, inp)
+    status = float_step_kernel(
+        p, x, P, fs, ints, wk, t_ns, inp[I_SPEED], angle, yaw, col, inp[I_ASSIST_TORQUE], mdps_ok, esc_ok, out
     )
+    _no_lateral(out)
+    return status
 
 
-def _make_float(vehicle: Vehicle, dt: float) -> BackendState:
+def _make_paper(vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool) -> BackendState:
     p = params_vector(without_corrections(vehicle), dt)
     st = EstimatorState.initial(p)
-    return BackendState((p,), (st.x, st.P, st.fs, st.ints, new_workspace()), {"state": st})
+    bp = (p, corrections_vector(vehicle), is_active(vehicle))
+    return BackendState(bp, (st.x, st.P, st.fs, st.ints, new_workspace()), {"state": st})
 
 
-#: :func:`lde.pipeline._run_loop` with the float step
-run_float = make_loop(float_step, "run_float")
+#: the paper's float step in the loop
+run_paper = make_loop(paper_step, "run_paper")
 
-
-# ------------------------------------------------------------------------------------ fixed
+# -------------------------------------------------------------------- the paper's step, fixed
 
 # float counters of the shadow check: [deviating steps, max |dFw| N, max |dMw| Nm]
 SH_COUNT, SH_MAX_DFW, SH_MAX_DMW = 0, 1, 2
 
 
-@njit(cache=True, inline="always")
-def fixed_step(
-    bp,
-    bs,
-    t_ns,
-    speed,
-    steering_angle,
-    yaw_rate,
-    column_torque,
-    assist_torque,
-    lat_accel,
-    steering_rate,
-    mdps_ok,
-    esc_ok,
-    out,
-):  # pragma: no cover
-    """Quantise the SI inputs, run the integer step, convert its estimate to SI (exact power-of-two
-    scalings), and compare it with the float step's estimate (the shadow check): computed here, or,
-    in a batch, taken from ``pre`` where a float engine computed it on the same inputs in a second
-    thread (:meth:`lde.engine.Engine.feed`; the same kernel, so the same numbers)."""
-    tv, coef, lsb, fp, bound = bp
+@njit(cache=True)
+def paper_fixed_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
+    """Quantise the (corrected) SI inputs, run the integer step, convert its estimate to SI (exact
+    power-of-two scalings), and compare it with the float step's estimate (the shadow check):
+    computed here, or, in a batch, taken from ``pre`` where a float engine computed it on the same
+    inputs in a second thread (:meth:`lde.engine.Engine.feed`; the same kernel, so the same numbers)."""
+    tv, coef, lsb, fp, bound, cvec, corrects = bp
     x, P, aux, sat, ws, iout, fx, fP, ffs, fints, fwk, fout, shadow, pre, pre_i = bs
-    v, s, y, c, a, flags = quantise_kernel(tv, speed, steering_angle, yaw_rate, column_torque, assist_torque)
+    angle, yaw, col = _conditioned(cvec, corrects, inp)
+    speed, assist = inp[I_SPEED], inp[I_ASSIST_TORQUE]
+    v, s, y, c, a, flags = quantise_kernel(tv, speed, angle, yaw, col, assist)
     status = fixed_step_kernel(
         tv, coef, x, P, aux, sat, ws, t_ns, v, s, y, c, a, flags, mdps_ok, esc_ok, iout
     )
@@ -159,27 +176,14 @@ def fixed_step(
     out[O_FW] = iout[2] * lsb[2]
     out[O_MW] = iout[3] * lsb[3]
     out[O_T_ALIGN] = iout[4] * lsb[4]
+    _no_lateral(out)
     j = pre_i[0]
     if j < pre.shape[0]:  # precomputed by the shadow engine
         ffw, fmw = pre[j, 0], pre[j, 1]
         pre_i[0] = j + 1
     else:
         float_step_kernel(
-            fp,
-            fx,
-            fP,
-            ffs,
-            fints,
-            fwk,
-            t_ns,
-            speed,
-            steering_angle,
-            yaw_rate,
-            column_torque,
-            assist_torque,
-            mdps_ok,
-            esc_ok,
-            fout,
+            fp, fx, fP, ffs, fints, fwk, t_ns, speed, angle, yaw, col, assist, mdps_ok, esc_ok, fout
         )
         ffw, fmw = fout[O_FW], fout[O_MW]
     dfw = abs(out[O_FW] - ffw)
@@ -194,8 +198,8 @@ def fixed_step(
     return status
 
 
-def _make_fixed(vehicle: Vehicle, dt: float) -> BackendState:
-    v = without_corrections(vehicle)  # the pipeline conditions the inputs before the step
+def _make_paper_fixed(vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool) -> BackendState:
+    v = without_corrections(vehicle)  # the inputs are corrected before the quantisation
     tb = tables_for(v, int(round(dt * 1e9)))
     tv = tables_vector(tb)
     x, P = np.zeros(4, np.int64), np.zeros(16, np.int64)
@@ -206,44 +210,117 @@ def _make_fixed(vehicle: Vehicle, dt: float) -> BackendState:
     fp = params_vector(v, dt)
     fst = EstimatorState.initial(fp)
     shadow = np.zeros(3)
-    params = (tv, tb.coef_array(), lsb, fp, np.array([FW_BOUND_N, MW_BOUND_NM]))
+    params = (
+        tv,
+        tb.coef_array(),
+        lsb,
+        fp,
+        np.array([FW_BOUND_N, MW_BOUND_NM]),
+        corrections_vector(vehicle),
+        is_active(vehicle),
+    )
     state = (
-        x,
-        P,
-        aux,
-        sat,
-        np.zeros((4, 16), np.int64),
-        np.zeros(N_FIXED_OUT, np.int64),
-        fst.x,
-        fst.P,
-        fst.fs,
-        fst.ints,
-        new_workspace(),
-        np.empty(N_OUT),
-        shadow,
+        x, P, aux, sat, np.zeros((4, 16), np.int64), np.zeros(N_FIXED_OUT, np.int64),
+        fst.x, fst.P, fst.fs, fst.ints, new_workspace(), np.empty(N_OUT), shadow,
         np.zeros((0, 2)),  # pre: shadow estimates of this call's steps (batch), or none
         np.zeros(1, np.int64),  # pre_i: the next row of pre
+    )  # fmt: skip
+    info = {"tables": tb, "sat": sat, "shadow": shadow, "shadow_state": fst}
+    return BackendState(params, state, info, shadow="float")
+
+
+#: the paper's fixed-point step and its float shadow in the loop
+run_paper_fixed = make_loop(paper_fixed_step, "run_paper_fixed")
+
+# -------------------------------------------------------------------- the lateral filter, float
+
+FRESH_R = 1 << I_YAW_RATE
+FRESH_T = (1 << I_COLUMN_TORQUE) | (1 << I_ASSIST_TORQUE)
+FRESH_A = 1 << I_LAT_ACCEL
+
+
+@njit(cache=True)
+def lateral_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
+    """:func:`lde.estimator.step_kernel` and :func:`lde.learner.learner_step` after it (the learner
+    writes its pushes into the filter's parameter vector ``p``)."""
+    lp = bp[0]
+    p, x, P, fs, ints, h, ph, ls, lws = bs
+    status = E.step_kernel(
+        p,
+        x,
+        P,
+        fs,
+        ints,
+        h,
+        ph,
+        t_ns,
+        inp[I_SPEED],
+        inp[I_STEERING_ANGLE],
+        inp[I_YAW_RATE],
+        inp[I_COLUMN_TORQUE],
+        inp[I_ASSIST_TORQUE],
+        inp[I_LAT_ACCEL],
+        (fresh & FRESH_R) != 0,
+        (fresh & FRESH_T) == FRESH_T,
+        (fresh & FRESH_A) != 0,
+        mdps_ok,
+        esc_ok,
+        out,
     )
-    return BackendState(
-        params, state, {"tables": tb, "sat": sat, "shadow": shadow, "shadow_state": fst}, shadow="float"
+    Ln.learner_step(
+        lp,
+        ls,
+        lws,
+        p,
+        out,
+        inp[I_SPEED],
+        inp[I_STEERING_ANGLE],
+        inp[I_YAW_RATE],
+        inp[I_COLUMN_TORQUE],
+        inp[I_ASSIST_TORQUE],
+        inp[I_LAT_ACCEL],
+        fs[E.F_ZFRIC],
+        mdps_ok and esc_ok and (status & VALID) != 0,
     )
+    out[O_LEARN] = ls[Ln.LS_STATE]
+    # the overlay law with the learned trail K/Cf (the holding torque is 2 K alpha_f / N)
+    out[O_GAIN] = p[E.P_K] / (p[E.P_N] * p[E.P_CF] * (p[E.P_LF] + p[E.P_LR]))
+    return status
 
 
-#: :func:`lde.pipeline._run_loop` with the fixed-point step and its float shadow
-run_fixed = make_loop(fixed_step, "run_fixed")
+def _make_lateral(vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool) -> BackendState:
+    p = E.params_vector(vehicle, dt, angle_above_torsion_bar=angle_above_torsion_bar)
+    lp = Ln.learner_params(vehicle, angle_above_torsion_bar)
+    ls = Ln.init_state(p, lp, friction_prior=vehicle.corrections.friction or vehicle.learning.friction_prior)
+    x, P = np.zeros(E.NX), np.zeros((E.NX, E.NX))
+    fs, ints = np.zeros(E.N_F), np.zeros(E.N_I, np.int64)
+    E.reset_kernel(p, x, P, fs, ints)
+    state = (p, x, P, fs, ints, np.zeros(E.NX), np.zeros(E.NX), ls, np.zeros((2, Ln.N3)))
+    return BackendState((lp,), state, {"p": p, "learner": ls, "lp": lp})
 
 
-# ------------------------------------------------------------------------------------ registry
+#: the lateral filter and the learner in the loop
+run_lateral = make_loop(lateral_step, "run_lateral")
+
+# -------------------------------------------------------------------- registry
 
 BACKENDS: dict[str, Backend] = {
     "fixed": Backend(
         "fixed",
-        "fixed-point firmware model with the float shadow check",
-        _make_fixed,
-        run_fixed,
+        "the paper's step in fixed point (firmware model) with the float shadow check",
+        _make_paper_fixed,
+        run_paper_fixed,
         fixed_run_batch,
     ),
-    "float": Backend("float", "float Kalman step (the reference)", _make_float, run_float, float_run_batch),
+    "float": Backend("float", "the paper's float Kalman step", _make_paper, run_paper, float_run_batch),
+    "lateral": Backend(
+        "lateral",
+        "the lateral filter with the lateral acceleration (wind apart from bank) and online learning",
+        _make_lateral,
+        run_lateral,
+        None,
+        learns=True,
+    ),
 }
 
 
@@ -259,6 +336,8 @@ def get_backend(name: str) -> Backend:
         raise ConfigError(f"unknown backend {name!r}: choose one of {', '.join(BACKENDS)}") from None
 
 
-def make_backend_state(name: str, vehicle: Vehicle, dt: float = STEP_S) -> BackendState:
+def make_backend_state(
+    name: str, vehicle: Vehicle, dt: float = STEP_S, angle_above_torsion_bar: bool = False
+) -> BackendState:
     """:func:`get_backend` and its state for ``vehicle``."""
-    return get_backend(name).make(vehicle, dt)
+    return get_backend(name).make(vehicle, dt, angle_above_torsion_bar)

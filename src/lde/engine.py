@@ -16,13 +16,16 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
+from pathlib import Path
 
 import numpy as np
 
+from . import estimator as E
 from .backends import BackendState, get_backend
 from .codec import MessageCodec, words_le
-from .conditioning import check_profile, corrections_vector, is_active
+from .conditioning import check_profile
 from .e2e import ReceiverStats
+from .errors import ConfigError
 from .frames import FrameBatch
 from .grid import (
     G_FINISH,
@@ -37,22 +40,44 @@ from .grid import (
     new_grid,
     overflow_error,
 )
+from .learned import LearnedSnapshot, LearnedState, load_learned, parse_learned, save_snapshot
+from .learner import tire_state
 from .overlay import limiter_params, new_limiter_state
 from .params import Vehicle
-from .pipeline import N_V, V_ACTIVE, V_FW, V_MW, V_STATE, V_STATUS, V_T_ALIGN, V_T_OVERLAY, V_ZERO
+from .pipeline import (
+    N_V,
+    V_ACTIVE,
+    V_BANK_DEG,
+    V_FW,
+    V_FW_WIND,
+    V_LEARN,
+    V_MW,
+    V_MW_WIND,
+    V_STATE,
+    V_STATUS,
+    V_T_ALIGN,
+    V_T_OVERLAY,
+    V_ZERO,
+)
 from .profiles import INPUT_NAMES, Profile
 from .signals import N_INPUTS, RxState, RxTables
-from .step import N_OUT, O_BETA, O_FW, O_MW, O_T_ALIGN, O_YAW
+from .step import N_OUT, O_BANK, O_BETA, O_FW, O_FW_WIND, O_LEARN, O_MW, O_MW_WIND, O_T_ALIGN, O_YAW
 from .units import STEP_S
 
 __all__ = ["Engine", "StepBlock", "OutputTable", "OUTPUT_MESSAGES", "OUTPUT_SOURCES"]
 
 #: the frames the pipeline encodes per step, in the order they are sent
-OUTPUT_MESSAGES: tuple[str, ...] = ("LDE_Estimate", "LDE_Overlay")
+OUTPUT_MESSAGES: tuple[str, ...] = ("LDE_Estimate", "LDE_Overlay", "LDE_Disturbance")
 #: which per-step value each output signal carries (signals not listed: physical 0)
 OUTPUT_SOURCES: dict[str, dict[str, int]] = {
     "LDE_Estimate": {"LatForce": V_FW, "YawMoment": V_MW, "AligningTorque": V_T_ALIGN, "Status": V_STATUS},
     "LDE_Overlay": {"OverlayTorque": V_T_OVERLAY, "Active": V_ACTIVE, "State": V_STATE},
+    "LDE_Disturbance": {
+        "WindForce": V_FW_WIND,
+        "WindMoment": V_MW_WIND,
+        "BankAngle": V_BANK_DEG,
+        "LearnState": V_LEARN,
+    },
 }
 assert N_V > V_ZERO
 
@@ -152,7 +177,7 @@ class StepBlock:
         return cls(
             t_ns=np.empty(n, np.int64),
             status=np.empty(n, np.uint8),
-            est=np.empty((n, N_OUT)),
+            est=np.full((n, N_OUT), np.nan),  # a slot a backend does not fill stays NaN
             t_overlay=np.empty(n),
             overlay_state=np.empty(n, np.uint8),
             overlay_enable=np.empty(n, np.bool_),
@@ -201,6 +226,23 @@ class StepBlock:
     @property
     def yaw_rate(self) -> np.ndarray:
         return self.est[:, O_YAW]
+
+    @property
+    def fw_wind(self) -> np.ndarray:
+        return self.est[:, O_FW_WIND]
+
+    @property
+    def mw_wind(self) -> np.ndarray:
+        return self.est[:, O_MW_WIND]
+
+    @property
+    def bank(self) -> np.ndarray:
+        """Road bank angle [rad] (NaN where the backend does not tell wind from bank)."""
+        return self.est[:, O_BANK]
+
+    @property
+    def learn_state(self) -> np.ndarray:
+        return self.est[:, O_LEARN].astype(np.int64)
 
     @property
     def overlay_active(self) -> np.ndarray:
@@ -269,8 +311,7 @@ class Engine:
         vehicle = self.vehicle
         self.rx = RxState.initial(self.rx_tables)
         self.grid = new_grid(MODE_EXPLICIT if self.explicit else MODE_ANCHORED)
-        self.cvec = corrections_vector(vehicle)
-        self.corrects = is_active(vehicle)
+        self.prev_t = np.full(1, np.iinfo(np.int64).min, np.int64)  # the previous step's time
         self.lp = limiter_params(vehicle)
         self.lsi, self.lsf = new_limiter_state()
         self.counters = np.zeros(len(self.outputs.names), np.int64)
@@ -278,8 +319,9 @@ class Engine:
         self._steps, self._enable, self._extra = _NO_TIMES, _NO_BOOL, _NO_U8
         self._tb, self._st = self.rx_tables.kernel_args(), self.rx.kernel_args()
         self.frames_fed = 0
-        self.est = self.backend.make(vehicle, self._dt)
+        self.est = self.backend.make(vehicle, self._dt, self.profile.angle_above_torsion_bar)
         self._shadow: Engine | None = None
+        self.learned_from: LearnedState | None = None
 
     @property
     def steps(self) -> int:
@@ -290,6 +332,70 @@ class Engine:
     def segments(self) -> int:
         """Grid segments started (anchored mode)."""
         return int(self.grid[G_SEGMENTS])
+
+    # ------------------------------------------------------------------ learned state
+    @property
+    def learns(self) -> bool:
+        """The backend learns the car online (:mod:`lde.learner`)."""
+        return self.backend.learns
+
+    def _require_learning(self) -> None:
+        if not self.learns:
+            raise ConfigError(
+                f"backend {self.backend.name!r} does not learn: --learned needs a learning backend"
+            )
+
+    def load_learned(self, path: str | Path) -> LearnedState | None:
+        """Start from a learned-state file (``--learned``) when it exists (None when it does not):
+        checked against this vehicle and profile (ConfigError otherwise)."""
+        self._require_learning()
+        if not Path(path).exists():
+            return None
+        info = self.est.info
+        return self._use(load_learned(path, self.profile.name, info["p"], info["lp"]))
+
+    def load_learned_text(self, text: str, source: str) -> LearnedState:
+        """:meth:`load_learned` of a learned-state file's text (a recording's learned start)."""
+        self._require_learning()
+        info = self.est.info
+        return self._use(parse_learned(text, source, self.profile.name, info["p"], info["lp"]))
+
+    def _use(self, got: LearnedState) -> LearnedState:
+        self.est.info["learner"][:] = got.learner
+        self.learned_from = got
+        return got
+
+    def learned_snapshot(self, seconds: float) -> LearnedSnapshot:
+        """A copy of what was learned: the drives and driving time so far plus ``seconds`` of this
+        run (valid steps). ConfigError for a backend that does not learn."""
+        self._require_learning()
+        prev = self.learned_from
+        info = self.est.info
+        return LearnedSnapshot(
+            self.vehicle.name,
+            self.profile.name,
+            info["p"].copy(),
+            info["learner"].copy(),
+            (prev.drives if prev is not None else 0) + 1,
+            (prev.seconds if prev is not None else 0.0) + float(seconds),
+        )
+
+    def save_learned(self, path: str | Path, seconds: float) -> None:
+        """Write what was learned (atomically); see :meth:`learned_snapshot`."""
+        save_snapshot(path, self.learned_snapshot(seconds))
+
+    @property
+    def learn_summary(self) -> str:
+        """What the learner holds now, one line (empty for a backend that does not learn)."""
+        if not self.learns:
+            return ""
+        p, ls = self.est.info["p"], self.est.info["learner"]
+        state = ("not learned", "learning", "learned")[min(2, tire_state(ls))]
+        return (
+            f"tires {state}: Cf {p[E.P_CF]:.0f} Cr {p[E.P_CR]:.0f} N/rad, K {p[E.P_K]:.0f} Nm/rad, "
+            f"accel scale {p[E.P_S]:.3f}, friction {p[E.P_TFRIC]:.2f} Nm, angle offset "
+            f"{np.degrees(p[E.P_DSW]):.3f} deg, gyro bias {np.degrees(p[E.P_BR]):.4f} deg/s"
+        )
 
     def stats(self) -> dict[str, ReceiverStats]:
         """Per input message counts so far."""
@@ -341,8 +447,7 @@ class Engine:
             step_times,
             enable,
             extra_status,
-            self.cvec,
-            self.corrects,
+            self.prev_t,
             self.lp,
             self.lsi,
             self.lsf,

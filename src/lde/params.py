@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ConfigError
-from .units import DEG, KMH
+from .units import DEG, KMH, G
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -143,6 +143,18 @@ class EstimatorTuning:
         min_speed: below this the model is not used, the filter holds [m/s] (SPEC: 30 km/h).
         converge_time: time after a (re)start before the estimate counts as converged [s]
             (5 slowest time constants at 160 km/h).
+
+    The lateral filter (:mod:`lde.estimator`, states beta, r, F_wind, M_wind, F_bank; the product's
+    default) uses q_beta, q_yaw, r_yaw, r_align, the p0 and min_speed/converge_time above, and:
+
+        q_wind: random-walk density of the wind force F_wind [N^2/s], 1e5.
+        q_wind_moment: random-walk density of the wind moment M_wind [(Nm)^2/s], 3e4.
+        q_bank: random-walk density of the bank force F_bank = m g sin(phi) [N^2/s], 5e4.
+        r_lat_accel: lateral-acceleration measurement variance [(m/s^2)^2]: (0.10 m/s^2)^2.
+        p0_bank: initial standard deviation of F_bank [N].
+
+    (docs/estimator.md: chosen on the tuning plants with their identified tires; the zoo results are
+    flat within 0.5 points across the sweep.)
     """
 
     q_beta: float = 1e-8
@@ -157,6 +169,11 @@ class EstimatorTuning:
     p0_mw: float = 3000.0
     min_speed: float = 30.0 * KMH
     converge_time: float = 1.0
+    q_wind: float = 1.0e5
+    q_wind_moment: float = 3.0e4
+    q_bank: float = 5.0e4
+    r_lat_accel: float = 0.10**2
+    p0_bank: float = 3000.0
 
 
 #: default steering-wheel rate scale of the smoothed friction sign tanh(rate / w) [rad/s]
@@ -196,6 +213,46 @@ class InputCorrections:
 
 
 @dataclass(frozen=True)
+class LearningSettings:
+    """Online learning of what a spec sheet does not give (:mod:`lde.learner`).
+
+    Attributes:
+        enabled: 1 learns tires, friction and sensor offsets while driving; 0 keeps the vehicle
+            file's (and a ``--learned`` file's) values.
+        accel_scale: prior of the accelerometer's roll-tilt scale s = 1 + g k_roll [-] (a sedan's
+            ~4 deg/g roll gradient gives 1.06; learned).
+        friction_prior: prior of the steering Coulomb friction at the column [Nm] (learned; the
+            vehicle file's ``[corrections] steering_friction_Nm`` overrides it when set).
+        torsion_above_bar: generic torsion-bar twist used when the profile's angle sensor sits above
+            the torsion bar and ``[corrections] torsion_deg_per_Nm`` is 0 [rad/Nm] (not learnable
+            from driving: the column torque follows the aligning torque).
+    """
+
+    enabled: float = 1.0
+    accel_scale: float = 1.06
+    friction_prior: float = 0.3
+    torsion_above_bar: float = 0.5 * DEG
+
+
+#: generic tires when a vehicle file gives none (a spec sheet): per-tire cornering stiffness per
+#: newton of static tire load [1/rad], front and rear, and the total trail K / C_f [m]; the values of
+#: the shipped reference.toml's tires on its own body (a mid-size sedan on 215/60R16)
+GENERIC_CORNERING_FRONT = 13.98
+GENERIC_CORNERING_REAR = 20.33
+GENERIC_TRAIL_M = 0.1161
+
+
+def generic_tires(body: VehicleParams) -> TireParams:
+    """Tires for a body without a ``[tires]`` table: the generic cornering coefficients times the
+    static per-tire loads, K from the generic trail (the learner refines them while driving)."""
+    L = body.wheelbase
+    fz_f = body.mass * G * body.lr / (2.0 * L)
+    fz_r = body.mass * G * body.lf / (2.0 * L)
+    cf = GENERIC_CORNERING_FRONT * fz_f
+    return TireParams(cf=cf, cr=GENERIC_CORNERING_REAR * fz_r, align_rate=GENERIC_TRAIL_M * cf)
+
+
+@dataclass(frozen=True)
 class Vehicle:
     """Everything a vehicle file holds. ``sim`` is the raw ``[sim]`` table for :mod:`vcan_sim`."""
 
@@ -206,8 +263,25 @@ class Vehicle:
     overlay: OverlayLimits = field(default_factory=OverlayLimits)
     estimator: EstimatorTuning = field(default_factory=EstimatorTuning)
     corrections: InputCorrections = field(default_factory=InputCorrections)
+    learning: LearningSettings = field(default_factory=LearningSettings)
     sim: dict[str, Any] = field(default_factory=dict)
     source: str = ""
+    #: file keys that took lde's defaults (``[table] key``): not in the file or a file it extends
+    defaults: tuple[str, ...] = field(default=(), compare=False)
+
+    def defaults_note(self) -> str:
+        """One line naming the keys that took defaults ('' when none did)."""
+        if not self.defaults:
+            return ""
+        tables: dict[str, list[str]] = {}
+        for d in self.defaults:
+            t, k = d.split(" ", 1)
+            tables.setdefault(t, []).append(k)
+        parts = []
+        for t, keys in tables.items():
+            total = len(_SCHEMA[t.strip("[]")][1])
+            parts.append(f"{t} all {total} keys" if len(keys) == total else f"{t} {', '.join(keys)}")
+        return f"vehicle {self.name!r}: lde's defaults used for " + "; ".join(parts)
 
     def with_body(self, **changes: float) -> Vehicle:
         """A copy with some body parameters replaced (SI), re-validated."""
@@ -269,6 +343,20 @@ _SCHEMA: dict[str, tuple[type, dict[str, tuple[str, float | None]]]] = {
             "p0_mw_Nm": ("p0_mw", 1.0),
             "min_speed_kmh": ("min_speed", KMH),
             "converge_time_s": ("converge_time", 1.0),
+            "q_wind_N2_per_s": ("q_wind", 1.0),
+            "q_wind_moment_Nm2_per_s": ("q_wind_moment", 1.0),
+            "q_bank_N2_per_s": ("q_bank", 1.0),
+            "r_lat_accel_m_per_s2": ("r_lat_accel", None),  # a std dev, stored as variance
+            "p0_bank_N": ("p0_bank", 1.0),
+        },
+    ),
+    "learning": (
+        LearningSettings,
+        {
+            "enabled": ("enabled", 1.0),
+            "accel_scale": ("accel_scale", 1.0),
+            "friction_prior_Nm": ("friction_prior", 1.0),
+            "torsion_above_bar_deg_per_Nm": ("torsion_above_bar", DEG),
         },
     ),
     "corrections": (
@@ -283,7 +371,7 @@ _SCHEMA: dict[str, tuple[type, dict[str, tuple[str, float | None]]]] = {
         },
     ),
 }
-_REQUIRED_TABLES = ("vehicle", "steering", "tires")
+_REQUIRED_TABLES = ("vehicle", "steering")
 #: the ``[corrections]`` keys of a vehicle file (units in the names)
 CORRECTION_KEYS: tuple[str, ...] = tuple(_SCHEMA["corrections"][1])
 
@@ -291,7 +379,7 @@ CORRECTION_KEYS: tuple[str, ...] = tuple(_SCHEMA["corrections"][1])
 def _std_to_var(key: str, value: float) -> float:
     if key == "r_yaw_deg_per_s":
         return (value * DEG) ** 2
-    return value**2
+    return value**2  # r_align_Nm, r_lat_accel_m_per_s2
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
@@ -353,7 +441,9 @@ def shipped_vehicles() -> list[str]:
     return sorted(p.stem for p in VEHICLE_DIR.glob("*.toml"))
 
 
-def _build(cls: type, table: str, raw: dict[str, Any], src: str) -> Any:
+def _build(cls: type, table: str, raw: dict[str, Any], src: str, defaults: list[str] | None = None) -> Any:
+    """The dataclass of ``[table]`` from its raw TOML keys (units converted); keys that are absent
+    and have a default are appended to ``defaults`` as ``[table] key``."""
     keymap = _SCHEMA[table][1]
     if not isinstance(raw, dict):
         raise ConfigError(f"{src}: [{table}] must be a table")
@@ -370,10 +460,14 @@ def _build(cls: type, table: str, raw: dict[str, Any], src: str) -> Any:
         if not math.isfinite(value):
             raise ConfigError(f"{src}: [{table}] {key} must be finite, got {value!r}")
         kwargs[attr] = _std_to_var(key, float(value)) if factor is None else float(value) * factor
+    names = {a: k for k, (a, _) in keymap.items()}
     missing = [f.name for f in fields(cls) if f.name not in kwargs and _has_no_default(f)]
     if missing:
-        names = {a: k for k, (a, _) in keymap.items()}
         raise ConfigError(f"{src}: [{table}] is missing {', '.join(names[m] for m in missing)}")
+    if defaults is not None:
+        defaults += [
+            f"[{table}] {names[f.name]}" for f in fields(cls) if f.name not in kwargs and f.name in names
+        ]
     return cls(**kwargs)
 
 
@@ -399,7 +493,15 @@ def vehicle_from_dict(data: dict[str, Any], src: str = "<dict>") -> Vehicle:
     unknown = sorted(set(data) - set(_SCHEMA))
     if unknown:
         raise ConfigError(f"{src}: unknown table(s) {', '.join(unknown)}")
-    parts = {t: _build(_SCHEMA[t][0], t, data.get(t, {}), src) for t in _SCHEMA}
+    defaults: list[str] = []
+    parts = {
+        t: _build(_SCHEMA[t][0], t, data.get(t, {}), src, defaults)
+        for t in _SCHEMA
+        if t != "tires" or t in data
+    }
+    if "tires" not in parts:  # a spec sheet: generic tires from the axle loads (the learner refines them)
+        parts["tires"] = generic_tires(parts["vehicle"])
+        defaults.append("[tires] generic from the axle loads")
     v = Vehicle(
         name=name,
         body=parts["vehicle"],
@@ -408,8 +510,10 @@ def vehicle_from_dict(data: dict[str, Any], src: str = "<dict>") -> Vehicle:
         overlay=parts["overlay"],
         estimator=parts["estimator"],
         corrections=parts["corrections"],
+        learning=parts["learning"],
         sim=sim,
         source=src,
+        defaults=tuple(defaults),
     )
     validate(v)
     return v
@@ -436,17 +540,72 @@ def _check(cond: bool, src: str, msg: str) -> None:
         raise ConfigError(f"{src}: {msg}")
 
 
+#: plausibility ranges of a road vehicle with MDPS (cars, SUVs, light vans; docs/tuning.md)
+MASS_RANGE_KG = (300.0, 8000.0)
+WHEELBASE_RANGE_M = (1.5, 5.0)
+AXLE_SHARE_RANGE = (0.2, 0.8)  # lf / L and lr / L: the CG lies between the axles, not at one
+YAW_INDEX_RANGE = (0.5, 1.6)  # Iz / (m lf lr), the dynamic index (about 1 for a car)
+TRACK_RANGE_M = (0.9, 2.2)
+RATIO_RANGE = (8.0, 30.0)
+CORNERING_COEF_RANGE = (4.0, 45.0)  # per-tire cornering stiffness / static tire load [1/rad]
+TRAIL_RANGE_M = (0.02, 0.3)  # K / C_f: the total (pneumatic + mechanical) trail
+
+
+def _in(x: float, rng: tuple[float, float]) -> bool:
+    return rng[0] <= x <= rng[1]
+
+
+def _fmt(rng: tuple[float, float]) -> str:
+    return f"{rng[0]:g}..{rng[1]:g}"
+
+
 def validate(v: Vehicle) -> None:
-    """Physical plausibility checks; raise :class:`ConfigError` naming the offending field."""
+    """Physical plausibility of a road vehicle with MDPS; raise :class:`ConfigError` in one line that
+    names the file, the key(s) and the range."""
     s = v.source or v.name
     b, t, o, e = v.body, v.tires, v.overlay, v.estimator
-    _check(200.0 <= b.mass <= 40000.0, s, f"mass_kg {b.mass} outside 200..40000")
-    _check(50.0 <= b.yaw_inertia <= 500000.0, s, f"yaw_inertia_kgm2 {b.yaw_inertia} outside 50..500000")
-    _check(0.2 <= b.lf <= 6.0 and 0.2 <= b.lr <= 6.0, s, f"lf_m/lr_m ({b.lf}, {b.lr}) must lie in 0.2..6 m")
-    _check(0.5 <= b.track_front <= 3.0 and 0.5 <= b.track_rear <= 3.0, s, "track widths must lie in 0.5..3 m")
-    _check(5.0 <= v.steering.ratio <= 40.0, s, f"steering ratio {v.steering.ratio} outside 5..40")
-    _check(1e3 <= t.cf <= 1e6 and 1e3 <= t.cr <= 1e6, s, "cornering stiffnesses must lie in 1e3..1e6 N/rad")
-    _check(10.0 <= t.align_rate <= 1e5, s, f"align_rate {t.align_rate} outside 10..1e5 Nm/rad")
+    _check(_in(b.mass, MASS_RANGE_KG), s, f"[vehicle] mass_kg {b.mass:g} outside {_fmt(MASS_RANGE_KG)} kg")
+    _check(b.lf > 0.0 and b.lr > 0.0, s, f"[vehicle] lf_m {b.lf:g} and lr_m {b.lr:g} must be > 0")
+    L = b.wheelbase
+    _check(
+        _in(L, WHEELBASE_RANGE_M),
+        s,
+        f"[vehicle] lf_m + lr_m = wheelbase {L:g} m outside {_fmt(WHEELBASE_RANGE_M)} m",
+    )
+    _check(
+        _in(b.lf / L, AXLE_SHARE_RANGE),
+        s,
+        f"[vehicle] lf_m {b.lf:g} is {b.lf / L:.2f} of the wheelbase, outside {_fmt(AXLE_SHARE_RANGE)}",
+    )
+    di = b.yaw_inertia / (b.mass * b.lf * b.lr)
+    _check(
+        _in(di, YAW_INDEX_RANGE),
+        s,
+        f"[vehicle] yaw_inertia_kgm2 {b.yaw_inertia:g} is {di:.2f} x mass lf lr, "
+        f"outside {_fmt(YAW_INDEX_RANGE)}",
+    )
+    for key, tr in (("track_front_m", b.track_front), ("track_rear_m", b.track_rear)):
+        _check(_in(tr, TRACK_RANGE_M), s, f"[vehicle] {key} {tr:g} outside {_fmt(TRACK_RANGE_M)} m")
+    _check(
+        _in(v.steering.ratio, RATIO_RANGE),
+        s,
+        f"[steering] ratio {v.steering.ratio:g} outside {_fmt(RATIO_RANGE)}",
+    )
+    fz_f = b.mass * G * b.lr / (2.0 * L)  # static load per front tire [N]
+    fz_r = b.mass * G * b.lf / (2.0 * L)
+    for key, stiff, fz in (("cf_N_per_rad", t.cf, fz_f), ("cr_N_per_rad", t.cr, fz_r)):
+        _check(
+            _in(stiff / fz, CORNERING_COEF_RANGE),
+            s,
+            f"[tires] {key} {stiff:g} is {stiff / fz:.1f} x the static tire load ({fz:.0f} N) per rad, "
+            f"outside {_fmt(CORNERING_COEF_RANGE)}",
+        )
+    _check(
+        _in(t.align_rate / t.cf, TRAIL_RANGE_M),
+        s,
+        f"[tires] align_rate_Nm_per_rad {t.align_rate:g} / cf_N_per_rad = trail {t.align_rate / t.cf:.3f} m, "
+        f"outside {_fmt(TRAIL_RANGE_M)} m",
+    )
     _check(0.0 < o.max_torque <= 10.0, s, "overlay max_torque_Nm must lie in (0, 10]")
     _check(0.0 < o.max_rate <= 100.0, s, "overlay max_rate_Nm_per_s must lie in (0, 100]")
     _check(0.0 <= o.min_speed < o.max_speed, s, "overlay needs 0 <= min_speed_kmh < max_speed_kmh")
@@ -472,3 +631,18 @@ def validate(v: Vehicle) -> None:
     _check(abs(c.steer_offset) <= 20.0 * DEG, s, "corrections steering_angle_offset_deg must lie in -20..20")
     _check(abs(c.yaw_bias) <= 5.0 * DEG, s, "corrections yaw_rate_bias_deg_s must lie in -5..5")
     _check(abs(c.align_offset) <= 200.0, s, "corrections align_offset_Nm must lie in -200..200")
+    lg = v.learning
+    _check(lg.enabled in (0.0, 1.0), s, f"[learning] enabled must be 0 or 1, got {lg.enabled:g}")
+    _check(0.9 <= lg.accel_scale <= 1.3, s, f"[learning] accel_scale {lg.accel_scale:g} outside 0.9..1.3")
+    _check(
+        0.0 <= lg.friction_prior <= 2.0, s, f"[learning] friction_prior_Nm {lg.friction_prior:g} outside 0..2"
+    )
+    _check(
+        0.0 <= lg.torsion_above_bar <= 3.0 * DEG,
+        s,
+        "[learning] torsion_above_bar_deg_per_Nm must lie in 0..3",
+    )
+    _check(
+        e.q_wind > 0 and e.q_wind_moment > 0 and e.q_bank > 0, s, "estimator q_wind/q_bank keys must be > 0"
+    )
+    _check(e.r_lat_accel > 0 and e.p0_bank > 0, s, "estimator r_lat_accel_m_per_s2 and p0_bank_N must be > 0")

@@ -5,8 +5,8 @@ For the frames handed in (time order) and the step times the grid makes due (:mo
 
     frame  -> receiver (decode, E2E, latest sample)                    lde.signals.rx_feed
     step k -> inputs at t_k (sample-and-hold, staleness, trust)        lde.signals.rx_sample
-           -> input corrections ([corrections]; none by default)       lde.conditioning.condition_kernel
-           -> estimator step (backend: float | fixed, t_k passed in)   lde.backends
+           -> estimator step (backend, t_k passed in; each backend applies
+              its own input corrections and learns what it learns)     lde.backends
            -> status | extra bits (DEADLINE_MISS live, as recorded in replay)
            -> overlay law + limiter                                    lde.overlay.overlay_kernel
            -> finalise: a non-finite Fw, Mw, T_align or T_overlay is sent as 0 with VALID cleared
@@ -21,9 +21,9 @@ replay calls it per chunk of a log with the anchored grid (or a recording's step
 :class:`lde.engine.Engine` and survives between calls, so a log cut into chunks, or a live run step
 by step, gives the same rows as one call over everything.
 
-The backend step (``step(bp, bs, t_ns, speed, steering_angle, yaw_rate, column_torque,
-assist_torque, lat_accel, steering_rate, mdps_ok, esc_ok, out) -> status``, SI inputs after the
-corrections, ``out`` the ``O_*`` slots) is bound into its own compiled copy of the loop by
+The backend step (``step(bp, bs, t_ns, inputs, fresh, mdps_ok, esc_ok, out) -> status``: the
+sampled SI inputs, a bit mask of the inputs that brought a new sample since the previous step, the
+groups' validity; ``out`` the ``O_*`` slots) is bound into its own compiled copy of the loop by
 :func:`make_loop` (one per backend, each cached on disk): numba's function-typed arguments would
 make every call go through a function pointer and could not be cached.
 """
@@ -40,7 +40,6 @@ from numba import njit
 
 from .bitfield import word_to_bytes
 from .codec import encode_word
-from .conditioning import condition_kernel
 from .e2e import S_ACCEPTED, S_N_REPEATED, S_N_WRONGCRC, S_N_WRONGSEQ, advance_counter
 from .grid import (
     G_FINISH,
@@ -53,21 +52,18 @@ from .grid import (
     grid_frame,
     grid_step_done,
 )
-from .overlay import LS_STATE, overlay_kernel
+from .overlay import LP_GAIN, LS_STATE, overlay_kernel
 from .signals import (
-    I_ASSIST_TORQUE,
     I_COLUMN_TORQUE,
-    I_LAT_ACCEL,
     I_SPEED,
     I_STEERING_ANGLE,
-    I_STEERING_RATE,
-    I_YAW_RATE,
     rx_feed,
     rx_msg_of,
     rx_sample,
 )
 from .status import DEGRADED, VALID
-from .step import O_FW, O_MW, O_T_ALIGN
+from .step import O_BANK, O_FW, O_FW_WIND, O_GAIN, O_LEARN, O_MW, O_MW_WIND, O_T_ALIGN
+from .units import DEG
 
 __all__ = [
     "V_FW",
@@ -77,6 +73,10 @@ __all__ = [
     "V_T_OVERLAY",
     "V_ACTIVE",
     "V_STATE",
+    "V_FW_WIND",
+    "V_MW_WIND",
+    "V_BANK_DEG",
+    "V_LEARN",
     "V_ZERO",
     "N_V",
     "make_loop",
@@ -84,8 +84,9 @@ __all__ = [
 ]
 
 # --- the values an output frame's signals are taken from (lde.engine.OUTPUT_SOURCES) ----------
-V_FW, V_MW, V_T_ALIGN, V_STATUS, V_T_OVERLAY, V_ACTIVE, V_STATE, V_ZERO = range(8)
-N_V = 8
+V_FW, V_MW, V_T_ALIGN, V_STATUS, V_T_OVERLAY, V_ACTIVE, V_STATE = range(7)
+V_FW_WIND, V_MW_WIND, V_BANK_DEG, V_LEARN, V_ZERO = range(7, 12)
+N_V = 12
 
 
 @njit(cache=True, inline="always")
@@ -178,8 +179,7 @@ def _run_loop(
     explicit,
     ex_enable,
     ex_extra,
-    cvec,
-    corrects,
+    prev_t,
     lp,
     lsi,
     lsf,
@@ -250,30 +250,20 @@ def _run_loop(
                 if ex_extra.shape[0] > j:
                     extra = ex_extra[j]
             vin = o_in[n]
-            mask, ok_m, ok_e = rx_sample(tb, st, tk, vin, o_age[n])
-            angle = vin[I_STEERING_ANGLE]
-            rate = vin[I_STEERING_RATE]
-            yaw = vin[I_YAW_RATE]
-            col = vin[I_COLUMN_TORQUE]
-            if corrects:
-                angle, yaw, col = condition_kernel(cvec, angle, rate, yaw, col)
+            age = o_age[n]
+            mask, ok_m, ok_e = rx_sample(tb, st, tk, vin, age)
+            # fresh: input i brought a new sample since the previous step
+            fresh = 0
+            for q in range(vin.shape[0]):
+                if age[q] >= 0 and tk - age[q] > prev_t[0]:
+                    fresh |= 1 << q
+            prev_t[0] = tk
             est = o_est[n]
-            status = STEP(
-                bp,
-                bs,
-                tk,
-                vin[I_SPEED],
-                angle,
-                yaw,
-                col,
-                vin[I_ASSIST_TORQUE],
-                vin[I_LAT_ACCEL],
-                rate,
-                ok_m,
-                ok_e,
-                est,
-            )
+            status = STEP(bp, bs, tk, vin, fresh, ok_m, ok_e, est)
             status |= extra
+            gain = est[O_GAIN]
+            if math.isfinite(gain) and gain > 0.0:  # the backend's learned tires (else the vehicle file's)
+                lp[LP_GAIN] = gain
             torque = overlay_kernel(
                 lp,
                 lsi,
@@ -296,6 +286,11 @@ def _run_loop(
             vals[V_T_OVERLAY] = torque
             vals[V_ACTIVE] = 1.0 if (state == 1 or state == 2) else 0.0
             vals[V_STATE] = state
+            # the wind / bank split and the learned state (0 on the bus where a backend has none)
+            vals[V_FW_WIND] = est[O_FW_WIND] if math.isfinite(est[O_FW_WIND]) else 0.0
+            vals[V_MW_WIND] = est[O_MW_WIND] if math.isfinite(est[O_MW_WIND]) else 0.0
+            vals[V_BANK_DEG] = est[O_BANK] / DEG if math.isfinite(est[O_BANK]) else 0.0
+            vals[V_LEARN] = est[O_LEARN]
             if encode:
                 _encode_outputs(otab, vals, counters, o_frames[n], scratch)
             o_t[n] = tk

@@ -60,7 +60,7 @@ INPUT_NAMES: tuple[str, ...] = (
 MDPS_INPUTS: tuple[str, ...] = ("column_torque", "assist_torque", "steering_angle", "steering_rate")
 ESC_INPUTS: tuple[str, ...] = ("yaw_rate", "lat_accel", "speed")
 GROUPS: Mapping[str, tuple[str, ...]] = MappingProxyType({"mdps": MDPS_INPUTS, "esc": ESC_INPUTS})
-OUTPUT_MESSAGES: tuple[str, ...] = ("LDE_Overlay", "LDE_Estimate", "LDE_Diag")
+OUTPUT_MESSAGES: tuple[str, ...] = ("LDE_Overlay", "LDE_Estimate", "LDE_Diag", "LDE_Disturbance")
 
 #: default message timeout, in periods of the message (SPEC section 3)
 TIMEOUT_PERIODS = 3
@@ -123,6 +123,7 @@ class Profile:
     messages: Mapping[str, MessageSpec]  # input messages by name
     outputs: Mapping[str, MessageSpec]  # lde's output messages by name
     anchor_message: str  # its first accepted frame anchors the step grid (the MDPS torque message)
+    angle_above_torsion_bar: bool = False  # the steering angle sensor reads the torsion bar's twist
 
     @property
     def steering_rate_signed(self) -> bool:
@@ -163,6 +164,7 @@ class _ProfileDef:
     counters: Mapping[str, tuple[str, ...]]  # message -> counter signals, LSB part first
     checksums: Mapping[str, tuple[str, ...]]  # message -> checksum signals, LSB part first
     anchor: str
+    angle_above_torsion_bar: bool  # the steering angle sensor reads above the torsion bar (its twist)
 
 
 _LDE = _ProfileDef(
@@ -178,6 +180,7 @@ _LDE = _ProfileDef(
     counters={"MDPS_Sensors": ("Counter",), "ESC_Motion": ("Counter",)},
     checksums={"MDPS_Sensors": ("CRC",), "ESC_Motion": ("CRC",)},
     anchor="MDPS_Sensors",
+    angle_above_torsion_bar=False,  # the MDPS senses the angle on the motor/pinion side
 )
 
 _HYUNDAI = _ProfileDef(
@@ -216,6 +219,7 @@ _HYUNDAI = _ProfileDef(
         "WHL_SPD11": ("WHL_SPD_Checksum_LSB", "WHL_SPD_Checksum_MSB"),
     },
     anchor="MDPS12",
+    angle_above_torsion_bar=True,  # SAS11 sits on the column, above the torsion bar
 )
 
 _DEFS: Mapping[str, _ProfileDef] = MappingProxyType({"lde": _LDE, "hyundai": _HYUNDAI})
@@ -401,4 +405,5 @@ def load_profile(
         messages=MappingProxyType(messages),
         outputs=MappingProxyType(outputs),
         anchor_message=pdef.anchor,
+        angle_above_torsion_bar=pdef.angle_above_torsion_bar,
     )

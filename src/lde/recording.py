@@ -97,6 +97,9 @@ ESTIMATE_TOPIC = "/lde/estimate"
 INPUTS_TOPIC = "/lde/inputs"
 DIAG_TOPIC = "/lde/diag"
 EVENTS_TOPIC = "/lde/events"
+#: ``lde`` metadata key: the learned-state file's text a live run started from (``--learned``), so
+#: that a replay of the recording starts from it too (:func:`lde.replay.run_replay`)
+LEARNED_START_KEY = "learned_start"
 
 #: estimator input names (SI) recorded on ``/lde/inputs``
 INPUT_FIELDS: tuple[str, ...] = INPUT_NAMES
@@ -230,6 +233,10 @@ ESTIMATE = StepTopic(
         _int("status", "LDE_Estimate.Status bit map", lambda b, _: b.status),
         _num("beta", "estimated side slip [rad]", EXACT, lambda b, _: b.beta),
         _num("yaw_rate", "estimated yaw rate [rad/s]", EXACT, lambda b, _: b.yaw_rate),
+        _num("Fw_wind", "the wind's part of Fw [N] (null: not told apart)", EXACT, lambda b, _: b.fw_wind),
+        _num("Mw_wind", "the wind's yaw moment [Nm] (null: not told apart)", EXACT, lambda b, _: b.mw_wind),
+        _num("bank_deg", "road bank [deg], left side lower positive", EXACT, lambda b, _: np.degrees(b.bank)),
+        _int("learn_state", "0 not learned, 1 learning, 2 learned, 3 no learner", lambda b, _: b.learn_state),
         *(_int(name, f"Status bit{i}", _status_bit(i)) for i, name in enumerate(STATUS_BITS)),
     ),
 )

@@ -40,7 +40,7 @@ from .logio import LogData, McapWriter, read_log
 from .logio.textfmt import Column, format_rows, time_column
 from .params import Vehicle
 from .profiles import PROFILE_NAMES, Profile, load_profile
-from .recording import ESTIMATE_TOPIC, EVENTS_TOPIC, StepTopicWriter
+from .recording import ESTIMATE_TOPIC, EVENTS_TOPIC, LEARNED_START_KEY, StepTopicWriter
 from .status import DEADLINE_MISS, VALID
 from .units import STEP_NS
 
@@ -85,6 +85,10 @@ CSV_COLUMNS: tuple[tuple[str, int, str], ...] = (
     ("speed", 4, "m/s, input speed (sample-and-hold)"),
     ("mdps_ok", 0, "1: MDPS inputs fresh and trusted"),
     ("esc_ok", 0, "1: ESC inputs fresh and trusted"),
+    ("Fw_wind", 3, "N, the wind's part of Fw, left positive (nan: the backend does not tell wind from bank)"),
+    ("Mw_wind", 3, "Nm, the wind's yaw moment, left positive (nan: not told apart)"),
+    ("bank_deg", 4, "deg, road bank angle, road's left side lower positive (nan: not told apart)"),
+    ("learn_state", 0, "tire values: 0 not learned, 1 learning, 2 learned, 3 the backend does not learn"),
 )
 
 
@@ -217,8 +221,8 @@ class ReplayResult:
 
 
 # ----------------------------------------------------------------------------- backends
-def resolve_backend(backend: str | None) -> tuple[str, Callable[..., Any], str]:
-    """(name, the backend's array-API ``run_batch``, note) from the registry (:mod:`lde.backends`);
+def resolve_backend(backend: str | None) -> tuple[str, Callable[..., Any] | None, str]:
+    """(name, the backend's array-API ``run_batch`` or None, note) from the registry (:mod:`lde.backends`);
     ``None`` is :data:`DEFAULT_BACKEND`. An unknown name raises ConfigError (never a fallback)."""
     b = get_backend(DEFAULT_BACKEND if backend is None else backend)
     return b.name, b.run_batch, ""
@@ -250,6 +254,8 @@ class ReplaySummary:
     timings: dict[str, float] = field(default_factory=dict)
     profile: Profile | None = None
     profile_origin: str = ""
+    learned: str = ""  # what the learner holds at the end (one line; empty without a learner)
+    learned_origin: str = ""  # where learning started: a --learned file, the recording, "" (vehicle)
 
     def __len__(self) -> int:
         return self.steps
@@ -273,13 +279,25 @@ def run_replay(
     extra_status: np.ndarray | None = None,
     output_frames: bool = True,
     chunk_frames: int = CHUNK_FRAMES,
+    learned: str | Path | None = None,
+    learned_start: str | None = None,
 ) -> ReplaySummary:
     """Stream ``frames`` (any order) through the data path in chunks; every chunk's rows go to each
-    sink as ``sink(chunk_frames, rows)``. Arguments as :func:`replay`."""
+    sink as ``sink(chunk_frames, rows)``. ``learned``: a learned-state file (``--learned``), read
+    first when it exists and written (atomically) at the end. ``learned_start``: the text of the
+    learned state a live run started from (its recording's ``learned_start``): used by a learning
+    backend when ``learned`` names no existing file, so that the recording replays to the live
+    estimates. Other arguments as :func:`replay`."""
     name = DEFAULT_BACKEND if backend is None else backend
     t0 = time.perf_counter()
     explicit = step_times_ns is not None
     engine = Engine(profile, vehicle, name, explicit=explicit, encode_outputs=output_frames)
+    origin = ""
+    if learned is not None and engine.load_learned(learned) is not None:
+        origin = str(learned)
+    elif learned_start and engine.learns:
+        engine.load_learned_text(learned_start, "the recording's learned start")
+        origin = "the recording's learned start"
     fs = frames.sort()
     n_tx = int(np.count_nonzero(~fs.is_rx))
     steps = valid = gaps = 0
@@ -315,6 +333,8 @@ def run_replay(
         ignored=engine.n_ignored,
         messages=engine.stats(),
     )
+    if learned is not None:
+        engine.save_learned(learned, valid * STEP_NS * 1e-9)
     return ReplaySummary(
         steps=steps,
         valid_steps=valid,
@@ -323,6 +343,8 @@ def run_replay(
         backend=engine.backend.name,
         recorded_steps=explicit,
         timings={"engine": time.perf_counter() - t0 - t_sinks, "outputs": t_sinks},
+        learned=engine.learn_summary,
+        learned_origin=origin,
     )
 
 
@@ -337,6 +359,8 @@ def replay(
     overlay_enable: np.ndarray | None = None,
     extra_status: np.ndarray | None = None,
     output_frames: bool = True,
+    learned: str | Path | None = None,
+    learned_start: str | None = None,
 ) -> ReplayResult:
     """Replay ``frames`` (any order) through the data path; every row is kept (:class:`ReplayResult`).
 
@@ -351,6 +375,8 @@ def replay(
             recording's, so that a run ended by a signal replays exactly); default all on.
         extra_status: status bits to add per step of ``step_times_ns`` (a recording's DEADLINE_MISS).
         output_frames: encode lde's output frames (needed by :func:`write_recording`).
+        learned: a learned-state file (read when it exists, written at the end).
+        learned_start: a recording's learned start (:func:`run_replay`).
     """
     blocks: list[StepBlock] = []
     summary = run_replay(
@@ -364,6 +390,8 @@ def replay(
         overlay_enable=overlay_enable,
         extra_status=extra_status,
         output_frames=output_frames,
+        learned=learned,
+        learned_start=learned_start,
     )
     block = StepBlock.concat(blocks) if len(blocks) != 1 else blocks[0]
     return ReplayResult.of(
@@ -477,6 +505,7 @@ class LogInputs:
     extra_status: np.ndarray | None
     tx_frames: int | None
     read_s: float
+    learned_start: str | None = None  # the learned state a live run started from (its recording's)
 
 
 def read_inputs(
@@ -510,7 +539,18 @@ def read_inputs(
     n_tx = None
     if log.mcap is not None and "/can/tx" in log.mcap.topics:
         n_tx = log.mcap.topics["/can/tx"].count
-    return LogInputs(log, profile, origin, steps, enable, extra, n_tx, time.perf_counter() - t0)
+    meta = log.mcap.metadata.get("lde", {}) if log.mcap is not None else {}
+    return LogInputs(
+        log,
+        profile,
+        origin,
+        steps,
+        enable,
+        extra,
+        n_tx,
+        time.perf_counter() - t0,
+        meta.get(LEARNED_START_KEY) or None,
+    )
 
 
 def replay_log(
@@ -522,6 +562,7 @@ def replay_log(
     use_recorded_steps: bool = True,
     profiles: dict[str, Profile] | None = None,
     output_frames: bool = True,
+    learned: str | Path | None = None,
 ) -> tuple[LogData, ReplayResult]:
     """Read a log (:func:`read_inputs`) and replay it, every row kept (:func:`replay`).
 
@@ -539,6 +580,8 @@ def replay_log(
         overlay_enable=li.overlay_enable,
         extra_status=li.extra_status,
         output_frames=output_frames,
+        learned=learned,
+        learned_start=li.learned_start,
     )
     res.timings = {"read": li.read_s, **res.timings}
     res.profile, res.profile_origin = li.profile, li.profile_origin
@@ -559,6 +602,10 @@ def _csv_columns(b: StepBlock) -> list[Column]:
         "speed": b.input("speed"),
         "mdps_ok": b.mdps_ok,
         "esc_ok": b.esc_ok,
+        "Fw_wind": b.fw_wind,
+        "Mw_wind": b.mw_wind,
+        "bank_deg": np.degrees(b.bank),
+        "learn_state": b.learn_state,
     }
     cols = [time_column("t", b.t_ns)]
     cols += [Column(name, data[name], dec) for name, dec, _ in CSV_COLUMNS[1:]]

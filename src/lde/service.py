@@ -21,10 +21,13 @@ One step (:meth:`Service.step_once`) at step time ``t_k``:
    time order: exactly those with receive time ``<= t_k`` are fed, then the step at ``t_k`` runs
    (inputs, corrections, backend step, finalisation, overlay limiter, output frames), a late start
    adding DEADLINE_MISS to its status; later frames stay pending for the next step;
-3. send the engine's ``LDE_Estimate`` and ``LDE_Overlay`` frames, then ``LDE_Diag`` with this step's
-   timing;
+3. send the engine's ``LDE_Estimate``, ``LDE_Overlay`` and ``LDE_Disturbance`` frames, then
+   ``LDE_Diag`` with this step's timing;
 4. hand the received and sent frames, the step's row and its timing to the recorder (preallocated
-   rings in shared memory: the writing happens in the recorder's process).
+   rings in shared memory: the writing happens in the recorder's process);
+5. with ``learned`` (``lde run --learned FILE``): every ``learned_period_s`` of step time hand a
+   copy of the learned state to a writer thread (:class:`lde.learned.LearnedKeeper`);
+   :meth:`Service.close` writes it once more.
 
 The hot path allocates little: received frames go straight into preallocated pending arrays (the
 engine reads slices of them), the output ``can.Message`` objects are built once and refilled in place
@@ -57,6 +60,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import can
@@ -70,11 +74,12 @@ from .engine import Engine, StepBlock
 from .errors import BusError, ConfigError
 from .frames import FrameBatch, seconds_to_ns
 from .grid import L_REF, lock_anchor, lock_deadline, lock_timeout, new_lock
+from .learned import LearnedKeeper, LearnedSnapshot
 from .params import Vehicle, load_vehicle
 from .profiles import Profile, load_profile
 from .signals import Receiver
-from .status import DEADLINE_MISS
-from .units import STEP_NS
+from .status import DEADLINE_MISS, VALID
+from .units import STEP_NS, STEP_S
 
 __all__ = ["Service", "StepResult", "STATUS_DEADLINE_MISS", "GRIDS", "open_bus", "set_input_filters"]
 
@@ -138,7 +143,8 @@ class Service:
         vehicle: a :class:`lde.params.Vehicle`, a shipped vehicle name or None (reference).
         clock: a :mod:`lde.clock` clock (``now_ns()``, ``sleep_until(t_ns)``).
         backend: a registered backend name (:mod:`lde.backends`): ``fixed`` (default) or ``float``.
-        recorder: optional :class:`lde.recording.Recorder` (already started).
+        recorder: optional :class:`lde.recording.Recorder` (already started); may be set after
+            construction (before the first step), e.g. with :attr:`learned_start` in its metadata.
         overlay_enabled: False keeps the overlay request at zero (the demo's "without overlay" run).
         timebase_offset_ns: bus time minus clock time [ns]; None: measured at start (0 for a
             simulated clock).
@@ -147,6 +153,10 @@ class Service:
             frames, :mod:`lde.grid`'s locked grid) for :meth:`run`.
         input_filters: pass only the profile's input messages up from the bus
             (:func:`set_input_filters`).
+        learned: a learned-state file (``--learned``): read now when it exists (checked against the
+            vehicle and profile), written every ``learned_period_s`` of step time and at
+            :meth:`close`. Needs a backend that learns (ConfigError otherwise).
+        learned_period_s: period of the learned-state writes [s] (SPEC: 60 s).
     """
 
     def __init__(
@@ -163,6 +173,8 @@ class Service:
         log_period_s: float = 10.0,
         grid: str = "fixed",
         input_filters: bool = True,
+        learned: str | Path | None = None,
+        learned_period_s: float = 60.0,
     ) -> None:
         if grid not in GRIDS:
             raise ConfigError(f"unknown grid {grid!r}: {' or '.join(GRIDS)}")
@@ -228,6 +240,26 @@ class Service:
         self.recv_errors = 0  # failed receive calls, counted, not raised
         self.gc_collections = 0  # young-generation collections run in the idle time of run()
         self.last: StepResult | None = None
+        self.valid_steps = 0  # steps with status VALID: the driving time the learner saw
+        self.learned: LearnedKeeper | None = None
+        #: the learned-state file's text this run started from ("" without one): a recording keeps it
+        self.learned_start = ""
+        if learned is not None:
+            if not learned_period_s > 0:
+                raise ConfigError(f"learned period {learned_period_s} s: must be > 0")
+            got = self.engine.load_learned(learned)
+            if got is None:
+                log.info("learned state: %s does not exist yet; learning from the vehicle file", learned)
+            else:
+                self.learned_start = got.text
+                log.info(
+                    "learned state from %s (%d drives, %.0f s): %s",
+                    learned,
+                    got.drives,
+                    got.seconds,
+                    self.engine.learn_summary,
+                )
+            self.learned = LearnedKeeper(learned, int(learned_period_s * 1e9))
 
     def _alloc_pending(self, cap: int) -> None:
         """(Re)allocate the pending columns with room for ``cap`` frames, keeping their contents."""
@@ -414,6 +446,10 @@ class Service:
         self.steps += 1
         status = int(b.status[0])
         state = int(b.overlay_state[0])
+        if status & VALID:
+            self.valid_steps += 1
+        if self.learned is not None and self.learned.due(t_k):
+            self.learned.offer(self.learned_snapshot())
         res = StepResult(
             t_ns=t_k,
             fw=float(b.est[0, 0]),
@@ -476,6 +512,19 @@ class Service:
                 int.from_bytes(d, "little"),
                 False,
             )
+
+    # ------------------------------------------------------------------ learned state
+    def learned_snapshot(self) -> LearnedSnapshot:
+        """A copy of what was learned so far (driving time: this run's valid steps)."""
+        return self.engine.learned_snapshot(self.valid_steps * STEP_S)
+
+    def close(self) -> None:
+        """Write the learned state a last time (with ``learned``; ConfigError when that fails).
+        The bus and the recorder belong to the caller."""
+        if self.learned is not None:
+            keeper, self.learned = self.learned, None
+            keeper.close(self.learned_snapshot())
+            log.info("learned state written to %s: %s", keeper.path, self.engine.learn_summary)
 
     # ------------------------------------------------------------------ the loop
     def request_stop(self) -> None:

@@ -22,6 +22,10 @@ from collections.abc import Sequence
 
 from ..errors import LdeError
 
+#: the backends' names (lde.backends' registry; kept here so that building the parser stays light,
+#: tests/test_backends.py holds the two equal)
+BACKEND_CHOICES = ("fixed", "float", "lateral")
+
 #: subcommand name -> module below lde.cli. A module that does not exist yet is skipped.
 SUBCOMMANDS = ("demo", "run", "sim", "replay", "evaluate", "study", "calibrate")
 

@@ -19,14 +19,13 @@ For one :class:`~lde.study.spec.RunSpec` (on a worker):
 The files live in a temporary directory removed after scoring, or under ``spec.work_dir`` (kept).
 A non-zero exit status of ``lde`` fails the run with its last error line.
 
-Warm mode needs ``lde replay --learned FILE``; until ``lde replay --help`` lists it,
-:func:`require_learned` raises one clear line (:data:`WARM_UNAVAILABLE`) and nothing is faked.
+Warm mode is only meaningful with a backend that learns (``lateral``); the others ignore the learned
+file (``lde replay`` says so), so their warm numbers equal their cold ones.
 """
 
 from __future__ import annotations
 
 import contextlib
-import functools
 import io
 import tempfile
 from collections.abc import Iterator
@@ -53,10 +52,6 @@ from . import main
 
 #: the prior drive of a warm run uses the run's seed + this (another drive of the same car)
 PRIOR_SEED_OFFSET = 500
-WARM_UNAVAILABLE = (
-    "warm mode needs `lde replay --learned FILE`, which this lde does not have yet "
-    "(`lde replay --help` does not list --learned)"
-)
 
 
 @dataclass(frozen=True)
@@ -103,22 +98,6 @@ def replay_argv(
     if csv is not None:
         argv += ["--csv", str(csv)]
     return argv
-
-
-@functools.lru_cache(maxsize=1)
-def learned_available() -> bool:
-    """Whether ``lde replay --help`` lists ``--learned`` (the warm mode's prerequisite)."""
-    out = io.StringIO()
-    quiet = contextlib.redirect_stderr(io.StringIO())
-    with contextlib.redirect_stdout(out), quiet, contextlib.suppress(SystemExit):
-        main(["replay", "--help"])
-    return "--learned" in out.getvalue()
-
-
-def require_learned() -> None:
-    """ConfigError (:data:`WARM_UNAVAILABLE`) unless ``lde replay`` takes ``--learned``."""
-    if not learned_available():
-        raise ConfigError(WARM_UNAVAILABLE)
 
 
 def run_dir_name(spec: RunSpec) -> Path:
@@ -169,8 +148,6 @@ def estimate_with_cli(spec: RunSpec) -> Estimate:
             f"the cli engine runs `lde replay` as a user does: estimator options {sorted(rejected)} "
             "do not apply (put corrections in the vehicle file)"
         )
-    if opts.learned_prior:
-        require_learned()
     sim = simulate_run(spec, spec.scenario, spec.seed)
     check_plant(sim.truth)
     with _run_dir(spec) as d:

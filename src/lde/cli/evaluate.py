@@ -28,7 +28,8 @@ from ..study import zoo
 from ..study.engine import load_sim_vehicle
 from ..study.specsheet import write_spec_sheet
 from ..study.tables import write_rows
-from .engine import engine, require_learned
+from . import BACKEND_CHOICES
+from .engine import engine
 from .study import add_cluster_arguments, add_run_arguments, cluster_config, est_options, sim_options
 
 
@@ -146,13 +147,11 @@ def run_zoo(args: argparse.Namespace) -> int:
     if args.workers is None:
         args.workers = 2
     mode = zoo.Mode.WARM if args.warm else zoo.Mode.COLD
-    if args.warm:
-        require_learned()
     profiles = args.profiles or ((args.profile,) if args.profile else zoo.PROFILES)
     backends = args.backends or ((args.backend,) if args.backend else zoo.BACKENDS)
     for b in backends:
-        if b not in ("fixed", "float"):
-            raise ConfigError(f"unknown backend {b!r} (fixed or float)")
+        if b not in BACKEND_CHOICES:
+            raise ConfigError(f"unknown backend {b!r} ({', '.join(BACKEND_CHOICES)})")
     out: Path = args.out
     specs = zoo.zoo_specs(
         plant_list=args.plants,

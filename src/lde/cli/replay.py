@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 from ..errors import ConfigError
+from . import BACKEND_CHOICES
 
 #: a log larger than this gets a progress bar even alone [bytes]
 _LARGE_LOG = 50 << 20
@@ -41,7 +42,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
     p.add_argument(
         "--backend",
-        choices=("fixed", "float"),
+        choices=BACKEND_CHOICES,
         default=None,
         help="estimator step: fixed-point firmware model or float (default: fixed when available)",
     )
@@ -53,6 +54,13 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--no-recorded-steps",
         action="store_true",
         help="for lde recordings: use the grid from the frames, not the recorded step times",
+    )
+    p.add_argument(
+        "--learned",
+        type=Path,
+        metavar="FILE",
+        help="what the estimator learned about this car: read at start when FILE exists (checked against "
+        "the vehicle and profile), written at the end; several LOGs pass it on in the given order",
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no summary on stderr")
     p.set_defaults(func=run)
@@ -135,6 +143,9 @@ def _summary(path: Path, log, res, elapsed: float) -> str:
         f" backend {res.backend};"
         f" took {elapsed:.3f} s (" + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in res.timings.items()) + ")",
     ]
+    if getattr(res, "learned", ""):
+        start = getattr(res, "learned_origin", "") or "the vehicle file"
+        lines.append(f"  learned (from {start}): {res.learned}")
     if len(res) == 0:
         lines.append(
             "  note: no estimator step: the log has no accepted frame of the profile's anchor (MDPS) message"
@@ -216,6 +227,8 @@ def run(args: argparse.Namespace) -> int:
                 overlay_enable=li.overlay_enable,
                 extra_status=li.extra_status,
                 output_frames=mcap_path is not None,
+                learned=args.learned,
+                learned_start=li.learned_start,
             )
         finally:
             for sink in sinks:

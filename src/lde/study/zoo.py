@@ -5,8 +5,7 @@ For every plant of :mod:`vcan_sim.zoo` x scenario x profile (``lde``, ``hyundai`
 spec-sheet vehicle file (:mod:`lde.cli.engine`), score the CSV against the truth
 (:mod:`lde.metrics`: NRMSE after 2 s; RMS on a disturbance-free drive; Mw about the true CG and
 about the spec sheet's CG). Cold: ``lde replay LOG``; warm: after ``lde replay PRIOR --learned S``
-on the plant's :data:`PRIOR_SCENARIO` with another seed (needs ``--learned``; until then a one-line
-error, :data:`lde.cli.engine.WARM_UNAVAILABLE`).
+on the plant's :data:`PRIOR_SCENARIO` with another seed (only a learning backend, ``lateral``, uses it).
 
 Outputs (:func:`plant_table_markdown`, :func:`plant_table_rows`, :func:`summary_lines`): one row per
 plant x profile x backend with a "Fw / Mw" cell per scenario, and one line per target of
