@@ -1,142 +1,399 @@
-"""Benchmark of the live loop: the service on a python-can bus for N seconds, fed by the simulator.
+"""Benchmark of the live loop: the service on a kernel bus, fed by the simulator in its own process.
 
-Measured, not invented: the service runs its real loop (:meth:`lde.service.Service.run`) on the
-monotonic clock; a feeder thread puts the simulator's MDPS_Sensors (3.9 ms) and ESC_Motion (10 ms)
-frames on the bus in real time and applies the overlay request it receives (closed loop). At the end
-the script prints the period error p50/p99/max, the step time p50/p99/max and the latency p50/p99/max
-(microseconds), the deadline misses, and the machine it ran on.
+Measured, not invented, and only the service: this process runs :class:`lde.service.Service` exactly as
+``lde run`` does (its loop in the main thread, no other thread; the recorder, when asked for, in its
+own process); the simulator (``lde sim``, closed loop on ``LDE_Overlay``, real-time pacing) runs as a
+separate process and talks to it through the kernel: python-can's ``udp_multicast`` bus on a host
+without CAN (a multicast group and port of its own per run), SocketCAN ``vcan0`` where it exists
+(user-mode Linux: ``tests/uml/run_in_uml.sh``).
 
-    python bench/bench_loop.py --seconds 60                      # python-can virtual bus
-    python bench/bench_loop.py --seconds 60 --interface socketcan --channel vcan0
-    python bench/bench_loop.py --seconds 60 --realtime --cpu 1   # SCHED_FIFO where permitted
-    python bench/bench_loop.py --seconds 60 --record /tmp/bench.mcap
+    python bench/bench_loop.py --seconds 60                        # udp_multicast, MDPS-locked grid
+    python bench/bench_loop.py --seconds 60 --realtime --cpu 1     # SCHED_FIFO 80, mlockall, CPU 1
+    python bench/bench_loop.py --seconds 60 --busy                 # a busy loop on the other core
+    python bench/bench_loop.py --seconds 600 --realtime --busy --record /tmp/b.mcap --json
+    python bench/bench_loop.py --interface socketcan --channel vcan0 --seconds 60
 
-On a real SocketCAN interface the feeder needs its own socket: it opens a second bus on the same
-channel (frames sent on one socket are received by the other).
+Figures (microseconds) over the simulator's traffic window (its first to its last MDPS frame seen by
+the service), per step:
+
+* period error: start of the step minus its step time ``t_k`` (MDPS grid: ``t_k`` is the trigger
+  frame's kernel receive timestamp, so this is the wake-up; fixed grid: the deadline);
+* step time: start to the send of ``LDE_Estimate`` and ``LDE_Overlay`` (what ``LDE_Diag`` carries);
+* step cost: start to the end of the step (drain, decode, estimate, overlay, encode, all three sends,
+  the recorder hand-off: issue 12's "per-step service cost");
+* latency: kernel receive timestamp of the newest input frame the step used to the send of its
+  outputs;
+* deadline misses: steps that started more than 1 ms late plus skipped grid points; grid points: the
+  window's length over 3.9 ms, and the share of them at which the service sent its outputs.
+
+The JSON (``--json``, or ``--out FILE`` to append one line per run) keeps the keys of the earlier
+benchmark (``period_error_p50_us`` ... ``deadline_misses``, ``skipped``, ``steps``) so the README table
+reads from it, plus ``step_cost_*``, ``grid``, ``busy``, ``load_avg``, ``outputs_per_grid_point``, the
+simulator's own summary line and, for ``--profile``, py-spy's top functions.
+
+The simulator runs at SCHED_FIFO 90 where permitted (``--sim-rt-priority``; it stands for the other
+ECUs, which have CPUs of their own: its frames must not wait behind the service). ``--busy`` starts
+``--busy`` busy loops pinned to the CPUs the service is not pinned to (or unpinned). Run with
+``PYTHONPATH`` pointing at another checkout to measure that one on the same harness (a ``Service``
+without ``grid`` runs its fixed grid).
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import os
 import platform
+import random
+import re
+import signal
+import subprocess
 import sys
-import threading
+import tempfile
 import time
+from pathlib import Path
 
 import can
+import numpy as np
 
-#: the simulator sends each period's frames this long before the service's step [ns]
-FEED_LEAD_NS = 1_500_000
+from lde.clock import MonotonicClock, enable_realtime
+from lde.params import load_vehicle
+from lde.profiles import load_profile
+from lde.recording import Recorder
+from lde.service import Service
+from lde.units import STEP_NS
+
+#: the service runs this long before the simulator's first frame can come (its start-up) [s]
+SIM_START_S = 4.0
 
 
-def _feeder_thread(bus: can.BusABC, scenario: str, stop: threading.Event, t_first_ns: int, seconds: float):
-    """The simulator, closed loop, one 3.9 ms period per deadline on time.monotonic_ns().
+class TimedBus:
+    """The bus, with the time spent in its ``send`` and ``recv`` while ``active`` (inside a step)
+    added up (``--io-split``: what python-can and the kernel cost, apart from lde's own work)."""
 
-    Its frames are stamped by the bus at send time (no preserved timestamps: as from a kernel).
-    """
-    from lde.demo import make_simulation
+    def __init__(self, bus: can.BusABC) -> None:
+        self._bus = bus
+        self.active = False
+        self.io_ns = 0
 
-    sim = make_simulation(bus, scenario, seed=1, closed_loop=True, duration=seconds + 5.0)
+    def __getattr__(self, name: str):
+        return getattr(self._bus, name)
 
-    def loop() -> None:
-        k = 0
-        while not stop.is_set() and not sim.done:
-            t_next = t_first_ns + k * sim.step_ns
-            now = time.monotonic_ns()
-            if t_next > now:
-                time.sleep((t_next - now) / 1e9)
-            sim.step()
-            k += 1
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if not self.active:
+            return self._bus.send(msg, timeout)
+        t = time.perf_counter_ns()
+        try:
+            return self._bus.send(msg, timeout)
+        finally:
+            self.io_ns += time.perf_counter_ns() - t
 
-    th = threading.Thread(target=loop, name="feeder", daemon=True)
-    th.start()
-    return th
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        if not self.active:
+            return self._bus.recv(timeout)
+        t = time.perf_counter_ns()
+        try:
+            return self._bus.recv(timeout)
+        finally:
+            self.io_ns += time.perf_counter_ns() - t
+
+
+def _pctl(a: np.ndarray, q: float) -> float:
+    return round(float(np.percentile(a, q)) / 1e3, 1) if a.size else float("nan")
+
+
+def _max(a: np.ndarray) -> float:
+    return round(float(a.max()) / 1e3, 1) if a.size else float("nan")
+
+
+def _hogs(n: int, avoid: set[int]) -> list[subprocess.Popen]:
+    """``n`` busy loops on the CPUs not in ``avoid`` (all CPUs when that leaves none)."""
+    cpus = sorted(set(range(os.cpu_count() or 1)) - avoid) or sorted(range(os.cpu_count() or 1))
+    out = []
+    for i in range(n):
+        cpu = cpus[i % len(cpus)]
+        code = f"import os; os.sched_setaffinity(0, {{{cpu}}})\nwhile True: pass"
+        out.append(subprocess.Popen([sys.executable, "-c", code]))
+    return out
+
+
+def _py_spy_top(pid: int, seconds: float, out_dir: Path) -> tuple[subprocess.Popen | None, Path]:
+    raw = out_dir / f"pyspy-{pid}.txt"
+    cmd = ["py-spy", "record", "--pid", str(pid), "--duration", str(int(seconds)), "--rate", "1000"]
+    cmd += ["--format", "raw", "--output", str(raw), "--nonblocking", "--native"]
+    try:
+        return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL), raw
+    except OSError:
+        return None, raw
+
+
+def _collapse(raw: Path, top: int = 15) -> dict[str, object]:
+    """Self and total samples per function from py-spy's collapsed stacks (samples in the loop only)."""
+    self_n: collections.Counter[str] = collections.Counter()
+    total_n: collections.Counter[str] = collections.Counter()
+    n = 0
+    idle = 0
+    for line in raw.read_text().splitlines():
+        stack, _, count = line.rpartition(" ")
+        if not stack:
+            continue
+        c = int(count)
+        frames = [f.split(" (")[0] for f in stack.split(";")]
+        n += c
+        leaf = frames[-1]
+        if any(k in stack for k in ("recv_until", "select", "sleep_until")) and "step_once" not in stack:
+            idle += c
+            continue
+        self_n[leaf] += c
+        for f in set(frames):
+            total_n[f] += c
+    busy = max(n - idle, 1)
+    return {
+        "samples": n,
+        "idle_share": round(idle / max(n, 1), 3),
+        "self_share_of_busy": {k: round(v / busy, 3) for k, v in self_n.most_common(top)},
+        "total_share_of_busy": {k: round(v / busy, 3) for k, v in total_n.most_common(top)},
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--interface", default="virtual")
-    ap.add_argument("--channel", default="lde-bench")
-    ap.add_argument("--scenario", default=None, help="simulator scenario (default: the demo's)")
+    ap.add_argument("--seconds", type=float, default=60.0, help="simulator traffic [s]")
+    ap.add_argument("--interface", default="udp_multicast")
+    ap.add_argument("--channel", default=None, help="default: a multicast group of its own (udp_multicast)")
+    ap.add_argument("--port", type=int, default=None, help="udp_multicast port (default: random)")
+    ap.add_argument("--scenario", default="heavy_load")
     ap.add_argument("--backend", choices=("fixed", "float"), default="fixed")
+    ap.add_argument("--grid", choices=("mdps", "fixed"), default="mdps")
     ap.add_argument("--record", default=None, help="also record to this MCAP file")
-    ap.add_argument("--realtime", action="store_true")
+    ap.add_argument("--realtime", action="store_true", help="the service at SCHED_FIFO --priority, mlockall")
     ap.add_argument("--priority", type=int, default=80)
-    ap.add_argument("--cpu", type=int, action="append")
+    ap.add_argument("--cpu", type=int, action="append", help="pin the service to this CPU (repeatable)")
+    ap.add_argument("--spin-us", type=float, default=200.0, help="fixed grid: busy-wait before a deadline")
+    ap.add_argument("--busy", type=int, nargs="?", const=1, default=0, help="busy loops on the other core(s)")
+    ap.add_argument("--sim-rt-priority", type=int, default=90, help="the simulator's SCHED_FIFO (0: normal)")
+    ap.add_argument("--io-split", action="store_true", help="time python-can's send/recv inside the step")
+    ap.add_argument("--sim-pythonpath", default=None, help="PYTHONPATH of the simulator (another checkout's)")
+    ap.add_argument("--profile", action="store_true", help="sample the service with py-spy (30 s)")
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    ap.add_argument("--out", default=None, help="append the JSON object as one line to this file")
+    ap.add_argument("--label", default="", help="a name for this run in the JSON")
     args = ap.parse_args(argv)
 
-    from lde.clock import MonotonicClock
-    from lde.demo import DEFAULT_SCENARIO
-    from lde.params import load_vehicle
-    from lde.profiles import load_profile
-    from lde.recording import Recorder
-    from lde.service import Service
-    from lde.units import STEP_NS
+    port = args.port or random.randint(40000, 60000)
+    channel = args.channel or (f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}")
+    bus_kw: dict[str, object] = {"interface": args.interface, "channel": channel}
+    if args.interface == "udp_multicast":
+        bus_kw["port"] = port
 
-    sys.setswitchinterval(1e-4)  # a busy feeder/recorder thread must not hold the GIL for 5 ms
+    # as lde run does (lde.cli.run): another thread of the service's process (an older recorder's) must
+    # not keep the loop from the interpreter lock for CPython's default 5 ms
+    sys.setswitchinterval(min(sys.getswitchinterval(), 2e-4))
+    load_before = os.getloadavg()
+    hogs = _hogs(args.busy, set(args.cpu or ())) if args.busy else []
     rt_note = "normal scheduler"
     if args.realtime:
-        from lde import clock as clock_mod
-
-        res = clock_mod.enable_realtime(priority=args.priority, cpus=args.cpu, lock_memory=True)
-        rt_note = str(res)
+        res = enable_realtime(priority=args.priority, cpus=args.cpu, lock_memory=True)
+        rt_note = f"SCHED_FIFO {args.priority}, mlockall" if res.ok else f"refused: {res.warnings}"
     elif args.cpu:
         os.sched_setaffinity(0, set(args.cpu))
 
-    svc_bus = can.Bus(interface=args.interface, channel=args.channel)
-    feed_bus = can.Bus(interface=args.interface, channel=args.channel)
-    profile = load_profile("lde")
-    vehicle = load_vehicle("reference")
-    clock = MonotonicClock()
+    raw_bus = can.Bus(**bus_kw)
+    bus = TimedBus(raw_bus) if args.io_split else raw_bus
+    profile, vehicle = load_profile("lde"), load_vehicle("reference")
+    clock = MonotonicClock(spin_ns=int(args.spin_us * 1e3))
     rec = Recorder(args.record, metadata={"profile": "lde", "bench": "1"}) if args.record else None
-    svc = Service(svc_bus, profile, vehicle, clock, backend=args.backend, recorder=rec, log_period_s=0)
-    stop = threading.Event()
-    # the service's grid starts in 0.3 s; the simulator's periods start FEED_LEAD_NS before each step
-    t0_ns = clock.now_ns() + 300_000_000
-    scenario = args.scenario or DEFAULT_SCENARIO
-    feeder = _feeder_thread(feed_bus, scenario, stop, t0_ns - FEED_LEAD_NS, args.seconds)
-    n_steps = int(args.seconds * 1e9 / STEP_NS)
-    t0 = time.perf_counter()
+    kw = {"grid": args.grid}
     try:
-        summary = svc.run(max_steps=n_steps, t0_ns=t0_ns)
+        svc = Service(bus, profile, vehicle, clock, backend=args.backend, recorder=rec, log_period_s=0, **kw)
+        grid = args.grid
+    except TypeError:  # a checkout before the MDPS-locked grid: its fixed grid
+        svc = Service(bus, profile, vehicle, clock, backend=args.backend, recorder=rec, log_period_s=0)
+        grid = "fixed (no grid option)"
+
+    n_max = int((args.seconds + SIM_START_S + 30.0) * 1e9 / STEP_NS)
+    cols = {k: np.zeros(n_max, np.int64) for k in ("t", "pe", "st", "lat", "cost", "used", "skipped", "io")}
+    if isinstance(bus, TimedBus):
+        step_once = svc.step_once
+
+        def timed_step(t_k: int, t_start: int | None = None):
+            bus.active = True
+            bus.io_ns = 0
+            try:
+                return step_once(t_k, t_start)
+            finally:
+                bus.active = False
+
+        svc.step_once = timed_step  # type: ignore[method-assign]
+    n = [0]
+    off = svc.offset_ns
+
+    def on_step(r) -> None:
+        i = n[0]
+        if i >= n_max:
+            svc.request_stop()
+            return
+        tm = r.timing
+        cols["t"][i] = r.t_ns
+        cols["pe"][i] = tm.period_error_ns
+        cols["st"][i] = tm.step_time_ns
+        cols["lat"][i] = tm.latency_ns
+        cols["cost"][i] = clock.now_ns() + off - (r.t_ns + tm.period_error_ns)
+        cols["used"][i] = r.frames_used
+        cols["io"][i] = bus.io_ns if isinstance(bus, TimedBus) else 0
+        cols["skipped"][i] = svc.stats.skipped
+        n[0] = i + 1
+
+    sim_cmd = [sys.executable, "-m", "lde", "sim", "--interface", args.interface, "--channel", channel]
+    if args.interface == "udp_multicast":
+        sim_cmd += ["--bus-kwarg", f"port={port}"]
+    sim_cmd += ["--scenario", args.scenario, "--seed", "1", "--duration", str(args.seconds)]
+    if args.sim_rt_priority:
+        sim_cmd += ["--rt-priority", str(args.sim_rt_priority)]
+    tmp = Path(tempfile.mkdtemp(prefix="lde-bench-loop-"))
+    sim_err = (tmp / "sim.err").open("w")
+    env = dict(os.environ)
+    if args.sim_pythonpath:
+        env["PYTHONPATH"] = args.sim_pythonpath
+    all_cpus = set(range(os.cpu_count() or 1))
+    sim_cpus = sorted(all_cpus - set(args.cpu or ())) or sorted(all_cpus) if args.cpu else sorted(all_cpus)
+
+    def pin_sim() -> None:  # the simulator stands for ECUs with CPUs of their own: not the service's
+        os.sched_setaffinity(0, sim_cpus)
+
+    sim = subprocess.Popen(
+        sim_cmd, stdout=subprocess.DEVNULL, stderr=sim_err, env=env, cwd=tmp, preexec_fn=pin_sim
+    )
+    spy = None
+    raw = tmp / "none"
+    if args.profile:
+        spy, raw = _py_spy_top(os.getpid(), min(30.0, args.seconds), tmp)
+
+    stop = [False]
+
+    def watch(res) -> None:
+        on_step(res)
+        if not stop[0] and sim.poll() is not None:  # the simulator has ended: two more seconds
+            stop[0] = True
+            stop_at[0] = res.t_ns + 2_000_000_000
+        if stop[0] and res.t_ns >= stop_at[0]:
+            svc.request_stop()
+
+    stop_at = [0]
+    t_wall = time.perf_counter()
+    try:
+        svc.run(on_step=watch)
     finally:
-        stop.set()
-        feeder.join(2.0)
+        if sim.poll() is None:
+            sim.send_signal(signal.SIGINT)
+            sim.wait(10)
+        for h in hogs:
+            h.kill()
+            h.wait()
         if rec is not None:
             rec.close()
-        svc_bus.shutdown()
-        feed_bus.shutdown()
-    wall = time.perf_counter() - t0
-    out = {
+        raw_bus.shutdown()
+        sim_err.close()
+    wall = time.perf_counter() - t_wall
+    load_after = os.getloadavg()
+    m = n[0]
+    c = {k: v[:m] for k, v in cols.items()}
+    # the simulator's traffic window: steps that used an MDPS frame, from the first to the last
+    sim_line = (tmp / "sim.err").read_text().strip().splitlines()
+    fresh = np.flatnonzero(c["used"] > 0)
+    if fresh.size == 0:
+        print("no frame from the simulator reached the service:", *sim_line[-3:], sep="\n", file=sys.stderr)
+        return 1
+    a, b = int(fresh[0]), int(fresh[-1]) + 1
+    w = {k: v[a:b] for k, v in c.items()}
+    span_ns = int(w["t"][-1] - w["t"][0])
+    grid_points = span_ns // STEP_NS + 1
+    steps = b - a
+    skipped = int(w["skipped"][-1] - (c["skipped"][a - 1] if a else 0))
+    late = int(np.count_nonzero(w["pe"] > 1_000_000))
+    lat = w["lat"][w["lat"] >= 0]
+    out: dict[str, object] = {
+        "label": args.label,
         "seconds": round(wall, 2),
-        "steps": svc.steps,
+        "window_s": round(span_ns / 1e9, 2),
+        "steps": steps,
+        "grid_points": int(grid_points),
+        "outputs_per_grid_point": round(steps / grid_points, 4),
         "interface": args.interface,
-        "channel": args.channel,
+        "grid": grid,
         "backend": args.backend,
         "record": bool(args.record),
         "scheduling": rt_note,
+        "cpu": args.cpu,
+        "busy": args.busy,
+        "sim_rt_priority": args.sim_rt_priority,
+        "sim_cpus": sim_cpus,
+        "filters": getattr(svc, "filters", "none"),
         "machine": f"{platform.machine()}, {os.cpu_count()} cpus, python {platform.python_version()}",
-        **summary.as_dict(),
+        "load_avg": [round(x, 2) for x in (*load_before, *load_after)],
+        "period_error_p50_us": _pctl(w["pe"], 50),
+        "period_error_p99_us": _pctl(w["pe"], 99),
+        "period_error_max_us": _max(w["pe"]),
+        "step_time_p50_us": _pctl(w["st"], 50),
+        "step_time_p99_us": _pctl(w["st"], 99),
+        "step_time_max_us": _max(w["st"]),
+        "step_cost_p50_us": _pctl(w["cost"], 50),
+        "step_cost_p99_us": _pctl(w["cost"], 99),
+        "step_cost_max_us": _max(w["cost"]),
+        "step_io_p50_us": _pctl(w["io"], 50) if args.io_split else None,
+        "step_io_p99_us": _pctl(w["io"], 99) if args.io_split else None,
+        "step_cost_without_io_p50_us": _pctl(w["cost"] - w["io"], 50) if args.io_split else None,
+        "step_cost_without_io_p99_us": _pctl(w["cost"] - w["io"], 99) if args.io_split else None,
+        "latency_p50_us": _pctl(lat, 50),
+        "latency_p99_us": _pctl(lat, 99),
+        "latency_max_us": _max(lat),
+        "deadline_misses": late + skipped,
+        "late_steps": late,
+        "skipped": skipped,
+        "late_rx": svc.late_rx,
         "send_errors": svc.send_errors,
+        "gc_collections": getattr(svc, "gc_collections", None),
+        "recording_failed": bool(rec.failed) if rec is not None else None,
+        "recording_dropped": list(getattr(rec, "dropped", ())) if rec is not None else None,
+        "sim": sim_line[-1] if sim_line else "",
     }
+    if spy is not None:
+        spy.wait(60)
+        if raw.exists():
+            out["py_spy"] = _collapse(raw)
+    if args.out:
+        with open(args.out, "a") as fh:
+            fh.write(json.dumps(out) + "\n")
     if args.json:
         print(json.dumps(out))
     else:
-        print(f"lde live loop, {out['steps']} steps in {out['seconds']} s on {args.interface}:{args.channel}")
-        print(f"  {out['machine']}; {rt_note}; backend {args.backend}; recording {bool(args.record)}")
-        s = summary
-        for label, p50, p99, mx in (
-            ("period error", s.period_error_p50_us, s.period_error_p99_us, s.period_error_max_us),
-            ("step time", s.step_time_p50_us, s.step_time_p99_us, s.step_time_max_us),
-            ("latency", s.latency_p50_us, s.latency_p99_us, s.latency_max_us),
+        print(
+            f"lde live loop, {steps} steps over {out['window_s']} s of simulator traffic on "
+            f"{args.interface} ({grid} grid, {out['outputs_per_grid_point']:.2%} of the grid points)"
+        )
+        print(f"  {out['machine']}; {rt_note}; busy loops {args.busy}; load {out['load_avg']}")
+        for label, key in (
+            ("period error", "period_error"),
+            ("step time", "step_time"),
+            ("step cost", "step_cost"),
+            ("latency", "latency"),
         ):
-            print(f"  {label:<13} p50 {p50:8.1f} us  p99 {p99:8.1f} us  max {mx:8.1f} us")
-        print(f"  deadline misses {summary.deadline_misses} (skipped grid points {summary.skipped})")
-    return 0
+            print(
+                f"  {label:<13} p50 {out[key + '_p50_us']:8.1f} us  p99 {out[key + '_p99_us']:8.1f} us  "
+                f"max {out[key + '_max_us']:8.1f} us"
+            )
+        if args.io_split:
+            print(
+                f"  of the step cost: python-can send/recv p50 {out['step_io_p50_us']} us, p99 "
+                f"{out['step_io_p99_us']} us; the rest (lde) p50 {out['step_cost_without_io_p50_us']} us, "
+                f"p99 {out['step_cost_without_io_p99_us']} us"
+            )
+        print(f"  deadline misses {out['deadline_misses']} (late {late}, skipped {skipped})")
+        print(f"  simulator: {out['sim']}")
+        if "py_spy" in out:
+            print("  py-spy:", json.dumps(out["py_spy"], indent=1))
+    return 0 if re.match(r"lde sim", str(out["sim"])) else 1
 
 
 if __name__ == "__main__":

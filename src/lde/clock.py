@@ -6,7 +6,8 @@ The estimator never reads a clock (time arrives as ``t_ns``); only the live loop
 * :class:`MonotonicClock` — ``time.monotonic_ns()``; :meth:`~MonotonicClock.sleep_until` sleeps
   until ``spin_ns`` (default 200 us) before the deadline and busy-waits the rest, because
   ``time.sleep`` alone overshoots by 50-100 us (timer slack, wake-up latency), which matters on a
-  3.9 ms period.
+  3.9 ms period; :meth:`~MonotonicClock.recv_until` likewise polls the bus from ``spin_ns`` before
+  to ``spin_ns`` after the time a frame is expected (the MDPS-locked grid).
 * :class:`SimulatedClock` — advances only when told; ``sleep_until`` jumps to the deadline. Tests
   and the demo run the same loop with it, as fast as the host allows.
 
@@ -29,6 +30,8 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import NamedTuple, Protocol, runtime_checkable
+
+import can
 
 from .errors import ConfigError
 
@@ -83,6 +86,31 @@ class MonotonicClock:
         while now() < t_ns:  # the last spin_ns: spin, the scheduler's wake-up is too coarse
             pass
 
+    def recv_until(self, bus: can.BusABC, t_ns: int, expect_ns: int | None = None) -> can.Message | None:
+        """The next frame from ``bus``, waiting at most until ``t_ns``; None when none came.
+
+        Blocked in the kernel, except around ``expect_ns`` (when a frame is expected, and ``spin_ns``
+        > 0): from ``spin_ns`` before it to ``spin_ns`` after it the bus is polled without blocking,
+        so the frame is taken the moment it arrives instead of after a wake-up of the process
+        (about 80 us p50 on this project's VM).
+        """
+        now = time.monotonic_ns()
+        spin = self.spin_ns
+        if expect_ns is None or spin == 0:
+            return bus.recv(max(0.0, (t_ns - now) * 1e-9))
+        spin_from = expect_ns - spin
+        if now < spin_from:
+            msg = bus.recv((min(spin_from, t_ns) - now) * 1e-9)
+            if msg is not None:
+                return msg
+        spin_end = min(t_ns, expect_ns + spin)
+        while time.monotonic_ns() < spin_end:
+            msg = bus.recv(0.0)
+            if msg is not None:
+                return msg
+        now = time.monotonic_ns()
+        return bus.recv((t_ns - now) * 1e-9) if now < t_ns else None
+
 
 class SimulatedClock:
     """A clock that moves only when told: :meth:`advance`, :meth:`set`, or :meth:`sleep_until`.
@@ -102,6 +130,13 @@ class SimulatedClock:
         """Jump to ``t_ns`` (never backwards)."""
         if t_ns > self._t:
             self._t = int(t_ns)
+
+    def recv_until(self, bus: can.BusABC, t_ns: int, expect_ns: int | None = None) -> can.Message | None:
+        """A frame already on ``bus``; if there is none, jump to ``t_ns`` and return None."""
+        msg = bus.recv(0.0)
+        if msg is None:
+            self.sleep_until(t_ns)
+        return msg
 
     def advance(self, dt_ns: int) -> int:
         """Move forward by ``dt_ns`` >= 0 [ns]; returns the new time."""

@@ -240,10 +240,14 @@ def run_closed_loop(
     profile: str = "lde",
     backend: str = "fixed",
     record: str | Path | None = None,
+    grid: str = "fixed",
 ) -> DemoRun:
     """Simulator + service in lockstep on a virtual bus; returns the per-step series.
 
     With ``record`` the run is written to that MCAP file (service channels + ``/sim/truth``).
+    ``grid="mdps"`` runs the live loop itself (:meth:`lde.service.Service.run` on the MDPS-locked grid,
+    on the simulated clock), the simulator stepped after each step; its MDPS frames open each period,
+    so the steps come at the same times as on the fixed grid and the run is the same, step for step.
     """
 
     veh = vehicle if vehicle is not None and not isinstance(vehicle, str) else load_vehicle(vehicle)
@@ -280,6 +284,7 @@ def run_closed_loop(
             recorder=recorder,
             overlay_enabled=overlay,
             log_period_s=0,
+            grid=grid,
         )
         n = sim.sim.n_steps
         t_ns = np.empty(n, np.int64)
@@ -289,6 +294,20 @@ def run_closed_loop(
         t_ov = np.empty(n)
         wall0 = time.perf_counter()
         k = 0
+        if grid == "mdps":
+            kk = [0]
+
+            def on_step(r: Any) -> None:
+                i = kk[0]
+                t_ns[i], fw[i], mw[i], status[i], t_ov[i] = r.t_ns, r.fw, r.mw, r.status, r.t_overlay
+                kk[0] = i + 1
+                if not sim.done:
+                    sim.step()  # the next period's frames: its MDPS frame triggers the next step
+
+            sim.step()
+            if n:
+                svc.run(max_steps=n, on_step=on_step, t0_ns=sim_t0)
+            k = kk[0]
         while not sim.done and k < n:
             # the period [t_k, t_k + 3.9 ms): its frames go out first (a frame stamped exactly t_k
             # is in it), then the service steps at t_k and keeps the later ones for the next step

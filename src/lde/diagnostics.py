@@ -28,6 +28,7 @@ __all__ = [
     "TimingSummary",
     "TimingStats",
     "diag_signals",
+    "diag_values",
     "is_deadline_miss",
 ]
 
@@ -182,17 +183,24 @@ def _sat(x: float, lo: int, hi: int) -> int:
     return int(min(max(round(x), lo), hi))
 
 
-def diag_signals(timing: StepTiming, e2e_rejects: int) -> dict[str, int]:
-    """``LDE_Diag`` physical values (microseconds, counts) from one step's timing.
+def diag_values(timing: StepTiming, e2e_rejects: int) -> tuple[int, int, int, int, int]:
+    """``LDE_Diag`` physical values (``PeriodError``, ``StepTime``, ``Latency`` [us],
+    ``DeadlineMisses``, ``E2ERejects``) from one step's timing (the live loop's path: no dict).
 
     Out-of-range values saturate at the DBC range; ``DeadlineMisses`` wraps modulo 256 and
     ``E2ERejects`` saturates at 31, as documented in ``dbc/lde.dbc``.
     """
     lat_us = timing.latency_ns / 1e3 if timing.latency_ns >= 0 else 0.0
-    return {
-        "PeriodError": _sat(timing.period_error_ns / 1e3, *_PERIOD_ERROR_US),
-        "StepTime": _sat(timing.step_time_ns / 1e3, *_STEP_TIME_US),
-        "Latency": _sat(lat_us, *_LATENCY_US),
-        "DeadlineMisses": timing.deadline_misses % 256,
-        "E2ERejects": min(max(int(e2e_rejects), 0), _E2E_REJECTS_MAX),
-    }
+    return (
+        _sat(timing.period_error_ns / 1e3, *_PERIOD_ERROR_US),
+        _sat(timing.step_time_ns / 1e3, *_STEP_TIME_US),
+        _sat(lat_us, *_LATENCY_US),
+        timing.deadline_misses % 256,
+        min(max(int(e2e_rejects), 0), _E2E_REJECTS_MAX),
+    )
+
+
+def diag_signals(timing: StepTiming, e2e_rejects: int) -> dict[str, int]:
+    """``LDE_Diag`` physical values by signal name (:func:`diag_values`)."""
+    names = ("PeriodError", "StepTime", "Latency", "DeadlineMisses", "E2ERejects")
+    return dict(zip(names, diag_values(timing, e2e_rejects), strict=True))

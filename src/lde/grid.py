@@ -19,6 +19,17 @@ Step times come from one of two sources:
   of its last input frame). Shorter gaps are stepped through (the inputs go stale, then recover).
   A log that joins recordings from different time bases thus replays each part.
 
+* **MDPS-locked** (the live service's default, :func:`new_lock`): every step runs right after the
+  MDPS frame it consumes. A step is triggered by each anchor-message frame that comes more than half
+  a period after the previous step's reference time ``t_ref`` and at most 1.5 periods after it: the step
+  time is that frame's receive time and it becomes the new ``t_ref``. When no such frame has come
+  by ``t_ref + 1.5 P`` (a lost or late frame, no sender yet), a step runs at that time and ``t_ref``
+  advances by exactly one period (the phase is kept: the next frame of a sender on its own period
+  triggers again). One step per window ``(t_ref + P/2, t_ref + 3P/2]``: the grid follows the sender's
+  clock and its phase, and its steps are P/2 to 3P/2 apart. The rule is a function of the anchor
+  frames' times alone, so :func:`locked_step_times` gives a log's step times offline, the ones the
+  live loop took (``docs/service.md``).
+
 Streaming: the grid never needs frames it has not seen. A step beyond the last input frame waits
 until the next input frame shows whether the segment goes on (gap <= 60 s) or ends, or until the end
 of the log (:func:`grid_finish`). More than :data:`MAX_STEPS` steps in all is an error
@@ -57,6 +68,15 @@ __all__ = [
     "MAX_STEPS",
     "MODE_EXPLICIT",
     "MODE_ANCHORED",
+    "new_lock",
+    "lock_anchor",
+    "lock_timeout",
+    "lock_deadline",
+    "locked_step_times",
+    "L_REF",
+    "L_PERIOD",
+    "L_TRIGGERED",
+    "L_TIMEOUTS",
 ]
 
 #: a silence of the input messages longer than this starts a new grid segment [ns]
@@ -162,6 +182,102 @@ def grid_finish(g, t_end, have_end):  # pragma: no cover - compiled
     if g[G_HAVE_INPUT] == 1 and end - g[G_LAST_INPUT] > g[G_MAX_GAP]:
         end = g[G_LAST_INPUT]
     g[G_END] = end
+
+
+# ------------------------------------------------------------------------------ the MDPS-locked grid
+
+# lock state slots (int64)
+L_PERIOD = 0  # P [ns]
+L_REF = 1  # t_ref: the last step's trigger frame time, or the nominal time after a timeout [ns]
+L_TRIGGERED = 2  # steps triggered by an anchor frame
+L_TIMEOUTS = 3  # steps run at a window's end (no anchor frame in it)
+N_L = 4
+
+
+def new_lock(t_first_ns: int, period_ns: int = STEP_NS) -> np.ndarray:
+    """A fresh MDPS-locked grid whose first window is ``(t_first - P/2, t_first + P/2]`` (``t_first``:
+    the nominal time of the first step, the service's start)."""
+    s = np.zeros(N_L, np.int64)
+    s[L_PERIOD] = period_ns
+    s[L_REF] = int(t_first_ns) - int(period_ns)
+    return s
+
+
+@njit(cache=True)
+def lock_deadline(s):  # pragma: no cover - compiled
+    """The end of the current window: the time of the timeout step if no anchor frame comes [ns]."""
+    return s[L_REF] + s[L_PERIOD] + s[L_PERIOD] // 2
+
+
+@njit(cache=True)
+def lock_anchor(s, t_ns):  # pragma: no cover - compiled
+    """An anchor-message frame received at ``t_ns`` (after every timeout step before ``t_ns`` was
+    taken: :func:`lock_timeout`). Returns True when it triggers a step at ``t_ns``."""
+    p = s[L_PERIOD]
+    if t_ns > s[L_REF] + p // 2 and t_ns <= s[L_REF] + p + p // 2:
+        s[L_REF] = t_ns
+        s[L_TRIGGERED] += 1
+        return True
+    return False
+
+
+@njit(cache=True)
+def lock_timeout(s, t_ns):  # pragma: no cover - compiled
+    """No anchor frame has come before ``t_ns`` (exclusive): the timeout step, if the window ended
+    before ``t_ns``. Returns its time, or -1 (none due)."""
+    end = lock_deadline(s)
+    if end < t_ns:
+        s[L_REF] += s[L_PERIOD]
+        s[L_TIMEOUTS] += 1
+        return end
+    return np.int64(-1)
+
+
+@njit(cache=True)
+def _locked_steps(s, anchor_t, t_end, out):  # pragma: no cover - compiled
+    n = 0
+    cap = out.shape[0]
+    for i in range(anchor_t.shape[0]):
+        t = anchor_t[i]
+        if t > t_end:
+            break
+        while True:
+            tk = lock_timeout(s, t)
+            if tk < 0:
+                break
+            if n < cap:
+                out[n] = tk
+            n += 1
+        if lock_anchor(s, t):
+            if n < cap:
+                out[n] = t
+            n += 1
+    while True:
+        tk = lock_timeout(s, t_end + 1)
+        if tk < 0:
+            break
+        if n < cap:
+            out[n] = tk
+        n += 1
+    return n
+
+
+def locked_step_times(
+    anchor_t_ns: np.ndarray, t_first_ns: int, t_end_ns: int, period_ns: int = STEP_NS
+) -> np.ndarray:
+    """The MDPS-locked grid's step times (:func:`new_lock`, module docstring) for the receive times
+    of the anchor-message frames (sorted, any E2E status), from the first window around
+    ``t_first_ns`` to ``t_end_ns`` inclusive: what the live loop stepped on, for a replay of the
+    bare frames."""
+    a = np.ascontiguousarray(anchor_t_ns, dtype=np.int64)
+    if a.size > 1 and bool(np.any(np.diff(a) < 0)):
+        raise ValueError("anchor frame times must be sorted")
+    n_max = (int(t_end_ns) - int(t_first_ns)) // (period_ns // 2) + 2
+    if n_max > MAX_STEPS:
+        raise overflow_error(MAX_STEPS, period_ns)
+    out = np.empty(max(n_max, 0), np.int64)
+    n = _locked_steps(new_lock(t_first_ns, period_ns), a, np.int64(t_end_ns), out)
+    return out[: min(n, out.shape[0])]
 
 
 def overflow_error(max_steps: int = MAX_STEPS, step_ns: int = STEP_NS) -> LogFormatError:

@@ -29,37 +29,50 @@ Every message's log time is its own time in the bus time base (ns): receive time
 the step time t_k (which a replay uses to step on the same grid). Metadata record ``lde``:
 profile, vehicle, backend, step period.
 
-Crash tolerance: the hot path only appends to a deque; a writer thread drains it every
-``flush_interval_s`` (default 0.25 s), writes small chunks and flushes them to the file
-(:meth:`lde.logio.McapWriter.flush` writes the queued messages as chunks). A SIGKILL therefore loses at
-most about the last half second. :func:`read_recording` reads a file sequentially and stops cleanly
-at a truncated tail, so a file without footer/summary still gives everything up to its last
+Hand-off and crash tolerance: the hot path stores rows in preallocated rings in shared memory
+(:class:`StepRing`); a forked writer process drains them every ``flush_interval_s`` (default 0.25 s),
+writes small chunks and flushes them to the file (:meth:`lde.logio.McapWriter.flush` writes the
+queued messages as chunks), so the writing never competes with the service for its interpreter
+lock. A SIGKILL of the service loses nothing (the writer notices and closes the file); of both
+processes at most about the last half second. :func:`read_recording` reads a file sequentially and
+stops cleanly at a truncated tail, so a file without footer/summary still gives everything up to its last
 complete chunk.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import mmap
 import os
+import signal
+import socket
+import subprocess
+import sys
 import threading
-from collections import deque
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
 import can
 import numpy as np
 
-from .engine import StepBlock
+from .engine import OUTPUT_MESSAGES, StepBlock
+from .errors import LogFormatError
 from .frames import FrameBatch, seconds_to_ns
 from .logio import TOPIC_RX, TOPIC_TX, McapLog, McapWriter
 from .logio.textfmt import EXACT, Column, format_rows, time_column
 from .profiles import INPUT_NAMES
+from .signals import N_INPUTS
 from .status import DEADLINE_MISS, STATUS_BITS
+from .step import N_OUT
 
 __all__ = [
     "Recorder",
+    "StepRing",
     "Recording",
     "read_recording",
     "ESTIMATE_TOPIC",
@@ -326,14 +339,21 @@ def _write_json_channel(w: McapWriter, cid: int, t: np.ndarray, cols: list[Colum
     w.write_json_payloads(cid, t, text, off)
 
 
-def _normal_priority() -> None:
-    """Run the calling thread on the normal scheduler: created by a SCHED_FIFO service (``--realtime``)
-    it would inherit the loop's real-time priority, and writing files is not real-time work."""
+def _background_priority() -> None:
+    """Run the calling process as background work, on any CPU: forked from a SCHED_FIFO service
+    (``--realtime``, ``--cpu``) the writer would inherit the loop's real-time priority and its CPU,
+    and writing files is not real-time work. SCHED_BATCH (where allowed): on a busy machine the
+    normal-priority service then goes first when it wakes up, while the writer keeps its fair share of
+    the CPU (it must flush every ``flush_interval_s`` for the crash guarantee)."""
     try:
-        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+        if hasattr(os, "SCHED_BATCH"):
+            os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+        elif os.sched_getscheduler(0) != os.SCHED_OTHER:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     except (AttributeError, OSError):  # not Linux, or not permitted: keep what we have
         pass
+    with contextlib.suppress(AttributeError, OSError, ValueError):
+        os.sched_setaffinity(0, range(os.cpu_count() or 1))
 
 
 def _sync(writer: McapWriter) -> None:
@@ -342,19 +362,280 @@ def _sync(writer: McapWriter) -> None:
     writer.sync()
 
 
-class Recorder:
-    """Writes a live run to an MCAP file (:class:`lde.logio.McapWriter`) from a background thread.
+# ring control slots (int64): heads are written by the service only, tails by the writer only
+_F_HEAD, _F_TAIL, _S_HEAD, _S_TAIL, _F_DROPPED, _S_DROPPED, _FAILED = range(7)
+_N_CTL = 8
 
-    Hot-path methods (:meth:`rx`, :meth:`tx`, :meth:`steps`) append to a deque and return.
+
+class StepRing:
+    """Preallocated single-producer / single-consumer rings of received/sent frames and step rows in
+    memory shared with the recorder's writer process (an anonymous ``memfd`` mapped ``MAP_SHARED`` by
+    both; ``fd`` attaches to an existing one).
+
+    The producer (the service's loop) stores a row's values, then advances the ring's head; the
+    consumer (the writer) reads the head, then the rows before it, then advances the tail. On x86
+    stores become visible in program order, so a row is complete before its head is seen. A full ring
+    drops the new row and counts it (never blocks the loop). Capacities are powers of two.
+
+    Args:
+        frames: frame slots (default 65536: 35 s of lde traffic at 4.5 frames per step, 64 B each).
+        steps: step slots (default 16384: 64 s of steps, about 300 B each).
+        n_outputs: output frames per step row (``StepBlock.frames``).
+    """
+
+    ctl: np.ndarray
+    f_t: np.ndarray
+    f_word: np.ndarray
+    f_id: np.ndarray
+    f_ext: np.ndarray
+    f_dlc: np.ndarray
+    f_rx: np.ndarray
+    t_ns: np.ndarray
+    status: np.ndarray
+    est: np.ndarray
+    t_overlay: np.ndarray
+    overlay_state: np.ndarray
+    overlay_enable: np.ndarray
+    inputs: np.ndarray
+    ages: np.ndarray
+    valid_mask: np.ndarray
+    ok: np.ndarray
+    frames_used: np.ndarray
+    e2e_rejects: np.ndarray
+    frames: np.ndarray
+    timing: np.ndarray
+
+    def __init__(
+        self,
+        frames: int = 1 << 16,
+        steps: int = 1 << 14,
+        n_outputs: int = len(OUTPUT_MESSAGES),
+        fd: int | None = None,
+    ) -> None:
+        for n in (frames, steps):
+            if n <= 0 or n & (n - 1):
+                raise ValueError(f"ring capacities must be powers of two, got {n}")
+        self.nf, self.ns = int(frames), int(steps)
+        f, s = self.nf, self.ns
+        spec: list[tuple[str, Any, tuple[int, ...]]] = [
+            ("ctl", np.int64, (_N_CTL,)),
+            ("f_t", np.int64, (f,)),
+            ("f_word", np.uint64, (f,)),
+            ("f_id", np.uint32, (f,)),
+            ("f_ext", np.bool_, (f,)),
+            ("f_dlc", np.uint8, (f,)),
+            ("f_rx", np.bool_, (f,)),
+            ("t_ns", np.int64, (s,)),
+            ("status", np.uint8, (s,)),
+            ("est", np.float64, (s, N_OUT)),
+            ("t_overlay", np.float64, (s,)),
+            ("overlay_state", np.uint8, (s,)),
+            ("overlay_enable", np.bool_, (s,)),
+            ("inputs", np.float64, (s, N_INPUTS)),
+            ("ages", np.int64, (s, N_INPUTS)),
+            ("valid_mask", np.int64, (s,)),
+            ("ok", np.bool_, (s, 2)),
+            ("frames_used", np.int64, (s,)),
+            ("e2e_rejects", np.int64, (s,)),
+            ("frames", np.uint8, (s, n_outputs, 8)),
+            ("timing", np.int64, (s, 6)),
+        ]
+        size = 0
+        offs = []
+        for _, dt, shape in spec:
+            size = (size + 63) & ~63
+            offs.append(size)
+            size += int(np.dtype(dt).itemsize * np.prod(shape))
+        if fd is None:  # an anonymous file in memory; the writer process maps it through its descriptor
+            fd = os.memfd_create("lde-recorder-ring", 0)
+            os.ftruncate(fd, size)
+        self.fd = fd
+        self.n_outputs = int(n_outputs)
+        self._mm = mmap.mmap(fd, size, flags=mmap.MAP_SHARED)
+        for (name, dt, shape), off in zip(spec, offs, strict=True):
+            a = np.frombuffer(self._mm, dtype=dt, count=int(np.prod(shape)), offset=off).reshape(shape)
+            setattr(self, name, a)
+        self._fh = 0  # producer's copies of its heads
+        self._sh = 0
+        self._f_tail_seen = 0
+        self._s_tail_seen = 0
+
+    # ------------------------------------------------------------------ producer (hot path)
+    def put_frame(self, t_ns: int, can_id: int, is_extended: bool, dlc: int, word: int, is_rx: bool) -> None:
+        """One frame; ``word``: its first 8 data bytes as a little-endian integer."""
+        h = self._fh
+        if h - self._f_tail_seen >= self.nf:
+            self._f_tail_seen = int(self.ctl[_F_TAIL])
+            if h - self._f_tail_seen >= self.nf:
+                self.ctl[_F_DROPPED] += 1
+                return
+        i = h & (self.nf - 1)
+        self.f_t[i] = t_ns
+        self.f_word[i] = word
+        self.f_id[i] = can_id
+        self.f_ext[i] = is_extended
+        self.f_dlc[i] = dlc
+        self.f_rx[i] = is_rx
+        self._fh = h + 1
+        self.ctl[_F_HEAD] = h + 1
+
+    def put_step(
+        self, block: StepBlock, row: int, timing: tuple[int, int, int, int, int, int] | None
+    ) -> None:
+        """Row ``row`` of ``block`` and its live timing (period error, step time, latency [ns], miss
+        0/1, misses, skipped; None: no timing)."""
+        h = self._sh
+        if h - self._s_tail_seen >= self.ns:
+            self._s_tail_seen = int(self.ctl[_S_TAIL])
+            if h - self._s_tail_seen >= self.ns:
+                self.ctl[_S_DROPPED] += 1
+                return
+        i = h & (self.ns - 1)
+        self.t_ns[i] = block.t_ns[row]
+        self.status[i] = block.status[row]
+        self.est[i] = block.est[row]
+        self.t_overlay[i] = block.t_overlay[row]
+        self.overlay_state[i] = block.overlay_state[row]
+        self.overlay_enable[i] = block.overlay_enable[row]
+        self.inputs[i] = block.inputs[row]
+        self.ages[i] = block.ages[row]
+        self.valid_mask[i] = block.valid_mask[row]
+        self.ok[i] = block.ok[row]
+        self.frames_used[i] = block.frames_used[row]
+        self.e2e_rejects[i] = block.e2e_rejects[row]
+        self.frames[i] = block.frames[row]
+        if timing is None:
+            self.timing[i, 0] = _NO_TIMING
+        else:
+            self.timing[i] = timing
+        self._sh = h + 1
+        self.ctl[_S_HEAD] = h + 1
+
+    # ------------------------------------------------------------------ consumer (writer)
+    def take_frames(self) -> FrameBatch:
+        """The frames written since the last call (copies), and frees their slots."""
+        tail, head = int(self.ctl[_F_TAIL]), int(self.ctl[_F_HEAD])
+        idx = np.arange(tail, head) & (self.nf - 1)
+        fb = FrameBatch(
+            t_ns=self.f_t[idx],
+            can_id=self.f_id[idx],
+            is_extended=self.f_ext[idx],
+            dlc=self.f_dlc[idx],
+            data=self.f_word[idx].astype("<u8").view(np.uint8).reshape(-1, 8),
+            is_rx=self.f_rx[idx],
+        )
+        self.ctl[_F_TAIL] = head
+        return fb
+
+    def take_steps(self) -> tuple[StepBlock, Timing | None]:
+        """The step rows written since the last call (copies) and their timing (None when a row has
+        none), and frees their slots."""
+        tail, head = int(self.ctl[_S_TAIL]), int(self.ctl[_S_HEAD])
+        idx = np.arange(tail, head) & (self.ns - 1)
+        block = StepBlock(**{f.name: getattr(self, f.name)[idx] for f in fields(StepBlock)})
+        tm = self.timing[idx]
+        self.ctl[_S_TAIL] = head
+        timing = None
+        if len(idx) and not np.any(tm[:, 0] == _NO_TIMING):
+            timing = Timing(*(tm[:, k].copy() for k in range(6)))
+        return block, timing
+
+    @property
+    def dropped(self) -> tuple[int, int]:
+        """(frames, steps) dropped because the ring was full."""
+        return int(self.ctl[_F_DROPPED]), int(self.ctl[_S_DROPPED])
+
+    def close(self) -> None:
+        for name in list(vars(self)):
+            if isinstance(getattr(self, name), np.ndarray):
+                setattr(self, name, None)
+        with contextlib.suppress(BufferError):  # a view still alive: the mapping goes with the process
+            self._mm.close()
+        with contextlib.suppress(OSError):
+            os.close(self.fd)
+
+
+#: the recorder's writer process must have opened the file within this time [s]
+_START_TIMEOUT_S = 120.0
+#: a period error no live step has: "this row has no timing" (a replay's rows through Recorder.steps)
+_NO_TIMING = np.iinfo(np.int64).min
+
+
+def _word(data: bytes | bytearray) -> int:
+    return int.from_bytes(bytes(data[:8]), "little")
+
+
+class _WriterProcess:
+    """The recorder's writer process. Forked when this process has no other thread (``lde run``: fast,
+    and no lock can be held by a thread that the child would not have); otherwise a fresh interpreter
+    (``python -m lde.recording``), because a fork would inherit locks that other threads hold (numba's
+    compiler lock, say) and could hang on them."""
+
+    def __init__(self, ring_fd: int, mine: socket.socket, theirs: socket.socket) -> None:
+        self.pid = 0
+        self.popen: subprocess.Popen | None = None
+        if hasattr(os, "fork") and threading.active_count() == 1:
+            pid = os.fork()
+            if pid == 0:  # the child: never returns
+                code = 1
+                try:
+                    mine.close()
+                    _writer_main(ring_fd, theirs.detach())
+                    code = 0
+                finally:
+                    os._exit(code)
+            self.pid = pid
+        else:
+            cmd = [sys.executable, "-m", "lde.recording", str(ring_fd), str(theirs.fileno())]
+            self.popen = subprocess.Popen(
+                cmd, pass_fds=(ring_fd, theirs.fileno()), stdin=subprocess.DEVNULL, close_fds=True
+            )
+
+    def wait(self, timeout: float | None = None) -> None:
+        """Wait for the end of the process (``subprocess.TimeoutExpired`` after ``timeout``)."""
+        if self.popen is not None:
+            self.popen.wait(timeout)
+            return
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            done, _ = os.waitpid(self.pid, 0 if deadline is None else os.WNOHANG)
+            if done:
+                return
+            if deadline is not None and time.monotonic() > deadline:
+                raise subprocess.TimeoutExpired(f"lde recorder writer {self.pid}", timeout or 0.0)
+            time.sleep(0.01)
+
+    def kill(self) -> None:
+        if self.popen is not None:
+            self.popen.kill()
+        else:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, signal.SIGKILL)
+
+
+class Recorder:
+    """Writes a live run to an MCAP file (:class:`lde.logio.McapWriter`) from a writer *process*.
+
+    The service's hot path stores each received/sent frame and each step's row in a preallocated
+    ring in shared memory (:class:`StepRing`: a few array stores, no allocation, no lock); a writer
+    process (:class:`_WriterProcess`: forked, or a fresh interpreter when other threads run) runs as
+    background work, drains the rings every
+    ``flush_interval_s``, writes small chunks and pushes them to the OS. The writing (JSON formatting,
+    MCAP records, compression) thus never holds the service's interpreter lock. When the service dies
+    (SIGKILL included), the writer sees its end of the connection close, writes what the rings hold
+    and closes the file with its summary; if both are killed, at most about the last half second is
+    lost.
+
     Use as a context manager or call :meth:`close` (idempotent; writes the summary/footer).
 
     Args:
         path: output ``.mcap`` file.
         metadata: strings stored in the ``lde`` metadata record (profile, vehicle, backend...).
-        flush_interval_s: the writer thread writes and flushes a chunk this often [s].
+        flush_interval_s: the writer writes and flushes a chunk this often [s].
         chunk_size: MCAP chunk size bound [bytes, uncompressed] (small: a crash loses little).
         extra_topics: more JSON channels, topic -> {field: JSON-schema property}, written with
             :meth:`json_columns` (the demo's ``/sim/truth``).
+        ring_frames, ring_steps: ring capacities (powers of two; :class:`StepRing`).
     """
 
     def __init__(
@@ -364,112 +645,238 @@ class Recorder:
         flush_interval_s: float = 0.25,
         chunk_size: int = 64 * 1024,
         extra_topics: dict[str, dict[str, dict[str, str]]] | None = None,
+        ring_frames: int = 1 << 16,
+        ring_steps: int = 1 << 14,
     ) -> None:
         self.path = Path(path)
         meta = {k: str(v) for k, v in (metadata or {}).items()}
-        self._writer = McapWriter(self.path, chunk_size=chunk_size, buffer_bytes=64 << 20, metadata=meta)
-        w = self._writer
-        self._steps = StepTopicWriter(w)
-        self._ch_extra = {t: w.add_json_channel(t, props) for t, props in (extra_topics or {}).items()}
-        _sync(w)
-        self._q: deque[tuple[Any, ...]] = deque()
-        self._flush_interval = float(flush_interval_s)
-        self._stop = threading.Event()
+        try:  # a path that cannot be written is an error now, not in the writer (which opens it again)
+            self.path.open("wb").close()
+        except OSError as exc:
+            raise LogFormatError(f"{path}: cannot write: {exc}") from exc
+        self.ring = StepRing(ring_frames, ring_steps)
+        self._extra_topics = dict(extra_topics or {})
         self._closed = False
-        self.failed = False
-        self._thread = threading.Thread(target=self._loop, name="lde-recorder", daemon=True)
-        self._thread.start()
+        mine, theirs = socket.socketpair()
+        try:
+            self._proc = _WriterProcess(self.ring.fd, mine, theirs)
+        except OSError as exc:
+            mine.close()
+            self.ring.close()
+            raise LogFormatError(f"{path}: cannot start the recorder's writer process: {exc}") from exc
+        finally:
+            theirs.close()
+        self._conn = Connection(mine.detach())
+        self._conn.send(
+            (self.path, meta, float(flush_interval_s), int(chunk_size), self._extra_topics,
+             self.ring.nf, self.ring.ns, self.ring.n_outputs)
+        )  # fmt: skip
+        # the writer has the file open with its header written when this returns (or says why not)
+        ok = self._conn.poll(_START_TIMEOUT_S) and self._reply()
+        if not ok or ok[0] != "ready":
+            self._proc.kill()
+            self._proc.wait()
+            self._conn.close()
+            self.ring.close()
+            self._closed = True
+            why = ok[1] if ok else f"the writer process did not start within {_START_TIMEOUT_S:.0f} s"
+            raise LogFormatError(f"{path}: cannot record: {why}")
+
+    def _reply(self) -> tuple[Any, ...]:
+        try:
+            return self._conn.recv()
+        except (EOFError, OSError) as exc:
+            return ("error", f"{self.path}: the recorder's writer process ended ({exc or 'EOF'})")
+
+    @property
+    def failed(self) -> bool:
+        """The writer could not write (disk full, ...): recording stopped, the service goes on."""
+        return bool(self.ring.ctl[_FAILED]) if not self._closed else self._failed_at_close
+
+    _failed_at_close = False
+    _dropped_at_close = (0, 0)
+
+    @property
+    def dropped(self) -> tuple[int, int]:
+        """(frames, steps) dropped because the writer did not keep up (the rings were full)."""
+        return self.ring.dropped if not self._closed else self._dropped_at_close
 
     # ------------------------------------------------------------------ hot path
+    def frame(self, t_ns: int, can_id: int, is_extended: bool, dlc: int, word: int, is_rx: bool) -> None:
+        """A received (``is_rx``) or sent frame at ``t_ns`` [ns]; ``word``: its first 8 data bytes as
+        a little-endian integer."""
+        self.ring.put_frame(t_ns, can_id, is_extended, dlc, word, is_rx)
+
+    def step(
+        self, block: StepBlock, row: int = 0, timing: tuple[int, int, int, int, int, int] | None = None
+    ) -> None:
+        """One step's row of ``block`` (copied now) and its timing (:meth:`StepRing.put_step`)."""
+        self.ring.put_step(block, row, timing)
+
     def rx(self, msg: can.Message) -> None:
         """A received frame (its timestamp is the receive time); its content is copied now."""
-        self._q.append(
-            (0, seconds_to_ns(msg.timestamp), msg.arbitration_id, msg.is_extended_id, bytes(msg.data))
+        self.ring.put_frame(
+            seconds_to_ns(msg.timestamp),
+            msg.arbitration_id,
+            msg.is_extended_id,
+            msg.dlc,
+            _word(msg.data),
+            True,
         )
 
     def tx(self, msg: can.Message) -> None:
         """A sent frame (its timestamp is the send time); its content is copied now (the sender
         may reuse the message object)."""
-        self._q.append(
-            (1, seconds_to_ns(msg.timestamp), msg.arbitration_id, msg.is_extended_id, bytes(msg.data))
+        self.ring.put_frame(
+            seconds_to_ns(msg.timestamp),
+            msg.arbitration_id,
+            msg.is_extended_id,
+            msg.dlc,
+            _word(msg.data),
+            False,
         )
 
     def steps(self, block: StepBlock, timing: Timing | None = None) -> None:
-        """Rows of steps (the recorder keeps them: pass a block that is not reused)."""
-        self._q.append((2, block, timing))
+        """Rows of steps (copied now)."""
+        for i in range(len(block)):
+            tm = None
+            if timing is not None:
+                tm = tuple(int(getattr(timing, f.name)[i]) for f in fields(Timing))
+            self.ring.put_step(block, i, tm)  # type: ignore[arg-type]
 
     def json_columns(self, topic: str, t_ns: np.ndarray, columns: dict[str, np.ndarray]) -> None:
-        """Many JSON messages at once on an ``extra_topics`` channel (one per element of ``t_ns``)."""
-        if topic not in self._ch_extra:
+        """Many JSON messages at once on an ``extra_topics`` channel (one per element of ``t_ns``);
+        not for the hot path (the columns go to the writer through a pipe)."""
+        if topic not in self._extra_topics:
             raise ValueError(f"topic {topic!r} was not declared in extra_topics")
-        self._q.append((3, topic, np.asarray(t_ns, np.int64), dict(columns)))
+        self._conn.send(
+            ("json", topic, np.asarray(t_ns, np.int64), {k: np.asarray(v) for k, v in columns.items()})
+        )
 
-    # ------------------------------------------------------------------ writer thread
-    def _loop(self) -> None:
-        _normal_priority()
-        while not self._stop.wait(self._flush_interval):
-            self._drain()
-
+    # ------------------------------------------------------------------ writer control
     def _drain(self) -> None:
-        q = self._q
-        if not q or self.failed:
-            q.clear()
-            return
-        w = self._writer
-        try:
-            blocks: list[StepBlock] = []
-            timings: list[Timing] = []
-            while q:
-                item = q.popleft()
-                kind = item[0]
-                if kind < 2:
-                    self._write_steps(blocks, timings)
-                    _, t_ns, can_id, ext, data = item
-                    w.write_frame(t_ns, int(can_id), bool(ext), len(data), data, kind == 0)
-                elif kind == 2:
-                    blocks.append(item[1])
-                    if item[2] is not None:
-                        timings.append(item[2])
-                else:
-                    self._write_steps(blocks, timings)
-                    _, topic, t_arr, cols = item
-                    w.write_json_columns(self._ch_extra[topic], t_arr, cols)
-            self._write_steps(blocks, timings)
-            _sync(w)
-        except (OSError, ValueError) as exc:  # disk full, closed file: stop recording, keep the loop
-            log.error("recording to %s failed, recording stopped: %s", self.path, exc)
-            q.clear()
-            self.failed = True
-
-    def _write_steps(self, blocks: list[StepBlock], timings: list[Timing]) -> None:
-        """The step rows collected so far, as one columnar write (then cleared)."""
-        if not blocks:
-            return
-        block = StepBlock.concat(blocks)
-        timing = Timing.concat(timings) if len(timings) == len(blocks) else None
-        self._steps.write(block, timing)
-        blocks.clear()
-        timings.clear()
-
-    # ------------------------------------------------------------------ end
-    def close(self) -> None:
-        """Write everything queued, the summary and the footer; close the file."""
+        """Have the writer write and flush everything stored so far (returns when it has)."""
         if self._closed:
             return
-        self._closed = True
-        self._stop.set()
-        self._thread.join()
-        self._drain()
+        self._conn.send(("flush",))
+        self._reply()
+
+    def close(self) -> None:
+        """Write everything stored, the summary and the footer; close the file; end the writer."""
+        if self._closed:
+            return
         try:
-            self._writer.close()
-        except (OSError, ValueError) as exc:
-            log.error("closing recording %s failed: %s", self.path, exc)
+            self._conn.send(("close",))
+            r = self._reply()
+            if r[0] == "error":
+                log.error("%s", r[1])
+            self._failed_at_close = bool(self.ring.ctl[_FAILED]) or r[0] != "closed"
+        except (BrokenPipeError, OSError) as exc:
+            self._failed_at_close = True
+            log.error("recording to %s: the writer process is gone (%s)", self.path, exc)
+        self._closed = True
+        try:
+            self._proc.wait(30.0)
+        except subprocess.TimeoutExpired:  # pragma: no cover - a hung writer must not hang the exit
+            self._proc.kill()
+            self._proc.wait()
+        self._conn.close()
+        self._dropped_at_close = dropped = self.ring.dropped
+        if any(dropped):
+            log.warning("recording %s: ring full, dropped %d frames and %d steps", self.path, *dropped)
+        self.ring.close()
 
     def __enter__(self) -> Recorder:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _warm_up(n_outputs: int) -> None:
+    """Write one step and one frame to a throwaway writer, so that the compiled formatters are loaded
+    (numba's cache: seconds in a fresh process on a busy machine) before the first flush is due."""
+    w = McapWriter(os.devnull, metadata={"warm": "up"})
+    block = StepBlock.empty(1, n_outputs)
+    for f in fields(StepBlock):
+        getattr(block, f.name)[...] = 0
+    StepTopicWriter(w).write(block, Timing.empty(1))
+    one = (np.zeros(1, np.uint32), np.zeros(1, np.bool_), np.zeros(1, np.uint8), np.zeros((1, 8), np.uint8))
+    w.write_frames(FrameBatch(block.t_ns, *one, np.ones(1, np.bool_)))
+    w.flush()
+
+
+def _writer_main(ring_fd: int, conn_fd: int) -> None:
+    """The writer process (``python -m lde.recording RING_FD CONN_FD``): drain the rings every flush
+    interval until told to close or until the service is gone (its end of the connection closes),
+    then close the file."""
+    # Ctrl-C reaches the whole process group, a service manager's SIGTERM maybe too: the writer
+    # ends when the service tells it to (or is gone), after writing what the rings hold
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    _background_priority()
+    conn: Connection | None = Connection(conn_fd)
+    assert conn is not None
+    path, meta, flush_interval, chunk_size, extra_topics, nf, ns, n_out = conn.recv()
+    ring = StepRing(nf, ns, n_out, fd=ring_fd)
+    try:
+        w = McapWriter(path, chunk_size=chunk_size, buffer_bytes=64 << 20, metadata=meta)
+        steps = StepTopicWriter(w)
+        extra = {t: w.add_json_channel(t, props) for t, props in extra_topics.items()}
+        _sync(w)
+        _warm_up(n_out)
+    except (LogFormatError, OSError, ValueError) as exc:
+        conn.send(("error", str(exc)))
+        return
+    conn.send(("ready",))
+    failed = False
+
+    def drain() -> None:
+        nonlocal failed
+        fb = ring.take_frames()
+        block, timing = ring.take_steps()
+        if failed:
+            return
+        try:
+            if len(fb):
+                w.write_frames(fb)
+            if len(block):
+                steps.write(block, timing)
+            _sync(w)
+        except (OSError, ValueError) as exc:  # disk full, closed file: stop recording, keep draining
+            log.error("recording to %s failed, recording stopped: %s", path, exc)
+            failed = True
+            ring.ctl[_FAILED] = 1
+
+    while True:
+        try:
+            if conn is None:
+                raise EOFError
+            if not conn.poll(flush_interval):
+                drain()
+                continue
+            cmd = conn.recv()
+        except (EOFError, OSError):  # the service is gone: write what it left, then close
+            cmd = ("close",)
+            conn = None
+        if cmd[0] == "flush":
+            drain()
+            if conn is not None:
+                conn.send(("flushed",))
+        elif cmd[0] == "json":
+            if not failed:
+                w.write_json_columns(extra[cmd[1]], cmd[2], cmd[3])
+        elif cmd[0] == "close":
+            drain()
+            reply: tuple[Any, ...] = ("closed",)
+            if not failed:
+                try:
+                    w.close()
+                except (OSError, ValueError) as exc:
+                    reply = ("error", f"closing recording {path} failed: {exc}")
+            if conn is not None:
+                conn.send(reply)
+            return
 
 
 # ---------------------------------------------------------------------- reading back

@@ -1,4 +1,13 @@
-"""The live service: one step of the data path every 3.9 ms on absolute deadlines.
+"""The live service: one step of the data path every 3.9 ms, right after the MDPS frame it consumes.
+
+Two grids (``Service(grid=...)``, ``lde run --grid``; ``docs/service.md``, "The loop"):
+
+* ``mdps`` (``lde run``'s default): the MDPS-locked grid of :mod:`lde.grid` (:func:`lde.grid.new_lock`).
+  The loop blocks on the bus; each MDPS frame that comes 0.5 to 1.5 periods after the previous step's
+  reference time triggers a step at its receive time, so the outputs leave one step's compute time after
+  the input; when none comes by 1.5 periods, a step runs then and the phase is kept. The step
+  times are a function of the MDPS frames' receive times alone (:func:`lde.grid.locked_step_times`).
+* ``fixed``: absolute deadlines ``t_k = t_0 + k * 3.9 ms`` on the service clock (sleep, then spin).
 
 One step (:meth:`Service.step_once`) at step time ``t_k``:
 
@@ -12,13 +21,20 @@ One step (:meth:`Service.step_once`) at step time ``t_k``:
    time order: exactly those with receive time ``<= t_k`` are fed, then the step at ``t_k`` runs
    (inputs, corrections, backend step, finalisation, overlay limiter, output frames), a late start
    adding DEADLINE_MISS to its status; later frames stay pending for the next step;
-3. send the engine's ``LDE_Estimate`` and ``LDE_Overlay`` frames, then ``LDE_Diag`` with this step's
-   timing;
-4. hand the received and sent frames, the step's row and its timing to the recorder (a queue: the
-   writing happens in the recorder's thread);
+3. send the engine's ``LDE_Estimate``, ``LDE_Overlay`` and ``LDE_Disturbance`` frames, then
+   ``LDE_Diag`` with this step's timing;
+4. hand the received and sent frames, the step's row and its timing to the recorder (preallocated
+   rings in shared memory: the writing happens in the recorder's process);
 5. with ``learned`` (``lde run --learned FILE``): every ``learned_period_s`` of step time hand a
    copy of the learned state to a writer thread (:class:`lde.learned.LearnedKeeper`);
    :meth:`Service.close` writes it once more.
+
+The hot path allocates little: received frames go straight into preallocated pending arrays (the
+engine reads slices of them), the output ``can.Message`` objects are built once and refilled in place
+(``LDE_Diag`` too, by the compiled encoder), the kernel passes only the input messages
+(:func:`set_input_filters`: SocketCAN filters, a socket filter on python-can's ``udp_multicast``), and
+the garbage collector is off during :meth:`Service.run` (young objects are collected in the idle time
+after a step's send, old ones were frozen at start).
 
 Determinism: the step uses nothing but (the frames with receive time ``<= t_k``, ``t_k``, the
 overlay enable input, the deadline-miss bit), all of which the recording keeps, so a replay of the
@@ -34,10 +50,14 @@ virtual bus). ``t_k = t_clock + offset`` with ``offset`` measured once at start
 
 from __future__ import annotations
 
+import ctypes
 import gc
 import logging
+import socket
+import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,20 +67,21 @@ import can
 import numpy as np
 
 from .clock import SimulatedClock
-from .codec import MessageEncoder
-from .diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummary, diag_signals
+from .codec import MessageCodec, encode_word
+from .diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummary, diag_values
+from .e2e import advance_counter
 from .engine import Engine, StepBlock
 from .errors import BusError, ConfigError
-from .frames import FrameBatch, ns_to_seconds, seconds_to_ns
+from .frames import FrameBatch, seconds_to_ns
+from .grid import L_REF, lock_anchor, lock_deadline, lock_timeout, new_lock
 from .learned import LearnedKeeper, LearnedSnapshot
 from .params import Vehicle, load_vehicle
 from .profiles import Profile, load_profile
-from .recording import Timing
 from .signals import Receiver
 from .status import DEADLINE_MISS, VALID
 from .units import STEP_NS, STEP_S
 
-__all__ = ["Service", "StepResult", "STATUS_DEADLINE_MISS", "open_bus"]
+__all__ = ["Service", "StepResult", "STATUS_DEADLINE_MISS", "GRIDS", "open_bus", "set_input_filters"]
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +94,12 @@ _SKIP_AFTER_NS = STEP_NS
 _RESTAMP_AFTER_NS = 1_000_000_000
 #: after a stop request, the overlay ramps out for at most this long before the service ends
 _MAX_RAMP_OUT_NS = 3_000_000_000
+#: the live grids: MDPS-locked (steps triggered by the MDPS frames) or fixed deadlines on the clock
+GRIDS = ("mdps", "fixed")
+#: pending-frame buffer: initial capacity (grows if ever needed, which means the loop stood still)
+_PENDING_CAP = 4096
+#: a young generation this large is collected in the idle time after a step (gc is off in the loop)
+_GC_YOUNG = 700
 
 
 @dataclass(frozen=True)
@@ -122,6 +149,10 @@ class Service:
         timebase_offset_ns: bus time minus clock time [ns]; None: measured at start (0 for a
             simulated clock).
         log_period_s: period of the timing summary log line [s]; 0 disables it.
+        grid: ``fixed`` (default: deadlines on the clock) or ``mdps`` (steps triggered by the MDPS
+            frames, :mod:`lde.grid`'s locked grid) for :meth:`run`.
+        input_filters: pass only the profile's input messages up from the bus
+            (:func:`set_input_filters`).
         learned: a learned-state file (``--learned``): read now when it exists (checked against the
             vehicle and profile), written every ``learned_period_s`` of step time and at
             :meth:`close`. Needs a backend that learns (ConfigError otherwise).
@@ -140,10 +171,15 @@ class Service:
         overlay_enabled: bool = True,
         timebase_offset_ns: int | None = None,
         log_period_s: float = 10.0,
+        grid: str = "fixed",
+        input_filters: bool = True,
         learned: str | Path | None = None,
         learned_period_s: float = 60.0,
     ) -> None:
+        if grid not in GRIDS:
+            raise ConfigError(f"unknown grid {grid!r}: {' or '.join(GRIDS)}")
         self.bus = bus
+        self.grid = grid
         self.profile = load_profile(profile) if isinstance(profile, str) else profile
         self.vehicle = vehicle if isinstance(vehicle, Vehicle) else load_vehicle(vehicle)
         self.clock = clock
@@ -161,22 +197,48 @@ class Service:
         self._tk = np.zeros(1, np.int64)
         self._enable = np.ones(1, np.bool_)
         self._extra = np.zeros(1, np.uint8)
+        # the output messages, built once and refilled in place: (message, numpy view of its data)
         self._out_msgs = [
             can.Message(arbitration_id=int(fid), is_extended_id=False, dlc=int(n), data=bytearray(int(n)))
             for fid, n in zip(self.engine.outputs.frame_id, self.engine.outputs.length, strict=True)
         ]
-        self._enc_diag = MessageEncoder(self.profile, "LDE_Diag")
+        self._out_views = [np.frombuffer(m.data, np.uint8) for m in self._out_msgs]
+        dc = MessageCodec(self.profile, "LDE_Diag")
+        self._diag_msg = can.Message(
+            arbitration_id=dc.frame_id, is_extended_id=False, dlc=dc.length, data=bytearray(dc.length)
+        )
+        self._diag_view = np.frombuffer(self._diag_msg.data, np.uint8)
+        self._diag_args = dc.layout.kernel_args()
+        self._diag_vals = np.zeros(len(dc.order), np.float64)
+        self._diag_slots = tuple(
+            dc.index[n] for n in ("PeriodError", "StepTime", "Latency", "DeadlineMisses", "E2ERejects")
+        )
+        self._diag_word = np.zeros(1, np.uint64)
+        self._diag_bytes = self._diag_word.view(np.uint8)
+        self._diag_ctr = (0, dc.scheme.modulus, dc.scheme.invalid_counter)
+        # the frames received and not fed yet, in preallocated columns (the engine reads slices)
+        self._np = 0
+        self._pcols: tuple[np.ndarray, ...] = ()
+        self._alloc_pending(_PENDING_CAP)
+        self._unsorted = False
+        self._anchor = (self.profile.messages[self.profile.anchor_message].frame_id, False)
+        self._lock: np.ndarray | None = None  # the MDPS-locked grid while run(grid="mdps") runs
+        self._due: deque[int] = deque()  # step times the locked grid has made due, not run yet
+        self._input_ids = frozenset(m.frame_id for m in self.profile.messages.values())
+        self.filters = set_input_filters(bus, self.profile) if input_filters else "none"
+        self.foreign = 0  # frames of other messages that reached the service (dropped)
         self._warm_up()
         self.stats = TimingStats()
-        self._pending: list[tuple[int, can.Message]] = []  # (t_rx_ns, msg), not yet fed
         self._newest_input_ns = -1  # receive time of the newest frame fed so far
         self._restamp: bool | None = None  # stamp frames on receipt (decided at the first frame)
-        self._last_t_k: int | None = None  # step time of the last step run [ns, bus time base]
+        self._last_t_k: int | None = None  # the latest step time run [ns, bus time base]
+        self._last_due: int | None = None  # the latest step time the locked grid made due [ns]
         self.late_rx = 0  # frames delivered after a step later than their timestamp: re-stamped
         self._stopping = False  # ramp-out requested (shutdown)
         self.steps = 0
         self.send_errors = 0  # frames the bus refused (full tx queue, bus-off), counted, not raised
         self.recv_errors = 0  # failed receive calls, counted, not raised
+        self.gc_collections = 0  # young-generation collections run in the idle time of run()
         self.last: StepResult | None = None
         self.valid_steps = 0  # steps with status VALID: the driving time the learner saw
         self.learned: LearnedKeeper | None = None
@@ -199,6 +261,28 @@ class Service:
                 )
             self.learned = LearnedKeeper(learned, int(learned_period_s * 1e9))
 
+    def _alloc_pending(self, cap: int) -> None:
+        """(Re)allocate the pending columns with room for ``cap`` frames, keeping their contents."""
+        n = self._np
+        new: tuple[np.ndarray, ...] = (
+            np.zeros(cap, np.int64),  # receive time [ns]
+            np.zeros(cap, np.uint32),  # id
+            np.zeros(cap, np.bool_),  # extended
+            np.zeros(cap, np.uint8),  # dlc
+            np.zeros(cap, np.uint64),  # first 8 data bytes, little-endian
+        )
+        if n:
+            for dst, src in zip(new, self._pcols, strict=True):
+                dst[:n] = src[:n]
+        self._pcols = new
+        self._pt, self._pid, self._pext, self._pdlc, self._pword = new
+        self._prx = np.ones(cap, np.bool_)
+
+    def pending_times(self) -> list[int]:
+        """Receive times of the frames received and not fed to a step yet [ns] (time order)."""
+        self._sort_pending()
+        return self._pt[: self._np].tolist()
+
     def _warm_up(self) -> None:
         """Run the compiled loop once on a throwaway engine, so the first real step is not late
         (numba loads or compiles a kernel at its first call)."""
@@ -218,38 +302,87 @@ class Service:
     def _drain(self) -> None:
         """Move every frame waiting in the bus into the pending buffer (and the recording)."""
         recv = self.bus.recv
-        rec = self.recorder
-        pending = self._pending
         while True:
             try:
                 msg = recv(0.0)
             except (can.CanError, OSError) as exc:  # interface down, driver error: count, keep stepping
-                self.recv_errors += 1
-                if self.recv_errors == 1 or self.recv_errors % 1000 == 0:
-                    log.warning("CAN receive failed (%d so far): %s", self.recv_errors, exc)
+                self._recv_failed(exc)
                 return
             if msg is None:
                 return
-            if msg.is_error_frame or msg.is_remote_frame:
-                continue
-            t_rx = seconds_to_ns(msg.timestamp)
-            if self._restamp is None:
-                self._decide_restamp(t_rx)
-            if self._restamp:
-                t_rx = seconds_to_ns(self.now_ns() / 1e9)
-                msg.timestamp = t_rx / 1e9
-            last = self._last_t_k
-            if last is not None and t_rx <= last:
-                # stamped (by the sender's kernel) before a step that has already run without it: it
-                # reached our socket only after that step's drain. It takes part from the next step
-                # on, so it is recorded with the first microsecond after that step (a replay then
-                # feeds it where the live loop did).
-                t_rx = (last // 1000 + 1) * 1000
-                msg.timestamp = ns_to_seconds(t_rx)
-                self.late_rx += 1
-            pending.append((t_rx, msg))
-            if rec is not None:
-                rec.rx(msg)
+            self._take(msg)
+
+    def _recv_failed(self, exc: Exception) -> None:
+        self.recv_errors += 1
+        if self.recv_errors == 1 or self.recv_errors % 1000 == 0:
+            log.warning("CAN receive failed (%d so far): %s", self.recv_errors, exc)
+
+    def _take(self, msg: can.Message) -> None:
+        """One received frame into the pending columns (and the recording, and the locked grid);
+        frames of other messages are dropped (counted in ``foreign``)."""
+        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+            return
+        if msg.arbitration_id not in self._input_ids:
+            self.foreign += 1
+            return
+        t_rx = seconds_to_ns(msg.timestamp)
+        if self._restamp is None:
+            self._decide_restamp(t_rx)
+        if self._restamp:
+            t_rx = seconds_to_ns(self.now_ns() / 1e9)
+        can_id, ext, dlc = msg.arbitration_id, msg.is_extended_id, msg.dlc
+        anchor = can_id == self._anchor[0] and ext == self._anchor[1]
+        last = self._last_t_k
+        if anchor and self._last_due is not None and (last is None or self._last_due > last):
+            last = self._last_due
+        if last is not None and t_rx <= last:
+            # stamped (by the sender's kernel) before a step that has already run without it: it
+            # reached our socket only after that step's drain. It takes part from the next step on,
+            # so it is recorded with the first microsecond after that step (a replay then feeds it
+            # where the live loop did). An MDPS frame is also late for a step the locked grid has
+            # already made due without it (the grid's rule would have stepped at it instead).
+            t_rx = (last // 1000 + 1) * 1000
+            self.late_rx += 1
+        n = self._np
+        if n == self._pt.shape[0]:
+            self._alloc_pending(2 * n)
+        elif n and t_rx < self._pt[n - 1]:
+            self._unsorted = True
+        data = msg.data
+        word = int.from_bytes(data if len(data) <= 8 else data[:8], "little")
+        self._pt[n] = t_rx
+        self._pid[n] = can_id
+        self._pext[n] = ext
+        self._pdlc[n] = dlc
+        self._pword[n] = word
+        self._np = n + 1
+        if self.recorder is not None:
+            self.recorder.frame(t_rx, can_id, ext, dlc, word, True)
+        if anchor and self._lock is not None:
+            self._on_anchor(t_rx)
+
+    def _on_anchor(self, t_rx: int) -> None:
+        """An MDPS frame for the locked grid: the timeout steps before it, then maybe its own step."""
+        lock = self._lock
+        assert lock is not None
+        while (tk := int(lock_timeout(lock, t_rx))) >= 0:
+            self._make_due(tk)
+        if lock_anchor(lock, t_rx):
+            self._make_due(t_rx)
+
+    def _make_due(self, t_k: int) -> None:
+        self._due.append(t_k)
+        if self._last_due is None or t_k > self._last_due:
+            self._last_due = t_k
+
+    def _sort_pending(self) -> None:
+        if not self._unsorted:
+            return
+        n = self._np
+        order = np.argsort(self._pt[:n], kind="stable")  # stable: arrival order among equal times
+        for a in self._pcols:
+            a[:n] = a[:n][order]
+        self._unsorted = False
 
     def _decide_restamp(self, t_rx: int) -> None:
         """At the first frame: does the bus stamp frames in our time base? An interface whose
@@ -266,32 +399,24 @@ class Service:
     def _run_engine(self, t_k: int, enable: bool, miss: bool) -> int:
         """The engine over the pending frames (time order) and the step ``t_k``; returns the
         number of frames it fed (those with receive time <= t_k), which leave the pending buffer."""
-        pending = self._pending
-        pending.sort(key=lambda p: p[0])  # stable: arrival order among equal timestamps
-        n = len(pending)
-        t = np.empty(n, np.int64)
-        ids = np.empty(n, np.uint32)
-        ext = np.empty(n, np.bool_)
-        dlc = np.empty(n, np.uint8)
-        words = np.empty(n, np.uint64)
-        for k, (t_rx, msg) in enumerate(pending):
-            t[k] = t_rx
-            ids[k] = msg.arbitration_id
-            ext[k] = msg.is_extended_id
-            dlc[k] = msg.dlc
-            words[k] = int.from_bytes(bytes(msg.data[:8]), "little")
+        self._sort_pending()
+        n = self._np
         self._tk[0] = t_k
         self._enable[0] = enable
         self._extra[0] = DEADLINE_MISS if miss else 0
         fed, steps = self.engine.run_arrays(
-            t, ids, ext, dlc, words, np.ones(n, np.bool_), self._block,
-            step_times=self._tk, enable=self._enable, extra_status=self._extra, final=True,
+            self._pt[:n], self._pid[:n], self._pext[:n], self._pdlc[:n], self._pword[:n], self._prx[:n],
+            self._block, step_times=self._tk, enable=self._enable, extra_status=self._extra, final=True,
         )  # fmt: skip
         if steps != 1:  # the engine runs every given step when final: a broken invariant
             raise RuntimeError(f"the engine ran {steps} steps for one step time")
         if fed:
-            self._newest_input_ns = int(t[fed - 1])
-            del pending[:fed]
+            self._newest_input_ns = int(self._pt[fed - 1])
+            rest = n - fed
+            if rest:
+                for a in self._pcols:
+                    a[:rest] = a[fed:n].copy()
+            self._np = rest
         return fed
 
     def step_once(self, t_k: int, t_start: int | None = None) -> StepResult:
@@ -307,19 +432,20 @@ class Service:
         miss = period_error > DEADLINE_MISS_NS
         enable = self.overlay_enabled and not self._stopping
         self._run_engine(t_k, enable, miss)
-        self._last_t_k = t_k
+        if self._last_t_k is None or t_k > self._last_t_k:
+            self._last_t_k = t_k
         b = self._block
-        for j, msg in enumerate(self._out_msgs):
-            msg.data[:] = b.frames[0, j, : msg.dlc].tobytes()
+        for msg, view, j in zip(self._out_msgs, self._out_views, range(len(self._out_msgs)), strict=True):
+            view[:] = b.frames[0, j, : msg.dlc]
             self._send(msg)
         t_sent = self.now_ns()
         latency = t_sent - self._newest_input_ns if self._newest_input_ns >= 0 else -1
         timing = self.stats.record(period_error, t_sent - t_start, latency)
-        rejects = int(b.e2e_rejects[0])
-        self._send(self._enc_diag.message(diag_signals(timing, rejects), t_k))
+        self._send(self._encode_diag(timing, int(b.e2e_rejects[0])))
 
         self.steps += 1
         status = int(b.status[0])
+        state = int(b.overlay_state[0])
         if status & VALID:
             self.valid_steps += 1
         if self.learned is not None and self.learned.due(t_k):
@@ -330,8 +456,8 @@ class Service:
             mw=float(b.est[0, 1]),
             t_align=float(b.est[0, 2]),
             t_overlay=float(b.t_overlay[0]),
-            overlay_state=int(b.overlay_state[0]),
-            overlay_active=bool(b.overlay_state[0] in (1, 2)),
+            overlay_state=state,
+            overlay_active=state in (1, 2),
             status=status,
             frames_used=int(b.frames_used[0]),
             timing=timing,
@@ -339,19 +465,35 @@ class Service:
         )
         self.last = res
         if self.recorder is not None:
-            tm = Timing(
-                np.array([timing.period_error_ns]),
-                np.array([timing.step_time_ns]),
-                np.array([timing.latency_ns]),
-                np.array([int(timing.deadline_miss)]),
-                np.array([timing.deadline_misses]),
-                np.array([self.stats.skipped]),
+            self.recorder.step(
+                b,
+                0,
+                (
+                    timing.period_error_ns,
+                    timing.step_time_ns,
+                    timing.latency_ns,
+                    int(timing.deadline_miss),
+                    timing.deadline_misses,
+                    self.stats.skipped,
+                ),
             )
-            self.recorder.steps(b.copy(), tm)
         return res
 
+    def _encode_diag(self, timing: StepTiming, rejects: int) -> can.Message:
+        """``LDE_Diag`` of this step into its prebuilt message (compiled encoder, counter, CRC)."""
+        vals = self._diag_vals
+        for slot, v in zip(self._diag_slots, diag_values(timing, rejects), strict=True):
+            vals[slot] = v
+        ctr, mod, inv = self._diag_ctr
+        self._diag_word[0] = encode_word(vals, *self._diag_args, ctr)  # type: ignore[call-arg]
+        self._diag_ctr = (int(advance_counter(ctr, mod, inv)), mod, inv)
+        view = self._diag_view
+        view[:] = self._diag_bytes[: view.shape[0]]
+        return self._diag_msg
+
     def _send(self, msg: can.Message) -> None:
-        msg.timestamp = self.now_ns() / 1e9
+        t = self.now_ns()
+        msg.timestamp = t / 1e9
         try:
             self.bus.send(msg)
         except (can.CanError, OSError) as exc:
@@ -360,8 +502,16 @@ class Service:
             if self.send_errors == 1 or self.send_errors % 1000 == 0:
                 log.warning("CAN send failed (%d so far): %s", self.send_errors, exc)
             return
-        if self.recorder is not None:
-            self.recorder.tx(msg)  # only frames the bus took
+        if self.recorder is not None:  # only frames the bus took
+            d = msg.data
+            self.recorder.frame(
+                seconds_to_ns(msg.timestamp),
+                msg.arbitration_id,
+                False,
+                msg.dlc,
+                int.from_bytes(d, "little"),
+                False,
+            )
 
     # ------------------------------------------------------------------ learned state
     def learned_snapshot(self) -> LearnedSnapshot:
@@ -388,55 +538,191 @@ class Service:
         on_step: Callable[[StepResult], None] | None = None,
         t0_ns: int | None = None,
     ) -> TimingSummary:
-        """Step on absolute deadlines ``t_k = t_0 + k * STEP_NS`` until stopped.
+        """Step until stopped, on the service's grid (``fixed``: deadlines ``t_k = t_0 + k * STEP_NS``
+        on the clock; ``mdps``: the MDPS-locked grid, its first window around ``t_0``).
 
         Stops after ``max_steps`` steps, or after ``stop_event`` is set (or :meth:`request_stop`
         called) and the overlay has ramped to zero (at most 3 s). A step that would start more
-        than one whole period late skips the missed grid points (each counted as a deadline
-        miss) instead of running a burst of stale steps.
+        than one whole period late is skipped (counted as a deadline miss) when a later one is due
+        too, instead of running a burst of stale steps.
 
         ``t0_ns`` (clock time base) is the first deadline; default one period from now.
 
         Returns the timing summary over the run (the last 65536 steps).
         """
         clock = self.clock
-        step = STEP_NS
-        # everything allocated so far (modules, tables, DBC objects) leaves the collector's view, so a
-        # full collection during the loop scans only what the loop itself allocates
+        # everything allocated so far (modules, tables, DBC objects) leaves the collector's view, and
+        # the collector is off while the loop runs: the young objects a step leaves are collected in
+        # the idle time after its send (:meth:`_idle`), never inside a step
         gc.collect()
         gc.freeze()
-        t0 = clock.now_ns() + step if t0_ns is None else int(t0_ns)
-        k = 0
+        was_enabled = gc.isenabled()
+        gc.disable()
+        t0 = clock.now_ns() + STEP_NS if t0_ns is None else int(t0_ns)
+        if self.grid == "mdps":
+            self._lock = new_lock(t0 + self.offset_ns)
+            self._due.clear()
+            next_step = self._next_locked
+        else:
+            self._k = 0
+            self._t0 = t0
+            next_step = self._next_fixed
         next_log = t0 + self.log_period_ns
         stop_at: int | None = None
-        while True:
-            t_clk = t0 + k * step
-            clock.sleep_until(t_clk)
-            now = clock.now_ns()
-            late = now - t_clk
-            if late >= _SKIP_AFTER_NS:
-                n = late // step
-                self.stats.record_skipped(n)
-                k += n
-                t_clk += n * step
-            res = self.step_once(t_clk + self.offset_ns, now + self.offset_ns)
-            k += 1
-            if on_step is not None:
-                on_step(res)
-            if self.log_period_ns > 0 and now >= next_log:
-                log.info("%s", self.stats.take_window().log_line())
-                next_log += self.log_period_ns * max(1, (now - next_log) // self.log_period_ns + 1)
-            if max_steps is not None and self.steps >= max_steps:
-                break
-            if not self._stopping and stop_event is not None and stop_event.is_set():
-                self._stopping = True
-            if self._stopping:
-                if stop_at is None:
-                    stop_at = now + _MAX_RAMP_OUT_NS
-                    log.info("stopping: ramping the overlay out")
-                if res.t_overlay == 0.0 or now >= stop_at:
+        try:
+            while True:
+                t_k, now = next_step()
+                res = self.step_once(t_k, now)
+                if on_step is not None:
+                    on_step(res)
+                if self.log_period_ns > 0 and now - self.offset_ns >= next_log:
+                    log.info("%s", self.stats.take_window().log_line())
+                    late = now - self.offset_ns - next_log
+                    next_log += self.log_period_ns * max(1, late // self.log_period_ns + 1)
+                if max_steps is not None and self.steps >= max_steps:
                     break
+                if not self._stopping and stop_event is not None and stop_event.is_set():
+                    self._stopping = True
+                if self._stopping:
+                    if stop_at is None:
+                        stop_at = now + _MAX_RAMP_OUT_NS
+                        log.info("stopping: ramping the overlay out")
+                    if res.t_overlay == 0.0 or now >= stop_at:
+                        break
+                self._idle()
+        finally:
+            self._lock = None
+            if was_enabled:
+                gc.enable()
         return self.stats.summary()
+
+    def _idle(self) -> None:
+        """After a step's send: a young-generation collection when due (gc is off in the loop)."""
+        if gc.get_count()[0] >= _GC_YOUNG:
+            gc.collect(0)
+            self.gc_collections += 1
+
+    def _next_fixed(self) -> tuple[int, int]:
+        """The fixed grid: sleep until deadline k; skip the grid points more than a period late.
+        Returns (t_k, start) in the bus time base."""
+        clock = self.clock
+        t_clk = self._t0 + self._k * STEP_NS
+        clock.sleep_until(t_clk)
+        now = clock.now_ns()
+        late = now - t_clk
+        if late >= _SKIP_AFTER_NS:
+            n = late // STEP_NS
+            self.stats.record_skipped(n)
+            self._k += n
+            t_clk += n * STEP_NS
+        self._k += 1
+        return t_clk + self.offset_ns, now + self.offset_ns
+
+    def _next_locked(self) -> tuple[int, int]:
+        """The MDPS-locked grid: wait for the frame that triggers the next step, or for the end of its
+        window (:mod:`lde.grid`). A due step more than a period late is skipped when a later one is
+        due too. Returns (t_k, start) in the bus time base."""
+        clock = self.clock
+        off = self.offset_ns
+        lock = self._lock
+        assert lock is not None
+        due = self._due
+        recv_until = getattr(clock, "recv_until", None)
+        while True:
+            while not due:
+                end = int(lock_deadline(lock))
+                now = clock.now_ns() + off
+                if now > end:  # every frame up to now is in: the window ended without an MDPS frame
+                    self._drain()
+                    if not due:
+                        self._make_due(int(lock_timeout(lock, now)))
+                    break
+                try:
+                    if recv_until is not None:  # the MDPS frame is expected one period after t_ref
+                        msg = recv_until(self.bus, end + 1 - off, int(lock[L_REF]) + STEP_NS - off)
+                    else:  # a clock without it: poll, then sleep to the window's end
+                        msg = self.bus.recv(0.0)
+                        if msg is None:
+                            clock.sleep_until(end + 1 - off)
+                except (can.CanError, OSError) as exc:
+                    self._recv_failed(exc)
+                    clock.sleep_until(min(end + 1 - off, clock.now_ns() + STEP_NS // 4))
+                    continue
+                if msg is not None:
+                    self._take(msg)
+            t_k = due.popleft()
+            if t_k > clock.now_ns() + off:  # a simulated clock: move it to the frame
+                clock.sleep_until(t_k - off)
+            now = clock.now_ns() + off
+            if due and now - t_k >= _SKIP_AFTER_NS:
+                self.stats.record_skipped(1)
+                continue
+            return t_k, now
+
+
+# a classic BPF program for python-can's udp_multicast bus (SO_ATTACH_FILTER, linux/filter.h)
+_SO_ATTACH_FILTER = 26
+_BPF_LD_B_ABS, _BPF_LD_H_ABS, _BPF_JEQ_K, _BPF_RET_K = 0x30, 0x28, 0x15, 0x06
+#: python-can's msgpack datagram (can.interfaces.udp_multicast.utils.pack_message): a map of 11 keys,
+#: "timestamp" as a float64, then "arbitration_id" and its value; offsets after the 8-byte UDP header
+#: (what a socket filter sees): (offset, byte) pairs that identify the layout, and the id's offset
+_UDP = 8
+_MSGPACK_MARKS = ((_UDP + 0, 0x8B), (_UDP + 11, 0xCB), (_UDP + 20, 0xAE))
+_MSGPACK_ID = _UDP + 35
+
+
+def _udp_multicast_program(ids: list[int]) -> bytes:
+    """Pass a datagram whose layout is not the expected one (python-can decodes and filters it), or
+    whose 11-bit id (encoded as msgpack uint16: ids 256..2047) is one of ``ids``; drop the others."""
+    ins: list[tuple[int, int, int, int]] = []
+    # each mark: load, jump to "accept" when it differs; then: uint16 marker, the id compare list
+    for off, byte in _MSGPACK_MARKS:
+        ins.append((_BPF_LD_B_ABS, 0, 0, off))
+        ins.append((_BPF_JEQ_K, 0, -1, byte))  # -1: patched to "accept"
+    ins.append((_BPF_LD_B_ABS, 0, 0, _MSGPACK_ID))
+    ins.append((_BPF_JEQ_K, 0, -2, 0xCD))  # -2: patched to "drop"
+    ins.append((_BPF_LD_H_ABS, 0, 0, _MSGPACK_ID + 1))
+    for i in ids:
+        ins.append((_BPF_JEQ_K, -1, 0, i))
+    ins.append((_BPF_RET_K, 0, 0, 0))  # drop
+    ins.append((_BPF_RET_K, 0, 0, 0xFFFFFFFF))  # accept
+    drop, accept = len(ins) - 2, len(ins) - 1
+    out = []
+    for pc, (code, jt, jf, k) in enumerate(ins):
+        jt = accept - pc - 1 if jt == -1 else jt
+        jf = accept - pc - 1 if jf == -1 else drop - pc - 1 if jf == -2 else jf
+        out.append(struct.pack("HBBI", code, jt, jf, k))
+    return b"".join(out)
+
+
+def set_input_filters(bus: can.BusABC, profile: Profile) -> str:
+    """Pass only the profile's input messages (11-bit ids) up from ``bus`` where the kernel can do it;
+    returns how. The service drops any other frame itself as well (:meth:`Service._take`).
+
+    SocketCAN: ``bus.set_filters`` installs kernel filters (CAN_RAW_FILTER), so other traffic never
+    wakes the service. python-can's ``udp_multicast``: a socket filter (classic BPF on the msgpack
+    datagram's id) drops the other frames in the kernel, the service's own outputs included (the
+    multicast loopback delivers them to its own socket). Elsewhere python-can would filter after
+    decoding, and its ``recv(0)`` returns None at the first frame it filters out, which would end a
+    drain with frames still queued: there the filters are left off and the service filters.
+    """
+    ids = sorted({m.frame_id for m in profile.messages.values()})
+    bus.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ids])
+    if getattr(bus, "_is_filtered", False):
+        return "kernel (SocketCAN filters)"
+    bus.set_filters(None)
+    mc = getattr(bus, "_multicast", None)
+    sock = getattr(mc, "_socket", None)
+    if isinstance(sock, socket.socket) and all(256 <= i <= 0x7FF for i in ids):
+        code = _udp_multicast_program(ids)
+        buf = ctypes.create_string_buffer(code, len(code))
+        prog = struct.pack("HL", len(code) // 8, ctypes.addressof(buf))
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, _SO_ATTACH_FILTER, prog)
+            return "kernel (socket filter on udp_multicast)"
+        except OSError as exc:
+            log.info("udp_multicast: no socket filter (%s); the service filters", exc)
+    return "in the service"
 
 
 def open_bus(**kwargs: Any) -> can.BusABC:

@@ -90,12 +90,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--priority", type=int, default=80, help="SCHED_FIFO priority with --realtime (1..99)")
     p.add_argument("--cpu", type=int, action="append", metavar="N", help="pin to CPU N (repeatable)")
     p.add_argument(
+        "--grid",
+        choices=("mdps", "fixed"),
+        default="mdps",
+        help="mdps (default): each step runs right after the MDPS frame it consumes (the MDPS-locked grid; "
+        "a step at 1.5 periods when a frame is missing); fixed: absolute 3.9 ms deadlines on the clock",
+    )
+    p.add_argument(
         "--spin-us",
         type=float,
         default=None,
         metavar="US",
-        help="busy-wait this long before each deadline [us] (default 200; 0 sleeps only: on a CPU shared "
-        "with the simulator, user-mode Linux say, the spin takes time the others need)",
+        help="poll the bus from this long before to this long after the expected MDPS frame (mdps grid), "
+        "busy-wait this long before each deadline (fixed grid) [us] (default 200; 0 blocks/sleeps only: "
+        "on a CPU shared with the simulator, user-mode Linux say, the spin takes time the others need)",
     )
     p.add_argument("--log-period", type=float, default=10.0, metavar="SEC", help="timing log line period")
     p.set_defaults(func=run)
@@ -129,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
     logging.getLogger("lde.service").setLevel(logging.INFO)
-    # the recorder's thread must not keep the loop from the GIL for the default 5 ms
+    # no other thread runs in the service's process (the recorder writes from its own process); should
+    # one ever hold the interpreter lock, the loop must get it back within a fraction of a step
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
     profile = load_profile(args.profile)
     vehicle = load_vehicle(args.vehicle)
@@ -163,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
             backend=args.backend,
             overlay_enabled=not args.no_overlay,
             log_period_s=args.log_period,
+            grid=args.grid,
             learned=args.learned,
         )
         if args.record:
@@ -193,11 +203,13 @@ def run(args: argparse.Namespace) -> int:
                     stop.set()
 
         log.info(
-            "lde run: %s, profile %s, vehicle %s, backend %s%s",
+            "lde run: %s, profile %s, vehicle %s, backend %s, %s grid, input filters: %s%s",
             getattr(bus, "channel_info", "bus"),
             profile.name,
             vehicle.name,
             args.backend,
+            args.grid,
+            service.filters,
             f", recording to {args.record}" if args.record else "",
         )
         summary = service.run(stop_event=stop, on_step=on_step)
