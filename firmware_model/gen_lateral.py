@@ -32,6 +32,7 @@ import numpy as np
 
 from lde import estimator as E
 from lde.errors import ConfigError
+from lde.learner import PLAUSIBLE
 from lde.params import Vehicle
 from lde.units import KMH, STEP_NS
 
@@ -70,14 +71,9 @@ RICCATI_PERIODS = (0.010, 0.0039, 0.010)
 RICCATI_KMH = tuple(range(30, 181, 10))
 
 #: What ``p`` can hold for the learned tire and sensor values: the plausibility bounds of a
-#: learned-state file (:func:`lde.learned.load_learned`), which contain the learner's push bounds
-#: (:func:`lde.learner.push`); the tests check both. (low, high) per ``lde.estimator`` slot.
-PARAM_BOX = {
-    "cf": (1e3, 1e6),
-    "cr": (1e3, 1e6),
-    "k": (10.0, 1e5),
-    "s": (0.8, 1.4),
-}
+#: learned-state file (:data:`lde.learner.PLAUSIBLE`, checked by :func:`lde.learned.load_learned`),
+#: which contain the learner's push bounds (:func:`lde.learner.push`; tested). (low, high).
+PARAM_BOX = PLAUSIBLE
 _BOX_SLOTS = {"cf": E.P_CF, "cr": E.P_CR, "k": E.P_K, "s": E.P_S}
 
 

@@ -269,16 +269,26 @@ def asin_q(tv, ft, x):  # pragma: no cover - compiled
 # =============================================================================== the slow task
 
 
+#: the largest right shift a slow-task constant may need in the step (int64 operands)
+MAX_SHIFT = 62
+
+
 @njit(cache=True)
 def _const(value, f_min):  # pragma: no cover - compiled
     """(raw, frac, saturated) of a float constant in an int32 with the most fractional bits that hold
-    it, at least ``f_min`` (so that its use never needs a left shift; then it may saturate)."""
+    it, at least ``f_min`` (so that its use never needs a left shift; then it may saturate) and at
+    most ``f_min + MAX_SHIFT`` (its use never shifts an int64 by more than 62 bits: a smaller value
+    loses its low bits, down to 0, which is below half an LSB of the result)."""
     if value == 0.0 or not math.isfinite(value):
         return 0, f_min, not math.isfinite(value)
     f = 31 - math.frexp(abs(value))[1]  # |value| < 2**(31 - f)
     if f < f_min:
         f = f_min
+    if f > f_min + MAX_SHIFT:
+        f = f_min + MAX_SHIFT
     r = int(math.floor(abs(value) * 2.0**f + 0.5))
+    if r == 0:
+        return 0, f_min, False
     if r > INT32_MAX and f > f_min:
         f -= 1
         r = int(math.floor(abs(value) * 2.0**f + 0.5))
@@ -304,9 +314,10 @@ def _fixed(value, f):  # pragma: no cover - compiled
 def coef_set_kernel(p, tv, cs):  # pragma: no cover - compiled
     """The slow task: the coefficient set ``cs`` (``CS_*``) from the parameter vector ``p`` (float).
 
-    Polynomial term j of coefficient k is ``c_kj w^j`` with w in Q F_W: its raw gets at least
-    ``f_group - j F_W`` fractional bits, so the fast step only ever shifts it right, by
-    ``frac + j F_W - f_group``. Every other constant is (raw, frac) for the product it enters.
+    Polynomial term j of coefficient k is ``c_kj w^j``; the step has w and w^2 both in Q F_W
+    (``fpow_j`` = 0, F_W, F_W fractional bits for j = 0, 1, 2): the term's raw gets at least
+    ``f_group - fpow_j`` fractional bits, so the fast step only ever shifts it right, by
+    ``frac + fpow_j - f_group``. Every other constant is (raw, frac) for the product it enters.
     Constants that do not fit their int32 are saturated and counted in ``cs[CS_NSAT]`` (while it is
     non-zero the step is DEGRADED); within the generator's parameter box this cannot happen."""
     ex = np.zeros(LC.N_EX, np.int64)
@@ -320,10 +331,11 @@ def coef_set_kernel(p, tv, cs):  # pragma: no cover - compiled
     for k in range(LC.N_K):
         fg = groups[LC.COEF_GROUP[k]]
         for j in range(3):
-            raw, f, hit = _const(c[k, j], fg - j * fw)
+            fpow = 0 if j == 0 else fw
+            raw, f, hit = _const(c[k, j], fg - fpow)
             nsat += hit
             cs[CS_POLY + 6 * k + 2 * j] = raw
-            cs[CS_POLY + 6 * k + 2 * j + 1] = f + j * fw - fg
+            cs[CS_POLY + 6 * k + 2 * j + 1] = f + fpow - fg
     fs, fst, fz, fr = tv[T_F_STATE], tv[T_F_STEER], tv[T_F_Z], tv[T_F_RATE]
     s_t = 2.0 ** tv[T_E_T]
     n, dt = p[E.P_N], p[E.P_DT]
@@ -741,3 +753,44 @@ def to_si(lt: LateralTables, iout: np.ndarray) -> tuple[float, ...]:
         float(iout[IO_BANK]) * fz,
         float(iout[IO_Z]) * fz,
     )
+
+
+def run_drive(
+    lt: LateralTables,
+    p: np.ndarray,
+    inputs: tuple[np.ndarray, ...],
+    *,
+    python_ints: bool = False,
+) -> dict[str, np.ndarray]:
+    """The integer step over a drive outside the product loop (tests and benchmarks): ``inputs`` are
+    (t_ns, speed, steer, yaw, tcol, tas, ay, fresh_r, fresh_t, fresh_a, mdps_ok, esc_ok) arrays in SI.
+    Returns every step's ``iout`` (n, N_IO), status (n), the final x, P, aux, sat and the coefficient
+    set. ``python_ints``: the integer arrays as object arrays of Python ints (with numba disabled,
+    ``NUMBA_DISABLE_JIT=1``, this runs the same kernels in unbounded integers: the results equal the
+    int64 run exactly when no intermediate wrapped)."""
+    tv, ft = tables_vectors(lt)
+    n = len(inputs[0])
+
+    def arr(shape: int | tuple[int, int]) -> np.ndarray:
+        a = np.zeros(shape, np.int64)
+        return a.astype(object) * 0 if python_ints else a
+
+    if python_ints:
+        tv, ft = (np.array([int(v) for v in a], dtype=object) for a in (tv, ft))
+    cs, x, P, aux, sat = arr(N_CS), arr(5), arr(25), arr(N_AUX), arr(N_SAT)
+    ws, iout = arr((4, 16)), arr(N_IO)
+    coef_set_kernel(np.asarray(p, np.float64), tv, cs)
+    reset_kernel(cs, x, P, aux, sat)
+    outs = np.zeros((n, N_IO), dtype=object if python_ints else np.int64)
+    status = np.zeros(n, np.int64)
+    t_ns, speed, steer, yaw, tcol, tas, ay, fr, ftq, fa, mdps, esc = inputs
+    for k in range(n):
+        v, s, y, c, a, q, flags = quantise_kernel(
+            tv, float(speed[k]), float(steer[k]), float(yaw[k]), float(tcol[k]), float(tas[k]), float(ay[k])
+        )
+        status[k] = step_kernel(
+            tv, ft, cs, x, P, aux, sat, ws, int(t_ns[k]), v, s, y, c, a, q, flags,
+            bool(fr[k]), bool(ftq[k]), bool(fa[k]), bool(mdps[k]), bool(esc[k]), iout,
+        )  # fmt: skip
+        outs[k] = iout
+    return {"iout": outs, "status": status, "x": x, "P": P, "aux": aux, "sat": sat, "cs": cs}

@@ -14,6 +14,10 @@
                  corrections (:mod:`lde.conditioning`).
 ===============  ==================================================================================
 
+``lateral`` is an alias of ``float`` (the lateral filter's name before it became the default pair;
+:data:`ALIASES`). Until the lateral filter had its fixed-point model, ``fixed`` / ``float`` named
+today's ``paper-fixed`` / ``paper``.
+
 A backend is a compiled step with the :mod:`lde.pipeline` signature::
 
     step(bp, bs, t_ns, inputs, fresh, mdps_ok, esc_ok, out) -> status
@@ -90,6 +94,7 @@ from .units import STEP_S
 __all__ = [
     "Backend",
     "BackendState",
+    "ALIASES",
     "BACKENDS",
     "DEFAULT_BACKEND",
     "get_backend",
@@ -380,6 +385,9 @@ def lateral_fixed_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragm
     if pushed:
         FX.coef_set_kernel(p, tv, cs)
     out[O_LEARN] = ls[Ln.LS_STATE]
+    # the overlay law's gain from the current (learned) parameters, as the float backend (the overlay
+    # law runs in float after the estimator in this model, for every backend)
+    out[O_GAIN] = p[E.P_K] / (p[E.P_N] * p[E.P_CF] * (p[E.P_LF] + p[E.P_LR]))
     return status
 
 
@@ -460,14 +468,19 @@ BACKENDS: dict[str, Backend] = {
 }
 
 
+#: other names of registered backends (accepted by :func:`get_backend` and the CLI)
+ALIASES: dict[str, str] = {"lateral": "float"}
+
+
 def backend_names() -> tuple[str, ...]:
     return tuple(BACKENDS)
 
 
 def get_backend(name: str) -> Backend:
-    """The backend registered under ``name``; ConfigError otherwise (no fallback)."""
+    """The backend registered under ``name`` (or an alias of it); ConfigError otherwise (no
+    fallback)."""
     try:
-        return BACKENDS[name]
+        return BACKENDS[ALIASES.get(name, name)]
     except KeyError:
         raise ConfigError(f"unknown backend {name!r}: choose one of {', '.join(BACKENDS)}") from None
 

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from ..errors import ConfigError
-from . import BACKEND_CHOICES
+from . import BACKEND_CHOICES, BACKEND_HELP
 
 #: a log larger than this gets a progress bar even alone [bytes]
 _LARGE_LOG = 50 << 20
@@ -44,7 +44,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--backend",
         choices=BACKEND_CHOICES,
         default=None,
-        help="estimator step: fixed-point firmware model or float (default: fixed when available)",
+        help=BACKEND_HELP,
     )
     p.add_argument("--csv", type=Path, default=None, help="CSV output (a directory with several LOGs)")
     p.add_argument(
