@@ -50,7 +50,9 @@ COEF_NAMES = (
     "ha2",
     "da",
 )
-(K_F00, K_F01, K_F02, K_F10, K_F11, K_F13, K_E0, K_E1, K_HT0, K_HT1, K_DT, K_HA0, K_HA1, K_HA2, K_DA) = range(15)
+(K_F00, K_F01, K_F02, K_F10, K_F11, K_F13, K_E0, K_E1, K_HT0, K_HT1, K_DT, K_HA0, K_HA1, K_HA2, K_DA) = range(
+    15
+)
 N_K = 15
 #: the result format group of each coefficient: a row of products accumulates in one format
 GROUP_NAMES = ("phi", "e", "h", "d")

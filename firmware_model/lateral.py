@@ -186,7 +186,7 @@ def msb(a):  # pragma: no cover - compiled
 @njit(cache=True)
 def recip(tv, ft, a):  # pragma: no cover - compiled
     """The normalised reciprocal of an integer 1 <= a < 2**62: (m, n) with 1/a = m 2**-(30 + n),
-    m in Q1.30 (2**29 < m <= 2**30). Normalise a to A in [1, 2) (Q1.30; rounded), a seed for A's
+    m in Q1.30 (2**29 <= m <= 2**30). Normalise a to A in [1, 2) (Q1.30; rounded), a seed for A's
     interval from the table, two Newton steps y = y (2 - A y)."""
     f = tv[T_RECIP_FRAC]
     n = msb(a)

@@ -30,8 +30,8 @@ import sys
 from pathlib import Path
 
 from .. import study
-from . import BACKEND_CHOICES
 from ..errors import ConfigError
+from . import BACKEND_CHOICES
 from .engine import engine
 
 
