@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--interface", default="virtual")
     ap.add_argument("--channel", default="lde-bench")
     ap.add_argument("--scenario", default=None, help="simulator scenario (default: the demo's)")
-    ap.add_argument("--backend", choices=("fixed", "float"), default="fixed")
+    ap.add_argument("--backend", choices=("fixed", "float", "paper-fixed", "paper"), default="fixed")
     ap.add_argument("--record", default=None, help="also record to this MCAP file")
     ap.add_argument("--realtime", action="store_true")
     ap.add_argument("--priority", type=int, default=80)

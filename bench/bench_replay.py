@@ -187,7 +187,7 @@ def main() -> None:
     ap.add_argument("--hours", type=float, default=1.0)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--backend", default="float", choices=("float", "fixed"))
+    ap.add_argument("--backend", default="float", choices=("float", "fixed", "paper", "paper-fixed"))
     ap.add_argument("--candump", action="store_true", help="also time a candump -L copy")
     ap.add_argument("--json", type=Path, default=None, help="write the numbers as JSON")
     ap.add_argument("--keep", type=Path, default=None, help="directory to keep the generated files in")
