@@ -4,7 +4,7 @@ Measured, never invented. Three parts, all in one run:
 
 1. The Q-format table (from the generated constants of the vehicle).
 2. Per simulator scenario (``vcan_sim``, seed 0, the replay pipeline ``lde.replay.replay`` with
-   ``backend="fixed"`` and ``"float"``): worst |dFw| [N] and |dMw| [Nm] of fixed vs float at any
+   ``backend="paper-fixed"`` and ``"paper"``): worst |dFw| [N] and |dMw| [Nm] of fixed vs float at any
    step, and the same for the steady-state-gain alternative (float, ``firmware_model.float_ref``)
    vs the float filter, over all steps and after the first second.
 3. Per-step cost of both backends on the same inputs: the scenario grids concatenated (time
@@ -121,8 +121,8 @@ def scenario_grids(vehicle, names):
     out = []
     for name in names:
         sim = simulate(name, vehicle, "lde", seed=0)
-        fx = replay(sim.frames, profile, vehicle, "fixed")
-        fl = replay(sim.frames, profile, vehicle, "float")
+        fx = replay(sim.frames, profile, vehicle, "paper-fixed")
+        fl = replay(sim.frames, profile, vehicle, "paper")
         out.append((name, fx, fl))
     return out
 

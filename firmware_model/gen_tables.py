@@ -50,11 +50,12 @@ from lde.model import discrete_matrices
 from lde.params import Vehicle, load_vehicle
 from lde.units import KMH, STEP_NS
 
+from . import gen_lateral
 from .qformat import QFormat, frac_bits_for
 from .riccati import steady_state_kf
 
 #: Bump when the layout or the derivation changes (part of the input hash).
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # 2: the lateral filter's section (firmware_model.gen_lateral)
 TABLES_DIR = Path(__file__).resolve().parent
 
 # --- fixed choices (documented in docs/firmware.md) ------------------------------------------
@@ -175,6 +176,7 @@ def _tuning_inputs(vehicle: Vehicle) -> dict[str, Any]:
         "steering": asdict(vehicle.steering),
         "tires": asdict(vehicle.tires),
         "estimator": asdict(vehicle.estimator),
+        "learning": asdict(vehicle.learning),  # the accelerometer scale's prior (lateral section)
     }
 
 
@@ -186,6 +188,7 @@ def inputs_hash(vehicle: Vehicle, dt_ns: int = STEP_NS) -> str:
         "vehicle": _tuning_inputs(vehicle),
         "fixed": [F_STATE, F_COV, F_SPEED, F_STEER, F_TORQUE, MODEL_SPEED_MAX, list(SS_TABLE_KMH)],
         "coefs": list(COEF_NAMES),
+        "lateral": gen_lateral.fixed_choices(),
     }
     text = json.dumps(payload, sort_keys=True, default=repr)
     return hashlib.sha256(text.encode()).hexdigest()
@@ -310,6 +313,7 @@ def generate(vehicle: Vehicle, dt_ns: int = STEP_NS) -> dict[str, Any]:
             "sd_prior": sweep["sd_prior"].tolist(),
             "sd_post": sweep["sd_post"].tolist(),
         },
+        "lateral": gen_lateral.generate(vehicle, dt_ns),
     }
 
 

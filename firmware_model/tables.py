@@ -139,3 +139,76 @@ def tables_for(vehicle: Vehicle, dt_ns: int = STEP_NS) -> FixedTables:
             d = json.loads(gen.dumps(gen.generate(vehicle, dt_ns)))
         _CACHE[key] = FixedTables.from_dict(d)
     return _CACHE[key]
+
+
+# --------------------------------------------------------------------------- the lateral filter
+
+
+@dataclass(frozen=True)
+class LateralTables:
+    """The lateral fixed-point model's offline constants (:mod:`firmware_model.gen_lateral`): the
+    formats and exponents, the function tables. The coefficient values are not here: the slow task
+    quantises them from the parameter vector (:func:`firmware_model.lateral.coef_set_kernel`).
+
+    Attributes:
+        formats: fractional bits by name (state, cov, speed, steer, torque, rate, z, u, w, gain).
+        coef_groups: fractional bits of the groups phi, e, h, d.
+        sigma_exp: exponents of the five states; sigma_t_exp, sigma_a_exp: of the scaled aligning
+            torque and lateral acceleration.
+        recip_bits, recip_frac, recip_seeds; tanh_u_exp, tanh_seg_bits, tanh_table; asin_coefs,
+        asin_half_pi: the function tables (ints).
+    """
+
+    formats: dict[str, int]
+    coef_groups: dict[str, int]
+    sigma_exp: tuple[int, ...]
+    sigma_t_exp: int
+    sigma_a_exp: int
+    recip_bits: int
+    recip_frac: int
+    recip_seeds: tuple[int, ...]
+    tanh_u_exp: int
+    tanh_seg_bits: int
+    tanh_table: tuple[int, ...]
+    asin_coefs: tuple[int, ...]
+    asin_half_pi: int
+    raw: Any = field(default=None, compare=False, repr=False)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> LateralTables:
+        f = d["formats"]
+        return cls(
+            formats={k: int(v) for k, v in f.items() if k != "coef_groups"},
+            coef_groups={k: int(v) for k, v in f["coef_groups"].items()},
+            sigma_exp=tuple(int(e) for e in d["sigma_exp"]["state"]),
+            sigma_t_exp=int(d["sigma_exp"]["t_align"]),
+            sigma_a_exp=int(d["sigma_exp"]["lat_accel"]),
+            recip_bits=int(d["recip"]["bits"]),
+            recip_frac=int(d["recip"]["frac"]),
+            recip_seeds=tuple(int(v) for v in d["recip"]["seeds"]),
+            tanh_u_exp=int(d["tanh"]["u_exp"]),
+            tanh_seg_bits=int(d["tanh"]["seg_bits"]),
+            tanh_table=tuple(int(v) for v in d["tanh"]["table"]),
+            asin_coefs=tuple(int(v) for v in d["asin"]["coefs"]),
+            asin_half_pi=int(d["asin"]["half_pi"]),
+            raw=d,
+        )
+
+    def state_lsb(self, i: int) -> float:
+        """Physical value of one raw unit of lateral state i (rad, rad/s, N, Nm, N)."""
+        return math.ldexp(1.0, self.sigma_exp[i] - self.formats["state"])
+
+    def t_align_lsb(self) -> float:
+        return math.ldexp(1.0, self.sigma_t_exp - self.formats["state"])
+
+
+def lateral_tables_for(vehicle: Vehicle, dt_ns: int = STEP_NS) -> LateralTables:
+    """The lateral section of :func:`tables_for` (the same file, or generated in memory)."""
+    tb = tables_for(vehicle, dt_ns)
+    key = tb.inputs_sha256
+    if key not in _LAT_CACHE:
+        _LAT_CACHE[key] = LateralTables.from_dict(tb.raw["lateral"])
+    return _LAT_CACHE[key]
+
+
+_LAT_CACHE: dict[str, LateralTables] = {}

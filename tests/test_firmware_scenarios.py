@@ -1,8 +1,12 @@
-"""The acceptance check of issue 5 on every simulator scenario: the replay pipeline with
-``backend="fixed"`` and ``backend="float"`` (what ``lde replay --backend fixed|float`` runs) agree
-within 5 N (Fw) and 2 Nm (Mw) at every step, with the same status bits and no shadow deviation."""
+"""The acceptance check of issue 5 (and issue 11 item 2 for the lateral filter) on every simulator
+scenario: the replay pipeline with ``backend="fixed"`` and ``backend="float"`` (what ``lde replay
+--backend fixed|float`` runs: the lateral filter in fixed point and in float, each with its learner)
+and with ``"paper-fixed"`` and ``"paper"`` agree within 5 N (Fw) and 2 Nm (Mw) at every step, with the
+same status bits and no shadow deviation."""
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 import pytest
@@ -19,18 +23,24 @@ from lde.replay import replay  # noqa: E402
 NAMES = [name for name, _ in scenarios.scenario_list()]
 
 
+@functools.cache
+def _simulate(name):
+    return vcan_run.simulate(name, load_vehicle("reference"), "lde", seed=0)
+
+
 @pytest.fixture(scope="module")
 def setup():
     return load_vehicle("reference"), load_profile("lde")
 
 
+@pytest.mark.parametrize("pair", [("fixed", "float"), ("paper-fixed", "paper")])
 @pytest.mark.parametrize("name", NAMES)
-def test_fixed_and_float_replays_agree_on_scenario(setup, name):
+def test_fixed_and_float_replays_agree_on_scenario(setup, name, pair):
     vehicle, profile = setup
-    sim = vcan_run.simulate(name, vehicle, "lde", seed=0)
-    fx = replay(sim.frames, profile, vehicle, "fixed")
-    fl = replay(sim.frames, profile, vehicle, "float")
-    assert fx.backend == "fixed" and fl.backend == "float"
+    sim = _simulate(name)
+    fx = replay(sim.frames, profile, vehicle, pair[0])
+    fl = replay(sim.frames, profile, vehicle, pair[1])
+    assert (fx.backend, fl.backend) == pair
     assert len(fx) == len(fl) > 1000
     np.testing.assert_array_equal(fx.t_ns, fl.t_ns)
     dfw = np.abs(fx.fw - fl.fw)
@@ -42,12 +52,17 @@ def test_fixed_and_float_replays_agree_on_scenario(setup, name):
 
 
 def test_default_backend_is_fixed():
+    from lde.backends import DEFAULT_BACKEND, run_lateral_fixed
     from lde.replay import resolve_backend
 
-    name, fn, _ = resolve_backend(None)
-    assert name == "fixed"
+    name, _, _ = resolve_backend(None)
+    assert name == DEFAULT_BACKEND == "fixed"
+    from lde.backends import get_backend
+
+    assert get_backend(name).run is run_lateral_fixed
     import firmware_model
 
+    name, fn, _ = resolve_backend("paper-fixed")
     assert fn is firmware_model.run_batch
 
 

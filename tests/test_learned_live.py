@@ -98,7 +98,7 @@ def test_live_starts_from_the_file_and_counts_the_drive(tmp_path, lde_bench: Ben
 def test_learned_needs_a_learning_backend_and_the_same_car(tmp_path, lde_bench: Bench) -> None:
     learned = tmp_path / "car.learned"
     with pytest.raises(ConfigError, match="does not learn"):
-        lde_bench.service(backend="float", learned=learned)
+        lde_bench.service(backend="paper", learned=learned)
     lde_bench.simulator("straight", duration=2.0)
     svc = lde_bench.service(backend="lateral", learned=learned)
     lde_bench.run()

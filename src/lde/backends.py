@@ -1,14 +1,22 @@
 """The estimator backends, chosen through one explicit registry that fails loudly.
 
 ===============  ==================================================================================
-``lateral``      :mod:`lde.estimator` + :mod:`lde.learner`: the lateral filter with the lateral
+``fixed``        :mod:`firmware_model.lateral` + :mod:`lde.learner`: the lateral filter in integers
+                 (an MDPS ECU without FPU), its float step (:mod:`lde.estimator`) with the same
+                 parameters as a shadow at every step (a deviation beyond 5 N / 2 Nm sets
+                 ``SHADOW_DEVIATION`` and is counted), the learner as a float slow task whose pushes
+                 re-quantise the integer coefficient set. The default.
+``float``        :mod:`lde.estimator` + :mod:`lde.learner`: the lateral filter with the lateral
                  acceleration (wind apart from bank) and online learning, float.
-``float``        :mod:`lde.step`: the paper's float Kalman step (states beta, r, Fw, Mw), with the
-                 vehicle file's input corrections (:mod:`lde.conditioning`).
-``fixed``        :mod:`firmware_model`: the paper's step in integers (an MDPS ECU without FPU), with
-                 the float step as a shadow at every step: a deviation beyond 5 N / 2 Nm sets
-                 ``SHADOW_DEVIATION`` and is counted.
+``paper-fixed``  :mod:`firmware_model`: the paper's step (states beta, r, Fw, Mw) in integers, with
+                 the ``paper`` step as its shadow at every step (the same bound and bit).
+``paper``        :mod:`lde.step`: the paper's float Kalman step, with the vehicle file's input
+                 corrections (:mod:`lde.conditioning`).
 ===============  ==================================================================================
+
+``lateral`` is an alias of ``float`` (the lateral filter's name before it became the default pair;
+:data:`ALIASES`). Until the lateral filter had its fixed-point model, ``fixed`` / ``float`` named
+today's ``paper-fixed`` / ``paper``.
 
 A backend is a compiled step with the :mod:`lde.pipeline` signature::
 
@@ -19,6 +27,12 @@ applies its own corrections); ``fresh``: bit i set when input i brought a new sa
 ``out``: the ``lde.step.O_*`` slots. :func:`get_backend` raises :class:`lde.errors.ConfigError` for a
 name that is not registered; asking for ``fixed`` never yields ``float``. Each backend gets its own
 compiled copy of the loop (``run``).
+
+The shadow check (:func:`shadow_compare`) is one kernel for both fixed-point backends. ``paper-fixed``
+may take its shadow's estimates precomputed by a ``paper`` engine on the other core
+(:meth:`lde.engine.Engine.feed`: its parameters never change). ``fixed`` computes its shadow inline:
+the shadow runs on the parameters the fixed step's own learner pushed, which exist only once the
+fixed step has run, so a float engine cannot run ahead of it.
 """
 
 from __future__ import annotations
@@ -30,6 +44,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from firmware_model import lateral as FX
 from firmware_model.fast import N_AUX, quantise_kernel, tables_vector
 from firmware_model.fast import N_OUT as N_FIXED_OUT
 from firmware_model.fast import reset_kernel as fixed_reset_kernel
@@ -37,7 +52,7 @@ from firmware_model.fast import run_batch as fixed_run_batch
 from firmware_model.fast import step_kernel as fixed_step_kernel
 from firmware_model.shadow import FW_BOUND_N, MW_BOUND_NM
 from firmware_model.step import N_SAT
-from firmware_model.tables import tables_for
+from firmware_model.tables import lateral_tables_for, tables_for
 
 from . import estimator as E
 from . import learner as Ln
@@ -76,7 +91,16 @@ from .step import run_batch as float_run_batch
 from .step import step_kernel as float_step_kernel
 from .units import STEP_S
 
-__all__ = ["Backend", "BackendState", "BACKENDS", "get_backend", "backend_names", "make_backend_state"]
+__all__ = [
+    "Backend",
+    "BackendState",
+    "ALIASES",
+    "BACKENDS",
+    "DEFAULT_BACKEND",
+    "get_backend",
+    "backend_names",
+    "make_backend_state",
+]
 
 
 @dataclass
@@ -88,6 +112,13 @@ class BackendState:
     state: tuple
     info: dict[str, Any] = field(default_factory=dict)
     shadow: str | None = None  # a backend whose estimates this one compares with (precomputable)
+
+    def params_changed(self) -> None:
+        """The parameter vector ``info["p"]`` was changed from outside (a learned-state file was
+        loaded): a backend that derives constants from it re-derives them (``info["refresh"]``)."""
+        refresh = self.info.get("refresh")
+        if refresh is not None:
+            refresh()
 
     def with_shadow(self, pre: np.ndarray) -> None:
         """Use ``pre`` (n, 2: Fw, Mw of the shadow backend per step of the next call) instead of
@@ -157,6 +188,23 @@ run_paper = make_loop(paper_step, "run_paper")
 SH_COUNT, SH_MAX_DFW, SH_MAX_DMW = 0, 1, 2
 
 
+@njit(cache=True, inline="always")
+def shadow_compare(bound, shadow, fw, mw, ffw, fmw, status):  # pragma: no cover - compiled
+    """The shadow check of a fixed-point step: its (fw, mw) against the float step's (ffw, fmw).
+    Beyond ``bound`` (|dFw| [N], |dMw| [Nm]; a non-finite difference too) the step gets
+    SHADOW_DEVIATION and is counted in ``shadow`` (``SH_*``: count, largest |dFw|, largest |dMw|)."""
+    dfw = abs(fw - ffw)
+    dmw = abs(mw - fmw)
+    if not (dfw <= bound[0] and dmw <= bound[1]):
+        status |= SHADOW_DEVIATION
+        shadow[SH_COUNT] += 1.0
+    if dfw > shadow[SH_MAX_DFW]:
+        shadow[SH_MAX_DFW] = dfw
+    if dmw > shadow[SH_MAX_DMW]:
+        shadow[SH_MAX_DMW] = dmw
+    return status
+
+
 @njit(cache=True)
 def paper_fixed_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
     """Quantise the (corrected) SI inputs, run the integer step, convert its estimate to SI (exact
@@ -186,16 +234,7 @@ def paper_fixed_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma:
             fp, fx, fP, ffs, fints, fwk, t_ns, speed, angle, yaw, col, assist, mdps_ok, esc_ok, fout
         )
         ffw, fmw = fout[O_FW], fout[O_MW]
-    dfw = abs(out[O_FW] - ffw)
-    dmw = abs(out[O_MW] - fmw)
-    if not (dfw <= bound[0] and dmw <= bound[1]):
-        status |= SHADOW_DEVIATION
-        shadow[SH_COUNT] += 1.0
-    if dfw > shadow[SH_MAX_DFW]:
-        shadow[SH_MAX_DFW] = dfw
-    if dmw > shadow[SH_MAX_DMW]:
-        shadow[SH_MAX_DMW] = dmw
-    return status
+    return shadow_compare(bound, shadow, out[O_FW], out[O_MW], ffw, fmw, status)
 
 
 def _make_paper_fixed(vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool) -> BackendState:
@@ -226,7 +265,7 @@ def _make_paper_fixed(vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool
         np.zeros(1, np.int64),  # pre_i: the next row of pre
     )  # fmt: skip
     info = {"tables": tb, "sat": sat, "shadow": shadow, "shadow_state": fst}
-    return BackendState(params, state, info, shadow="float")
+    return BackendState(params, state, info, shadow="paper")
 
 
 #: the paper's fixed-point step and its float shadow in the loop
@@ -302,26 +341,135 @@ def _make_lateral(vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool) ->
 #: the lateral filter and the learner in the loop
 run_lateral = make_loop(lateral_step, "run_lateral")
 
+# -------------------------------------------------------------------- the lateral filter, fixed
+
+
+@njit(cache=True)
+def lateral_fixed_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
+    """Quantise the SI inputs, run the integer lateral step (:func:`firmware_model.lateral.step_kernel`)
+    on the current coefficient set, convert its estimate to SI (exact power-of-two scalings); run the
+    float step (:func:`lde.estimator.step_kernel`) on the same inputs and the same parameter vector
+    as its shadow and compare (:func:`shadow_compare`); then the learner on the fixed estimate. When
+    the learner pushes (every 128 steps) the slow task re-quantises the coefficient set
+    (:func:`firmware_model.lateral.coef_set_kernel`): from the next step both filters run on the new
+    parameters."""
+    lp, tv, ft, lsb, bound = bp
+    p, cs, x, P, aux, sat, ws, iout, fx, fP, ffs, fints, fh, fph, fout, shadow, ls, lws = bs
+    speed, angle, yaw = inp[I_SPEED], inp[I_STEERING_ANGLE], inp[I_YAW_RATE]
+    tcol, tast, ay = inp[I_COLUMN_TORQUE], inp[I_ASSIST_TORQUE], inp[I_LAT_ACCEL]
+    fresh_r = (fresh & FRESH_R) != 0
+    fresh_t = (fresh & FRESH_T) == FRESH_T
+    fresh_a = (fresh & FRESH_A) != 0
+    v, s, y, c, a, q, flags = FX.quantise_kernel(tv, speed, angle, yaw, tcol, tast, ay)
+    status = FX.step_kernel(
+        tv, ft, cs, x, P, aux, sat, ws, t_ns, v, s, y, c, a, q, flags, fresh_r, fresh_t, fresh_a,
+        mdps_ok, esc_ok, iout,
+    )  # fmt: skip
+    out[O_BETA] = iout[FX.IO_XB] * lsb[0]
+    out[O_YAW] = iout[FX.IO_XR] * lsb[1]
+    out[O_FW] = iout[FX.IO_FW] * lsb[2]
+    out[O_MW] = iout[FX.IO_XMA] * lsb[3]
+    out[O_FW_WIND] = iout[FX.IO_XFA] * lsb[2]
+    out[O_MW_WIND] = iout[FX.IO_XMA] * lsb[3]
+    out[O_T_ALIGN] = iout[FX.IO_TA] * lsb[5]
+    out[O_BANK] = iout[FX.IO_BANK] * lsb[6]
+    E.step_kernel(
+        p, fx, fP, ffs, fints, fh, fph, t_ns, speed, angle, yaw, tcol, tast, ay, fresh_r, fresh_t, fresh_a,
+        mdps_ok, esc_ok, fout,
+    )  # fmt: skip
+    status = shadow_compare(bound, shadow, out[O_FW], out[O_MW], fout[O_FW], fout[O_MW], status)
+    pushed = Ln.learner_step(
+        lp, ls, lws, p, out, speed, angle, yaw, tcol, tast, ay, iout[FX.IO_Z] * lsb[6],
+        mdps_ok and esc_ok and (status & VALID) != 0,
+    )  # fmt: skip
+    if pushed:
+        FX.coef_set_kernel(p, tv, cs)
+    out[O_LEARN] = ls[Ln.LS_STATE]
+    # the overlay law's gain from the current (learned) parameters, as the float backend (the overlay
+    # law runs in float after the estimator in this model, for every backend)
+    out[O_GAIN] = p[E.P_K] / (p[E.P_N] * p[E.P_CF] * (p[E.P_LF] + p[E.P_LR]))
+    return status
+
+
+def _make_lateral_fixed(vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool) -> BackendState:
+    p = E.params_vector(vehicle, dt, angle_above_torsion_bar=angle_above_torsion_bar)
+    lp = Ln.learner_params(vehicle, angle_above_torsion_bar)
+    ls = Ln.init_state(p, lp, friction_prior=vehicle.corrections.friction or vehicle.learning.friction_prior)
+    lt = lateral_tables_for(vehicle, int(round(dt * 1e9)))
+    tv, ft = FX.tables_vectors(lt)
+    cs = np.zeros(FX.N_CS, np.int64)
+    FX.coef_set_kernel(p, tv, cs)
+    x, P = np.zeros(5, np.int64), np.zeros(25, np.int64)
+    aux, sat = np.zeros(FX.N_AUX, np.int64), np.zeros(FX.N_SAT, np.int64)
+    FX.reset_kernel(cs, x, P, aux, sat)
+    fx, fP = np.zeros(E.NX), np.zeros((E.NX, E.NX))
+    ffs, fints = np.zeros(E.N_F), np.zeros(E.N_I, np.int64)
+    E.reset_kernel(p, fx, fP, ffs, fints)
+    lsb = np.array([lt.state_lsb(i) for i in range(5)] + [lt.t_align_lsb(), 2.0 ** -lt.formats["z"]])
+    shadow = np.zeros(3)
+    params = (lp, tv, ft, lsb, np.array([FW_BOUND_N, MW_BOUND_NM]))
+    state = (
+        p, cs, x, P, aux, sat, np.zeros((4, 16), np.int64), np.zeros(FX.N_IO, np.int64),
+        fx, fP, ffs, fints, np.zeros(E.NX), np.zeros(E.NX), np.empty(N_OUT), shadow,
+        ls, np.zeros((2, Ln.N3)),
+    )  # fmt: skip
+
+    def refresh() -> None:
+        FX.coef_set_kernel(p, tv, cs)
+
+    info = {
+        "p": p,
+        "learner": ls,
+        "lp": lp,
+        "tables": lt,
+        "coef_set": cs,
+        "sat": sat,
+        "shadow": shadow,
+        "refresh": refresh,
+        "shadow_state": (fx, fP, ffs, fints),
+        "state": (x, P, aux),
+    }
+    return BackendState(params, state, info)
+
+
+#: the lateral filter in fixed point, its float shadow and the learner in the loop
+run_lateral_fixed = make_loop(lateral_fixed_step, "run_lateral_fixed")
+
 # -------------------------------------------------------------------- registry
+
+#: the backend of ``lde run`` / ``lde replay`` / ``lde demo`` without ``--backend``
+DEFAULT_BACKEND = "fixed"
 
 BACKENDS: dict[str, Backend] = {
     "fixed": Backend(
         "fixed",
-        "the paper's step in fixed point (firmware model) with the float shadow check",
-        _make_paper_fixed,
-        run_paper_fixed,
-        fixed_run_batch,
+        "the lateral filter in fixed point (firmware model) with its float shadow check and the learner",
+        _make_lateral_fixed,
+        run_lateral_fixed,
+        None,
+        learns=True,
     ),
-    "float": Backend("float", "the paper's float Kalman step", _make_paper, run_paper, float_run_batch),
-    "lateral": Backend(
-        "lateral",
+    "float": Backend(
+        "float",
         "the lateral filter with the lateral acceleration (wind apart from bank) and online learning",
         _make_lateral,
         run_lateral,
         None,
         learns=True,
     ),
+    "paper-fixed": Backend(
+        "paper-fixed",
+        "the paper's step in fixed point (firmware model) with the float shadow check",
+        _make_paper_fixed,
+        run_paper_fixed,
+        fixed_run_batch,
+    ),
+    "paper": Backend("paper", "the paper's float Kalman step", _make_paper, run_paper, float_run_batch),
 }
+
+
+#: other names of registered backends (accepted by :func:`get_backend` and the CLI)
+ALIASES: dict[str, str] = {"lateral": "float"}
 
 
 def backend_names() -> tuple[str, ...]:
@@ -329,9 +477,10 @@ def backend_names() -> tuple[str, ...]:
 
 
 def get_backend(name: str) -> Backend:
-    """The backend registered under ``name``; ConfigError otherwise (no fallback)."""
+    """The backend registered under ``name`` (or an alias of it); ConfigError otherwise (no
+    fallback)."""
     try:
-        return BACKENDS[name]
+        return BACKENDS[ALIASES.get(name, name)]
     except KeyError:
         raise ConfigError(f"unknown backend {name!r}: choose one of {', '.join(BACKENDS)}") from None
 

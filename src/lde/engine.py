@@ -368,6 +368,7 @@ class Engine:
 
     def _use(self, got: LearnedState) -> LearnedState:
         self.est.info["learner"][:] = got.learner
+        self.est.params_changed()  # the fixed backend re-quantises its coefficient set from p
         self.learned_from = got
         return got
 

@@ -261,7 +261,8 @@ def parse_learned(text: str, source: str, profile: str, p: np.ndarray, lp: np.nd
     if ls.shape != (Ln.N_LS,) or not np.all(np.isfinite(ls)) or not all(math.isfinite(v) for v in vals):
         raise ConfigError(f"{source}: learner state of the wrong size or not finite")
     cf, cr, k, s, tfric, ctb, dsw, br, t0 = vals
-    if not (1e3 <= cf <= 1e6 and 1e3 <= cr <= 1e6 and 10.0 <= k <= 1e5 and 0.8 <= s <= 1.4):
+    got = {"cf": cf, "cr": cr, "k": k, "s": s}
+    if not all(lo <= got[name] <= hi for name, (lo, hi) in Ln.PLAUSIBLE.items()):
         raise ConfigError(f"{source}: implausible values (cf {cf:g}, cr {cr:g}, K {k:g}, s {s:g})")
     p[E.P_CF], p[E.P_CR], p[E.P_K], p[E.P_S] = cf, cr, k, s
     p[E.P_TFRIC], p[E.P_CTB], p[E.P_DSW], p[E.P_BR], p[E.P_T0] = tfric, ctb, dsw, br, t0

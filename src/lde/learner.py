@@ -208,6 +208,13 @@ def _diag(ls, off, n, vals):
         ls[off + i * n + i] = vals[i]
 
 
+#: the plausible learned tire and sensor values of a learned-state file (lde.learned checks them),
+#: (low, high): Cf, Cr [N/rad], K [Nm/rad], the accelerometer scale s. The fixed-point model's
+#: coefficient formats hold this whole box (firmware_model.gen_lateral.PARAM_BOX is this), and the
+#: learner's push bounds lie inside it.
+PLAUSIBLE = {"cf": (1e3, 1e6), "cr": (1e3, 1e6), "k": (10.0, 1e5), "s": (0.8, 1.4)}
+
+
 @njit(cache=True, inline="always")
 def _rls(ls, toff, poff, n, xr, y, r, ph):  # pragma: no cover - compiled
     """Kalman update of theta (ls[toff:toff+n]) with covariance ls[poff:...] (row-major n x n):

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from .backends import get_backend
+from .backends import DEFAULT_BACKEND, get_backend
 from .e2e import ReceiverStats
 from .engine import OUTPUT_MESSAGES, Engine, StepBlock
 from .errors import ConfigError, LogFormatError
@@ -82,8 +82,6 @@ __all__ = [
     "DEFAULT_BACKEND",
 ]
 
-#: the backend of ``lde replay`` / ``lde run`` when none is named (SPEC section 4)
-DEFAULT_BACKEND = "fixed"
 
 #: CSV columns: name, decimals, unit/meaning (the first four are the SPEC's contract)
 CSV_COLUMNS: tuple[tuple[str, int, str], ...] = (

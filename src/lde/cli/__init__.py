@@ -22,9 +22,15 @@ from collections.abc import Sequence
 
 from ..errors import LdeError
 
-#: the backends' names (lde.backends' registry; kept here so that building the parser stays light,
-#: tests/test_backends.py holds the two equal)
-BACKEND_CHOICES = ("fixed", "float", "lateral")
+#: the backends' names and aliases (lde.backends' registry and ALIASES; kept here so that building the
+#: parser stays light, tests/test_backends.py holds them equal)
+BACKEND_CHOICES = ("fixed", "float", "paper-fixed", "paper", "lateral")
+#: the help of every --backend option
+BACKEND_HELP = (
+    "estimator: fixed (default): the lateral filter in fixed point with its float shadow check; "
+    "float: the lateral filter in float; paper-fixed / paper: the paper's 4-state filter in fixed point "
+    "/ float; lateral: = float"
+)
 
 #: subcommand name -> module below lde.cli. A module that does not exist yet is skipped.
 SUBCOMMANDS = ("demo", "run", "sim", "replay", "evaluate", "study", "calibrate", "warmup")

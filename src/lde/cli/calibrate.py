@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
 
     # self-check on the same drive: it has no disturbance, so the estimate should be ~0
     def rms(vehicle):  # (RMS Fw [N], RMS Mw [Nm]) over the valid steps
-        r = replay(log.frames, profile, vehicle, "float")
+        r = replay(log.frames, profile, vehicle, "paper")  # the filter the corrections feed
         ok = (r.status & VALID) != 0
         if not ok.any():
             return float("nan"), float("nan")

@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         duration=args.duration,
         estimator=args.estimator,
-        backend=args.backend or "float",
+        backend=args.backend or "paper",
         profile=args.profile or "lde",
         sim_options=sim_options(args),
         est_options=est_options(args),

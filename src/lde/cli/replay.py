@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from ..errors import ConfigError, LdeError
-from . import BACKEND_CHOICES
+from . import BACKEND_CHOICES, BACKEND_HELP
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -40,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--backend",
         choices=BACKEND_CHOICES,
         default=None,
-        help="estimator step: fixed-point firmware model or float (default: fixed when available)",
+        help=BACKEND_HELP,
     )
     p.add_argument("--csv", type=Path, default=None, help="CSV output (a directory with several LOGs)")
     p.add_argument(

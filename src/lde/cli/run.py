@@ -19,7 +19,7 @@ from types import FrameType
 
 from ..errors import BusError, ConfigError
 from ..service import StepResult
-from . import BACKEND_CHOICES
+from . import BACKEND_CHOICES, BACKEND_HELP
 
 log = logging.getLogger("lde.service")
 
@@ -74,7 +74,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_bus_arguments(p)
     p.add_argument("--profile", default="lde", help="CAN profile: lde (default) or hyundai")
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
-    p.add_argument("--backend", choices=BACKEND_CHOICES, default="fixed", help="estimator backend")
+    p.add_argument("--backend", choices=BACKEND_CHOICES, default="fixed", help=BACKEND_HELP)
     p.add_argument("--record", metavar="FILE.mcap", help="record frames, estimates and diagnostics to MCAP")
     p.add_argument(
         "--learned",

@@ -31,6 +31,7 @@ from pathlib import Path
 
 from .. import study
 from ..errors import ConfigError
+from . import BACKEND_CHOICES
 from .engine import engine
 
 
@@ -61,7 +62,12 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
         help="replay: the product pipeline (lde.replay) in process; adaptive: the prototype extensions "
         "(lde.adaptive); cli: `lde replay` on a written log, as a user runs it",
     )
-    g.add_argument("--backend", choices=("float", "fixed"), default=None, help="replay backend (float)")
+    g.add_argument(
+        "--backend",
+        choices=BACKEND_CHOICES,
+        default=None,
+        help="replay backend (default: paper, the paper's float filter the study tables were measured with)",
+    )
     g.add_argument("--profile", default=None, help="CAN profile of the simulated bus: lde (default), hyundai")
     g.add_argument(
         "--sim-option",
@@ -168,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
         payloads=args.payloads,
         duration=args.duration,
         estimator=args.estimator,
-        backend=args.backend or "float",
+        backend=args.backend or "paper",
         profile=args.profile or "lde",
         sim_options=sim_options(args),
         est_options=est_options(args),

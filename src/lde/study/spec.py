@@ -212,7 +212,8 @@ class RunSpec:
         seed: the simulator's random seed.
         duration: simulated time [s] (None: the scenario's own length).
         estimator: :class:`Estimator` value ("replay", "adaptive" or "cli").
-        backend: replay backend ("float" or "fixed").
+        backend: replay backend (:mod:`lde.backends`; default ``paper``, the filter the study's
+            tables were measured with).
         profile: CAN profile name.
         sim_options: :class:`SimOptions` (or ``(name, value)`` pairs).
         est_options: :class:`EstOptions` (or ``(name, value)`` pairs).
@@ -229,7 +230,7 @@ class RunSpec:
     seed: int = 0
     duration: float | None = None
     estimator: str = Estimator.REPLAY.value
-    backend: str = "float"
+    backend: str = "paper"
     profile: str = "lde"
     sim_options: SimOptions = field(default_factory=SimOptions)
     est_options: EstOptions = field(default_factory=EstOptions)
