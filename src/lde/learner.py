@@ -82,8 +82,8 @@ N_SIG = 7
  L_EXC_TAU, L_EXC_RDOT, L_SIG1, L_SIG2, L_SIG3, L_QI1, L_QI2, L_QI3, L_QPHYS,
  L_TORSION, L_B_TAU, L_B_GATE, L_D_TAU, L_D_GATE_F, L_D_GATE_M, L_RATE,
  L_LEARNED_REL, L_MIN_SAMPLES, L_SIG_B, L_ENABLE, L_RELAX, L_EXC_SW, L_SLIDE, L_SLOW,
- L_QUIET, L_EXC_F) = range(33)  # fmt: skip
-N_LP = 33
+ L_QUIET, L_EXC_F, L_SIG_CTB) = range(34)  # fmt: skip
+N_LP = 34
 
 # --- learner state (ls, float) -----------------------------------------------------------------------
 # svf: 3 * N_SIG (value, derivative, second derivative); then regression blocks
@@ -159,6 +159,7 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     lp[L_QUIET] = 0.5  # learn only while the filter's wind varies less than this share of m a_y (0.2-3 Hz)
     lp[L_EXC_F] = 300.0  # ... and m a_y varies by more than this [N RMS, 0.2-3 Hz]
     lp[L_SLOW] = 100.0  # once learned, the regressions' noise variance is this much larger (slower)
+    lp[L_SIG_CTB] = 0.3 * DEG  # prior std of the torsion twist in the angle [rad/Nm]
     return lp
 
 
@@ -188,8 +189,8 @@ def init_state(p: np.ndarray, lp: np.ndarray, friction_prior: float = 0.3) -> np
     ls[LS_T3 + 3] = p[E.P_S] * n * friction_prior / (2.0 * k0)
     # generic torsion bar 2 Nm/deg (0.5 +- 0.05 deg/Nm) where the angle sensor sits above it: the twist
     # is nearly collinear with the aligning torque (the column torque follows it), so the prior dominates
-    sig_ctb = 1e-9  # not learned: see DESIGN.md (collinear with K on driving data)
-    ls[LS_T3 + 4] = p[E.P_S] * p[E.P_CTB] if lp[L_TORSION] > 0 else 0.0
+    sig_ctb = p[E.P_S] * lp[L_SIG_CTB]
+    ls[LS_T3 + 4] = p[E.P_S] * p[E.P_CTB]
     _diag(
         ls,
         LS_P3,
@@ -340,7 +341,7 @@ def learner_step(
             xr[1] = -v_f * T_d / 2.0
             xr[2] = -v_f * T_dd / 2.0
             xr[3] = v_f * z_d
-            xr[4] = -v_f * tc_d / n if lp[L_TORSION] > 0 else 0.0
+            xr[4] = -v_f * tc_d / n
             xr[5] = 1.0
             _rls(ls, LS_T3, LS_P3, N3, xr, ay_f, slow * lp[L_SIG3] ** 2, ph)
             ls[LS_N + 1] += 1.0
@@ -437,7 +438,7 @@ def push(lp, ls, p):  # pragma: no cover - compiled
     s = ls[LS_T3 + 0]
     k = s / ls[LS_T3 + 1] if ls[LS_T3 + 1] > 0 else p[E.P_K]
     tfric = 2.0 * ls[LS_T3 + 3] / (ls[LS_T3 + 1] * n) if ls[LS_T3 + 1] > 0 else p[E.P_TFRIC]
-    ctb = ls[LS_T3 + 4] / s if lp[L_TORSION] > 0 else 0.0
+    ctb = ls[LS_T3 + 4] / s
     # R1: t = L / theta1[0];  R2: Cr = theta2[0] / 2
     t = L / ls[LS_T1 + 0] if ls[LS_T1 + 0] > 0 else p[E.P_K] / p[E.P_CF]
     cr = 0.5 * ls[LS_T2 + 0]
