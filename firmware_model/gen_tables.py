@@ -3,7 +3,9 @@
 Nothing in ``tables_<vehicle>.json`` is typed by hand: this script derives every scaling and
 constant from :mod:`lde.model` (the float model) and :mod:`lde.params` (the vehicle file), writes
 them with a SHA-256 of its inputs, and ``tests/test_firmware_tables.py`` fails when the file
-differs from a fresh generation (stale tables).
+differs from a fresh generation (stale tables): :func:`stale_entries` compares the input hash and every
+integer (raw constants, Q formats, exponents) exactly and the floats within :data:`FLOAT_TOL_ULP`,
+because the Riccati solution's last digits depend on the CPU and the BLAS build.
 
 Normalised units (the one idea behind all Q formats)
 ----------------------------------------------------
@@ -311,12 +313,62 @@ def generate(vehicle: Vehicle, dt_ns: int = STEP_NS) -> dict[str, Any]:
     }
 
 
+#: Tolerance of a float entry of a tables file against a fresh generation, in units in the last place
+#: (ULP) of the larger of the two magnitudes: 2**24 ULP = 2**-28 (3.7e-9) relative. The float entries
+#: (the steady-state gain table and its standard deviations from the Riccati solver, the coefficients'
+#: real values, the formats' LSB and range) come out of numpy's LAPACK/BLAS, whose results differ in
+#: the last digits between CPUs and BLAS kernels: up to 7.1e4 ULP (about 2**16) between OpenBLAS's
+#: SkylakeX, Haswell, Sandybridge, Nehalem and Prescott kernels on this project's reference vehicle.
+#: A real change of an input moves them by far more (1 kg of mass: up to 3 % of a gain), and it
+#: changes the integer constants, which compare exactly. Only floats get a tolerance.
+FLOAT_TOL_ULP = 2**24
+
+
+def stale_entries(on_disk: Any, fresh: Any, where: str = "") -> list[str]:
+    """Where a tables dict (``json.loads`` of a file) differs from a fresh generation; [] if up to date.
+
+    Keys, list lengths, types, strings (the input hash) and integers (the raw constants, shifts,
+    Q formats, exponents: what the integer step uses) must be equal; floats within
+    :data:`FLOAT_TOL_ULP` ULP. ``fresh`` should itself be a JSON round trip (:func:`dumps`).
+    """
+    here = where or "<root>"
+    if isinstance(fresh, dict):
+        if not isinstance(on_disk, dict):
+            return [f"{here}: {type(on_disk).__name__} instead of an object"]
+        out = [f"{where}/{k}: missing" for k in sorted(fresh.keys() - on_disk.keys())]
+        out += [f"{where}/{k}: not generated any more" for k in sorted(on_disk.keys() - fresh.keys())]
+        for k in sorted(fresh.keys() & on_disk.keys()):
+            out += stale_entries(on_disk[k], fresh[k], f"{where}/{k}")
+        return out
+    if isinstance(fresh, list):
+        if not isinstance(on_disk, list) or len(on_disk) != len(fresh):
+            return [f"{here}: {_short(on_disk)} instead of a list of {len(fresh)}"]
+        return [
+            e
+            for i, (a, b) in enumerate(zip(on_disk, fresh, strict=True))
+            for e in stale_entries(a, b, f"{where}/{i}")
+        ]
+    if isinstance(fresh, float) and type(on_disk) is float:
+        tol = FLOAT_TOL_ULP * math.ulp(max(abs(on_disk), abs(fresh)))
+        if math.isnan(fresh) != math.isnan(on_disk) or abs(on_disk - fresh) > tol:
+            return [f"{here}: {on_disk!r} instead of {fresh!r} (tolerance {FLOAT_TOL_ULP} ULP)"]
+        return []
+    if type(on_disk) is not type(fresh) or on_disk != fresh:
+        return [f"{here}: {_short(on_disk)} instead of {_short(fresh)}"]
+    return []
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
 def tables_path(vehicle_name: str) -> Path:
     return TABLES_DIR / f"tables_{vehicle_name}.json"
 
 
 def dumps(tables: dict[str, Any]) -> str:
-    """The canonical text of a tables file (what the staleness test compares byte for byte)."""
+    """The canonical text of a tables file (written by this script; compared by :func:`stale_entries`)."""
     return json.dumps(tables, indent=1, sort_keys=True) + "\n"
 
 
@@ -334,9 +386,18 @@ def main(argv: list[str] | None = None) -> int:
     text = dumps(generate(vehicle))
     out = args.out or tables_path(vehicle.name)
     if args.check:
-        ok = out.exists() and out.read_text() == text
-        print(f"{out}: {'up to date' if ok else 'STALE (run python -m firmware_model.gen_tables)'}")
-        return 0 if ok else 1
+        try:
+            stale = stale_entries(json.loads(out.read_text()), json.loads(text))
+        except (OSError, ValueError) as exc:  # missing, unreadable or not JSON
+            print(f"{out}: STALE (run python -m firmware_model.gen_tables): cannot read it: {exc}")
+            return 1
+        if not stale:
+            print(f"{out}: up to date")
+            return 0
+        print(f"{out}: STALE (run python -m firmware_model.gen_tables): {len(stale)} entries differ")
+        for line in stale[:10]:
+            print(f"  {line}")
+        return 1
     out.write_text(text)
     print(f"wrote {out}")
     return 0

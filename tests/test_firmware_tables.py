@@ -5,12 +5,19 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import platform
+import re
+import subprocess
+import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy.linalg import solve_discrete_are
 
 from firmware_model import gen_tables as gen
+from firmware_model import tables
 from firmware_model.qformat import q32
 from firmware_model.riccati import solve_dare, steady_state_kf
 from firmware_model.tables import FixedTables, tables_for
@@ -24,12 +31,138 @@ def vehicle():
     return load_vehicle("reference")
 
 
+def _fresh(vehicle) -> dict:
+    """A fresh generation as the JSON file would hold it."""
+    return json.loads(gen.dumps(gen.generate(vehicle)))
+
+
 def test_shipped_tables_are_not_stale(vehicle):
     """Fails when the vehicle file, the tuning, the model or the generator changed without
-    ``python -m firmware_model.gen_tables`` being run."""
-    path = gen.tables_path(vehicle.name)
-    fresh = gen.dumps(gen.generate(vehicle))
-    assert path.read_text() == fresh, "stale: run python -m firmware_model.gen_tables"
+    ``python -m firmware_model.gen_tables`` being run.
+
+    Exact: the hash of the generator's inputs and every integer the firmware step uses (raw
+    constants, shifts, Q formats, exponents); floats (the Riccati solver's gain table) within
+    ``gen.FLOAT_TOL_ULP`` ULP, since LAPACK's last digits differ between CPUs and BLAS builds
+    (``test_staleness_check_does_not_depend_on_the_blas_kernel``)."""
+    shipped = tables.load_shipped(vehicle.name)
+    assert shipped["inputs_sha256"] == gen.inputs_hash(vehicle), (
+        "stale: run python -m firmware_model.gen_tables"
+    )
+    stale = gen.stale_entries(shipped, _fresh(vehicle))
+    assert not stale, "stale: run python -m firmware_model.gen_tables:\n" + "\n".join(stale[:20])
+
+
+def _shift_model(monkeypatch, rel: float) -> None:
+    """The float model changes a little (lde.model is not among the hashed inputs)."""
+    real = gen.discrete_matrices
+
+    def shifted(vehicle, vx):
+        d = real(vehicle, vx)
+        return replace(d, Qd=d.Qd * (1.0 + rel))
+
+    monkeypatch.setattr(gen, "discrete_matrices", shifted)
+
+
+def _shift_derivation(monkeypatch, rel: float) -> None:
+    """The generator derives one coefficient differently (not visible in the input hash)."""
+    real = gen.coefficient_polys
+
+    def shifted(*args, **kwargs):
+        polys = dict(real(*args, **kwargs))
+        c0, c1, c2 = polys["h10"]
+        polys["h10"] = (c0 * (1.0 + rel), c1, c2)
+        return polys
+
+    monkeypatch.setattr(gen, "coefficient_polys", shifted)
+
+
+@pytest.mark.parametrize(
+    "change",
+    ["vehicle mass +1 kg", "tuning q_fw +1 %", "model Qd +1e-6", "derivation h10 +1e-7", "generator version"],
+)
+def test_staleness_check_fails_when_an_input_changes(vehicle, monkeypatch, change):
+    """The shipped file compared with a generation from a changed input: the check must see it.
+    The model and derivation changes are below any float noise a test would forgive by accident
+    (1e-6 and 1e-7 relative) and leave the input hash as it is: the regenerated values catch them."""
+    shipped = tables.load_shipped(vehicle.name)
+    v = vehicle
+    if change == "vehicle mass +1 kg":
+        v = vehicle.with_body(mass=vehicle.body.mass + 1.0)
+    elif change == "tuning q_fw +1 %":
+        v = replace(vehicle, estimator=replace(vehicle.estimator, q_fw=vehicle.estimator.q_fw * 1.01))
+    elif change == "model Qd +1e-6":
+        _shift_model(monkeypatch, 1e-6)
+    elif change == "derivation h10 +1e-7":
+        _shift_derivation(monkeypatch, 1e-7)
+    else:
+        monkeypatch.setattr(gen, "GENERATOR_VERSION", gen.GENERATOR_VERSION + 1)
+    stale = gen.stale_entries(shipped, _fresh(v))
+    assert stale, f"{change}: the staleness check did not notice"
+    hash_changed = any(e.startswith("/inputs_sha256") for e in stale)
+    if change.startswith(("model", "derivation")):
+        assert not hash_changed  # caught by the regenerated values alone
+        kind = "/ss_table/" if change.startswith("model") else "/coefs/8/terms/0/0"
+        assert any(e.startswith(kind) for e in stale), stale[:5]
+    else:
+        assert hash_changed
+    if change.startswith(("vehicle", "tuning", "derivation")):
+        # an integer the firmware step uses changed, and is compared exactly
+        assert any("/terms/" in e or e.startswith(("/p0_n", "/qd_n", "/r_n")) for e in stale), stale[:5]
+
+
+def test_stale_entries_tolerance_is_in_ulp_for_floats_only():
+    x = 354.3135233819351
+    ulp = math.ulp(x)
+    base = {"gain": [x], "raw": [1348256446], "q": "Q2.29"}
+    assert gen.stale_entries(base, base) == []
+    assert gen.stale_entries({**base, "gain": [x + 2**20 * ulp]}, base) == []
+    assert gen.stale_entries({**base, "gain": [x + 2**26 * ulp]}, base) == [
+        f"/gain/0: {x + 2**26 * ulp!r} instead of {x!r} (tolerance {gen.FLOAT_TOL_ULP} ULP)"
+    ]
+    assert gen.stale_entries({**base, "raw": [1348256447]}, base) == [
+        "/raw/0: 1348256447 instead of 1348256446"
+    ]
+    assert gen.stale_entries({**base, "raw": [1348256446.0]}, base)  # an int must stay an int
+    assert gen.stale_entries({**base, "q": "Q3.28"}, base)
+    assert gen.stale_entries({"gain": [x]}, base) == ["/q: missing", "/raw: missing"]
+    assert gen.stale_entries({**base, "gain": [x, x]}, base)
+    assert gen.stale_entries({**base, "old": 1}, base) == ["/old: not generated any more"]
+
+
+#: OpenBLAS kernels every x86-64 CPU can run (SSE3, SSE4.2): forcing one of them gives another
+#: CPU's last digits on this machine
+_PORTABLE_CORES = ("Prescott", "Nehalem")
+OPENBLAS_CORETYPE_IGNORED = "OPENBLAS_CORETYPE had no effect (no 'Core:' line with OPENBLAS_VERBOSE=2)"
+
+
+def test_staleness_check_does_not_depend_on_the_blas_kernel(vehicle, tmp_path):
+    """The generator under other OpenBLAS kernels (``OPENBLAS_CORETYPE``, as on another CPU): the float
+    text differs from the shipped file, the staleness check still passes. Skipped, with the reason,
+    where numpy's BLAS is not OpenBLAS with run-time kernel selection."""
+    if platform.machine() not in ("x86_64", "AMD64"):
+        pytest.skip(f"OPENBLAS_CORETYPE names x86-64 kernels; this is {platform.machine()}")
+    shipped_text = gen.tables_path(vehicle.name).read_text()
+    shipped = json.loads(shipped_text)
+    differed = []
+    for core in _PORTABLE_CORES:
+        out = tmp_path / f"{core}.json"
+        env = {**os.environ, "OPENBLAS_CORETYPE": core, "OPENBLAS_VERBOSE": "2"}
+        cmd = [sys.executable, "-m", "firmware_model.gen_tables", "--out", str(out)]
+        r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stdout + r.stderr
+        # OpenBLAS names the kernel it runs (Prescott's is called Katmai); other BLAS libraries print nothing
+        if re.search(r"Core: \w+", r.stdout + r.stderr) is None:
+            pytest.skip(f"numpy's BLAS is not OpenBLAS with run-time kernels: {OPENBLAS_CORETYPE_IGNORED}")
+        check = subprocess.run([*cmd, "--check"], env=env, capture_output=True, text=True, timeout=300)
+        assert check.returncode == 0, check.stdout + check.stderr
+        text = out.read_text()
+        assert gen.stale_entries(shipped, json.loads(text)) == []
+        if text != shipped_text:
+            differed.append(core)
+    if not differed:
+        pytest.skip(
+            f"the kernels {', '.join(_PORTABLE_CORES)} gave the shipped float text on this CPU: nothing shown"
+        )
 
 
 def test_generation_is_reproducible_and_hash_tracks_inputs(vehicle):
@@ -142,8 +275,6 @@ def test_tables_for_another_vehicle_are_generated_in_memory(vehicle):
 
 
 def test_generator_rejects_a_tuning_outside_the_formats(vehicle):
-    from dataclasses import replace
-
     from lde.errors import ConfigError
 
     huge_p0 = replace(vehicle, estimator=replace(vehicle.estimator, p0_fw=1e6))

@@ -11,65 +11,55 @@ step (DEADLINE_MISS) and the shutdown ramp-out.
 from __future__ import annotations
 
 import csv
-import itertools
 from pathlib import Path
 
 import can
 import numpy as np
 import pytest
 
-from lde.clock import SimulatedClock
-from lde.codec import MessageEncoder, si_to_dbc
 from lde.diagnostics import DEADLINE_MISS_NS
 from lde.frames import FrameBatch
 from lde.params import load_vehicle
-from lde.profiles import load_profile
-from lde.recording import Recorder, read_recording
+from lde.profiles import Profile
+from lde.recording import read_recording
 from lde.replay import CSV_COLUMNS, replay, replay_log, write_csv
-from lde.service import Service
 from lde.status import DEADLINE_MISS, ESC_FAULT, MDPS_FAULT, NOT_CONVERGED, VALID
+from lde.testing import Bench, InputFeeder
+from lde.testing.bench import DEFAULT_START_NS
 from lde.units import DEG, KMH, STEP_NS
 
-T0 = 1_700_000_000_000_000_000
-_channels = itertools.count()
+T0 = DEFAULT_START_NS  # the bench's start
 
 
-def _feed(bus: can.BusABC, profile, t_from: int, t_to: int, state: dict) -> None:
-    """MDPS every 3.9 ms (300 us before the grid), ESC every 10 ms, with a disturbance ramp; ESC
-    silent in [2.0 s, 2.3 s); every 997th MDPS frame has a corrupted CRC."""
-    mdps, esc = state["mdps"], state["esc"]
-    while min(state["next_m"], state["next_e"]) <= t_to:
-        if state["next_m"] <= state["next_e"]:
-            t = state["next_m"]
-            if t >= t_from:
-                s = (t - T0) * 1e-9
-                vals = si_to_dbc(
-                    profile,
-                    "MDPS_Sensors",
-                    {
-                        "column_torque": 0.6 + 0.3 * np.sin(s),
-                        "assist_torque": 1.0 + 0.5 * np.sin(s),
-                        "steering_angle": (0.4 + 0.2 * np.sin(2 * s)) * DEG,
-                        "steering_rate": 0.4 * np.cos(2 * s) * DEG,
-                    },
-                )
-                msg = mdps.message(vals, t)
-                state["n_m"] += 1
-                if state["n_m"] % 997 == 0:
-                    msg.data[0] ^= 0x5A
-                bus.send(msg)
-            state["next_m"] += STEP_NS
-        else:
-            t = state["next_e"]
-            s = (t - T0) * 1e-9
-            if t >= t_from and not (2.0 <= s < 2.3):
-                vals = si_to_dbc(
-                    profile,
-                    "ESC_Motion",
-                    {"yaw_rate": 0.002 * np.sin(s), "lat_accel": 0.1, "speed": 100 * KMH},
-                )
-                bus.send(esc.message(vals, t))
-            state["next_e"] += 10_000_000
+def _feeder(bus: can.BusABC, profile: Profile) -> InputFeeder:
+    """MDPS every 3.9 ms (300 us before the grid), ESC every 10 ms, with a disturbance ramp, from
+    step 20 and 22 on; ESC silent in [2.0 s, 2.3 s); every 997th MDPS frame has a corrupted CRC."""
+
+    def s(t: int) -> float:
+        return (t - T0) * 1e-9
+
+    sent = {"MDPS_Sensors": 0}
+
+    def corrupt(message: str, t: int, msg: can.Message) -> None:
+        if message == "MDPS_Sensors":
+            sent[message] += 1
+            if sent[message] % 997 == 0:
+                msg.data[0] ^= 0x5A
+
+    return InputFeeder(
+        bus,
+        profile,
+        {"MDPS_Sensors": T0 + 20 * STEP_NS - 300_000, "ESC_Motion": T0 + 22 * STEP_NS},  # steps 0-19: nothing
+        silent=lambda message, t: message == "ESC_Motion" and 2.0 <= s(t) < 2.3,
+        tamper=corrupt,
+        column_torque=lambda t: 0.6 + 0.3 * np.sin(s(t)),
+        assist_torque=lambda t: 1.0 + 0.5 * np.sin(s(t)),
+        steering_angle=lambda t: (0.4 + 0.2 * np.sin(2 * s(t))) * DEG,
+        steering_rate=lambda t: 0.4 * np.cos(2 * s(t)) * DEG,
+        yaw_rate=lambda t: 0.002 * np.sin(s(t)),
+        lat_accel=0.1,
+        speed=100 * KMH,
+    )
 
 
 def _csv(path: Path) -> dict[str, list[str]]:
@@ -80,46 +70,32 @@ def _csv(path: Path) -> dict[str, list[str]]:
 
 
 @pytest.mark.parametrize("backend", ["float", "fixed"])
-def test_live_and_replay_give_identical_rows(tmp_path: Path, backend: str) -> None:
-    profile, vehicle = load_profile("lde"), load_vehicle("reference")
-    ch = f"lde-one-path-{next(_channels)}"
-    feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
-    svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
-    tap = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)  # every frame on the bus
+def test_live_and_replay_give_identical_rows(tmp_path: Path, backend: str, lde_bench: Bench) -> None:
+    profile, vehicle = lde_bench.profile, load_vehicle("reference")
+    tap = lde_bench.bus("tap")  # every frame on the bus, in bus order
     rec_path = tmp_path / "live.mcap"
-    clock = SimulatedClock(T0)
-    state = {
-        "mdps": MessageEncoder(profile, "MDPS_Sensors"),
-        "esc": MessageEncoder(profile, "ESC_Motion"),
-        "next_m": T0 + 20 * STEP_NS - 300_000,  # the first 20 steps have no input at all
-        "next_e": T0 + 22 * STEP_NS,
-        "n_m": 0,
-    }
+    clock = lde_bench.clock
+    feeder = _feeder(lde_bench.bus("feeder", preserve_timestamps=True), profile)
+    on_bench = lde_bench.service(backend=backend, vehicle=vehicle, record=rec_path)
+    svc = on_bench.service  # stepped by hand: one late step
     live = []
-    rec = Recorder(rec_path)
-    try:
-        svc = Service(svc_bus, profile, vehicle, clock, backend=backend, recorder=rec, log_period_s=0)
-        for k in range(1800):
-            t_k = T0 + k * STEP_NS
-            _feed(feed_bus, profile, T0, t_k, state)
-            clock.sleep_until(t_k)
-            late = k == 700  # one step starts late: DEADLINE_MISS, recorded and replayed
-            live.append(svc.step_once(t_k, t_start=t_k + DEADLINE_MISS_NS + 1 if late else t_k))
-        svc.request_stop()  # ramp-out: the limiter's enable input goes to 0
-        for k in range(1800, 2100):
-            t_k = T0 + k * STEP_NS
-            _feed(feed_bus, profile, T0, t_k, state)
-            clock.sleep_until(t_k)
-            live.append(svc.step_once(t_k))
-    finally:
-        rec.close()
-        feed_bus.shutdown()
-        svc_bus.shutdown()
+    for k in range(1800):
+        t_k = T0 + k * STEP_NS
+        feeder.send_until(t_k)
+        clock.sleep_until(t_k)
+        late = k == 700  # one step starts late: DEADLINE_MISS, recorded and replayed
+        live.append(svc.step_once(t_k, t_start=t_k + DEADLINE_MISS_NS + 1 if late else t_k))
+    svc.request_stop()  # ramp-out: the limiter's enable input goes to 0
+    for k in range(1800, 2100):
+        t_k = T0 + k * STEP_NS
+        feeder.send_until(t_k)
+        clock.sleep_until(t_k)
+        live.append(svc.step_once(t_k))
+    on_bench.close()  # the recording is complete
     frames = []
     while (m := tap.recv(0.0)) is not None:
         if m.arbitration_id in (0x2A0, 0x2A8):
             frames.append(m)
-    tap.shutdown()
 
     status = np.array([r.status for r in live])
     # the test covers what it says it does

@@ -1,86 +1,60 @@
 """The live service on python-can's virtual bus, stepped by a simulated clock (no timing assertions).
 
-A small feeder sends MDPS_Sensors every 3.9 ms and ESC_Motion every 10 ms (profile ``lde``,
-counters and CRCs by lde.codec) with explicit timestamps; the service steps in lockstep.
+A feeder (:class:`lde.testing.InputFeeder`) sends MDPS_Sensors every 3.9 ms and ESC_Motion every
+10 ms (profile ``lde``, counters and CRCs by lde.codec) with explicit timestamps; the service, on an
+lde test bench (the ``lde_bench`` fixture: a fresh virtual channel, the simulated clock), steps in
+lockstep, driven by hand.
 """
 
 from __future__ import annotations
 
 import itertools
+import json
 import math
 
 import can
 import numpy as np
 import pytest
 
-from lde.clock import SimulatedClock
-from lde.codec import MessageCodec, MessageEncoder, si_to_dbc
+from lde.codec import MessageCodec, si_to_dbc
 from lde.diagnostics import DEADLINE_MISS_NS
 from lde.e2e import p01_check
 from lde.params import load_vehicle
-from lde.profiles import load_profile
+from lde.profiles import Profile, load_profile
 from lde.service import STATUS_DEADLINE_MISS, Service
+from lde.testing import Bench, InputFeeder
+from lde.testing.bench import DEFAULT_START_NS
 from lde.units import DEG, KMH, STEP_NS
 
-T0 = 1_700_000_000_000_000_000  # ns
-ESC_PERIOD_NS = 10_000_000
-_channels = itertools.count()
+T0 = DEFAULT_START_NS  # ns, the bench's start: 1_700_000_000 s
 
 
-class Feeder:
-    """MDPS_Sensors every 3.9 ms (offset ``mdps_offset_ns`` before the grid) and ESC_Motion every 10 ms."""
-
-    def __init__(self, bus: can.BusABC, profile, mdps_offset_ns: int = 300_000) -> None:
-        self.bus = bus
-        self.profile = profile
-        self.mdps = MessageEncoder(profile, "MDPS_Sensors")
-        self.esc = MessageEncoder(profile, "ESC_Motion")
-        self.next_mdps = T0 - mdps_offset_ns
-        self.next_esc = T0 - 2_000_000
-        self.speed = 100 * KMH
-        self.column_torque = 0.8  # Nm: the driver holds against a disturbance from the right
-        self.assist_torque = 1.2
-        self.steering_angle = 0.5 * DEG
-        self.yaw_rate = 0.0
-
-    def send_until(self, t_ns: int) -> None:
-        """Send every frame due at or before ``t_ns`` (timestamps are the nominal send times)."""
-        while min(self.next_mdps, self.next_esc) <= t_ns:
-            if self.next_mdps <= self.next_esc:
-                vals = si_to_dbc(
-                    self.profile,
-                    "MDPS_Sensors",
-                    {
-                        "column_torque": self.column_torque,
-                        "assist_torque": self.assist_torque,
-                        "steering_angle": self.steering_angle,
-                        "steering_rate": 0.0,
-                    },
-                )
-                self.bus.send(self.mdps.message(vals, self.next_mdps))
-                self.next_mdps += STEP_NS
-            else:
-                vals = si_to_dbc(
-                    self.profile,
-                    "ESC_Motion",
-                    {"yaw_rate": self.yaw_rate, "lat_accel": 0.0, "speed": self.speed},
-                )
-                self.bus.send(self.esc.message(vals, self.next_esc))
-                self.next_esc += ESC_PERIOD_NS
+def feeder(
+    bus: can.BusABC,
+    profile: Profile,
+    first_ns: int = T0,
+    mdps_offset_ns: int = 300_000,
+    esc_offset_ns: int = 2_000_000,
+) -> InputFeeder:
+    """MDPS_Sensors every 3.9 ms from ``mdps_offset_ns`` before ``first_ns``, ESC_Motion every 10 ms
+    from ``esc_offset_ns`` before it: 100 km/h, the driver holding 0.8 Nm against a disturbance
+    from the right."""
+    return InputFeeder(
+        bus,
+        profile,
+        {"MDPS_Sensors": first_ns - mdps_offset_ns, "ESC_Motion": first_ns - esc_offset_ns},
+        speed=100 * KMH,
+        column_torque=0.8,
+        assist_torque=1.2,
+        steering_angle=0.5 * DEG,
+    )
 
 
 @pytest.fixture()
-def rig():
-    ch = f"lde-test-service-{next(_channels)}"
-    feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
-    svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
-    profile = load_profile("lde")
-    vehicle = load_vehicle("reference")
-    clock = SimulatedClock(T0)
-    svc = Service(svc_bus, profile, vehicle, clock, backend="float", log_period_s=0)
-    yield svc, Feeder(feed_bus, profile), feed_bus, clock
-    feed_bus.shutdown()
-    svc_bus.shutdown()
+def rig(lde_bench: Bench):
+    feed_bus = lde_bench.bus("feeder", preserve_timestamps=True)
+    svc = lde_bench.service(backend="float").service  # stepped by hand here, not by the bench
+    return svc, feeder(feed_bus, svc.profile), feed_bus, lde_bench.clock
 
 
 def _outputs(bus: can.BusABC) -> list[can.Message]:
@@ -90,7 +64,7 @@ def _outputs(bus: can.BusABC) -> list[can.Message]:
     return out
 
 
-def _lockstep(svc: Service, feeder: Feeder, clock: SimulatedClock, n: int, k0: int = 0) -> list:
+def _lockstep(svc: Service, feeder: InputFeeder, clock, n: int, k0: int = 0) -> list:
     res = []
     for k in range(k0, k0 + n):
         t_k = T0 + k * STEP_NS
@@ -133,7 +107,7 @@ def test_frames_after_step_time_wait_for_the_next_step(rig) -> None:
     svc, feeder, feed_bus, clock = rig
     _lockstep(svc, feeder, clock, 10)
     t_k = T0 + 10 * STEP_NS
-    enc = feeder.mdps
+    enc = feeder.encoders["MDPS_Sensors"]
     vals = si_to_dbc(svc.profile, "MDPS_Sensors", {"column_torque": 0.5})
     on_time = enc.message(vals, t_k)  # exactly at t_k: used
     late = enc.message(vals, t_k + 1_000)  # 1 us after t_k: must wait
@@ -206,7 +180,8 @@ def test_send_errors_are_counted_not_raised(rig) -> None:
     assert svc.send_errors == 12  # 3 steps x (LDE_Estimate, LDE_Overlay, LDE_Disturbance, LDE_Diag)
 
 
-def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path) -> None:
+@pytest.mark.lde_bench(capture=False)
+def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path, lde_bench: Bench) -> None:
     """``lde run`` in-process on a virtual bus fed from a thread; --duration ends it cleanly."""
     import threading
     import time
@@ -214,17 +189,15 @@ def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path) -> None:
     from lde.cli import main
     from lde.recording import read_recording
 
-    ch = f"lde-test-cli-{next(_channels)}"
+    ch = lde_bench.channel  # a fresh channel; the bench checks that every bus on it was closed
     feed_bus = can.Bus(interface="virtual", channel=ch)  # stamps with time.time(), like a kernel
     profile = load_profile("lde")
-    feeder = Feeder(feed_bus, profile)
     stop = threading.Event()
 
     def feed() -> None:
-        t_start = time.time_ns()
-        feeder.next_mdps = feeder.next_esc = t_start
+        fd = feeder(feed_bus, profile, first_ns=time.time_ns(), mdps_offset_ns=0, esc_offset_ns=0)
         while not stop.is_set():
-            feeder.send_until(time.time_ns())
+            fd.send_until(time.time_ns())
             time.sleep(0.001)
 
     th = threading.Thread(target=feed, daemon=True)
@@ -269,7 +242,7 @@ def test_sigterm_ends_lde_run_cleanly(tmp_path) -> None:
 
     from lde.recording import read_recording
 
-    path = tmp_path / "term.mcap"
+    path, learned = tmp_path / "term.mcap", tmp_path / "car.learned"
     cmd = [
         sys.executable,
         "-m",
@@ -280,9 +253,11 @@ def test_sigterm_ends_lde_run_cleanly(tmp_path) -> None:
         "--channel",
         "term",
         "--backend",
-        "float",
+        "lateral",
         "--record",
         str(path),
+        "--learned",
+        str(learned),
     ]
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, env=dict(os.environ, PYTHONUNBUFFERED="1"))
     try:
@@ -300,12 +275,15 @@ def test_sigterm_ends_lde_run_cleanly(tmp_path) -> None:
     rec = read_recording(path)
     assert rec.complete  # summary and footer written: the recorder was closed
     assert len(rec.step_times_ns) > 10
+    # the learned state's last write (no input: nothing learned, no driving time, one drive)
+    doc = json.loads(learned.read_text())
+    assert doc["format"] == "lde-learned" and doc["drives"] == 1 and doc["seconds"] == 0.0
 
 
 def test_bus_timestamps_in_another_time_base_are_restamped(rig) -> None:
     """An interface stamping with device uptime: frames are stamped on receipt, inputs still fresh."""
     svc, feeder, feed_bus, clock = rig
-    enc_m, enc_e = feeder.mdps, feeder.esc
+    enc_m, enc_e = feeder.encoders["MDPS_Sensors"], feeder.encoders["ESC_Motion"]
     vals_m = si_to_dbc(svc.profile, "MDPS_Sensors", {"column_torque": 0.5})
     vals_e = si_to_dbc(svc.profile, "ESC_Motion", {"speed": 100 * KMH})
     uptime0 = 12_345_000_000  # ns since the device booted
@@ -321,35 +299,27 @@ def test_bus_timestamps_in_another_time_base_are_restamped(rig) -> None:
     assert svc.receiver.sample(T0 + 59 * STEP_NS).mdps_ok
 
 
-def test_replay_of_a_run_stopped_by_a_signal_reproduces_the_ramp_out(tmp_path) -> None:
+def test_replay_of_a_run_stopped_by_a_signal_reproduces_the_ramp_out(tmp_path, lde_bench: Bench) -> None:
     """The shutdown ramp-out is driven by the limiter's enable input, which no CAN frame carries: the
     recording's sparse ``/lde/events`` channel gives it back to the replay, step for step."""
-    from lde.recording import Recorder
     from lde.replay import replay_log
 
-    ch = f"lde-test-service-{next(_channels)}"
-    feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
-    svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
     profile, vehicle = load_profile("lde"), load_vehicle("reference")
-    clock = SimulatedClock(T0)
+    clock = lde_bench.clock
     path = tmp_path / "stopped.mcap"
-    rec = Recorder(path)
-    try:
-        svc = Service(svc_bus, profile, vehicle, clock, backend="float", recorder=rec, log_period_s=0)
-        feeder = Feeder(feed_bus, profile)
-        live = _lockstep(svc, feeder, clock, 1500)
-        assert abs(live[-1].t_overlay) > 0.05
-        svc.request_stop()
+    on_bench = lde_bench.service(backend="float", record=path)
+    svc = on_bench.service
+    fd = feeder(lde_bench.bus("feeder", preserve_timestamps=True), profile)
+    live = _lockstep(svc, fd, clock, 1500)
+    assert abs(live[-1].t_overlay) > 0.05
+    svc.request_stop()
 
-        def on_step(r) -> None:
-            live.append(r)
-            feeder.send_until(r.t_ns + STEP_NS)
+    def on_step(r) -> None:
+        live.append(r)
+        fd.send_until(r.t_ns + STEP_NS)
 
-        svc.run(on_step=on_step)
-    finally:
-        rec.close()
-        feed_bus.shutdown()
-        svc_bus.shutdown()
+    svc.run(on_step=on_step)
+    on_bench.close()  # the recording is complete
     assert live[-1].t_overlay == 0.0
     _, res = replay_log(path, profile, vehicle, backend="float")
     assert res.recorded_steps and len(res) == len(live)
@@ -392,7 +362,7 @@ def test_frame_delivered_after_its_step_is_restamped_fed_next_step_and_counted(r
         {"column_torque": 0.8, "assist_torque": 1.2, "steering_angle": 0.5 * DEG, "steering_rate": 0.0},
     )
     stamp_ns = t_last - 500_000  # stamped 0.5 ms before the last step, delivered only now
-    feed_bus.send(feeder.mdps.message(vals, stamp_ns))
+    feed_bus.send(feeder.encoders["MDPS_Sensors"].message(vals, stamp_ns))
     t_k = T0 + 20 * STEP_NS
     feeder.send_until(t_k)
     clock.sleep_until(t_k)

@@ -23,6 +23,7 @@ import numpy as np
 from lde.codec import MessageCodec, MessageEncoder, encode_frames, si_to_dbc
 from lde.frames import FrameBatch, ns_to_seconds
 from lde.profiles import Profile
+from lde.units import STEP_NS
 
 from .config import SensorParams
 from .faults import Fault, apply_faults, hit_mask
@@ -199,15 +200,32 @@ def _counter(n_sent: int, modulus: int) -> int:
 
 @dataclass
 class PumpStats:
-    """What :func:`pump` did: frames sent, overlay frames received / used, send errors, lateness
-    (max [s]; frames sent more than :data:`LATE_S` after their time), wall and CPU time of the run [s]."""
+    """What :func:`pump` did.
+
+    Attributes:
+        sent, send_errors: frames the bus took / refused (a refused frame is counted, never retried).
+        received, overlay_used: frames read from the bus (closed loop) / accepted as overlay requests.
+        steps: simulation steps (3.9 ms each); stale_overlay_steps: closed-loop steps that found no new
+            overlay frame since the previous step and ran on the last request (the receiver ramps it
+            out after the message timeout).
+        max_late_s, late_frames: the largest lateness [s] of a frame against its schedule, and the
+            frames sent more than :data:`LATE_S` after their time.
+        slips, slipped_s: how often the schedule was moved later because the simulator fell more than
+            :data:`MAX_LAG_S` behind, and by how much in all [s] (its traffic then ends that much later).
+        wall_s, cpu_s, sim_s: wall-clock time from the first frame to the end (slips included), CPU
+            time, simulated time [s].
+    """
 
     sent: int = 0
     received: int = 0
     overlay_used: int = 0
     send_errors: int = 0
+    steps: int = 0
+    stale_overlay_steps: int = 0
     max_late_s: float = 0.0
     late_frames: int = 0
+    slips: int = 0
+    slipped_s: float = 0.0
     wall_s: float = 0.0
     cpu_s: float = 0.0
     sim_s: float = 0.0
@@ -216,6 +234,11 @@ class PumpStats:
 
 #: a frame sent later than this after its time counts as late [s] (1 ms: a quarter MDPS period)
 LATE_S = 1e-3
+#: behind schedule by more than this, the simulator moves its schedule instead of sending a burst to
+#: catch up [s]: three MDPS periods, the receiver's input timeout, past which the frames are stale anyway
+MAX_LAG_S = 3 * STEP_NS * 1e-9
+#: closed loop: at most this many received frames are taken in per step (the rest wait for the next)
+MAX_RX_PER_STEP = 64
 
 
 def to_messages(frames: FrameBatch, channel: str | None = None) -> list[can.Message]:
@@ -245,10 +268,19 @@ def pump(
 ) -> PumpStats:
     """Run ``sim`` (a :class:`vcan_sim.run.Simulation`) to its end, sending its frames on ``bus``.
 
-    ``realtime``: each frame goes out when the wall clock reaches its simulated time (sleeping with
-    ``bus.recv(timeout)``, so overlay frames are taken in while waiting); else as fast as possible
-    with the simulated timestamps. ``closed_loop``: frames received from the bus go to ``receiver``
-    (a :class:`vcan_sim.closed_loop.OverlayReceiver`) and its request drives the overlay torque.
+    ``realtime``: each frame goes out when the wall clock reaches its simulated time; else as fast as
+    possible with the simulated timestamps. ``closed_loop``: frames received from the bus go to
+    ``receiver`` (a :class:`vcan_sim.closed_loop.OverlayReceiver`) and its request drives the overlay
+    torque.
+
+    In real time the pump never waits for another process, so that it may run at a real-time
+    priority on a CPU it shares with the service it feeds (user-mode Linux): it sleeps until the
+    next frame's time (a timed sleep: no frame wakes it), then takes in the overlay frames that have
+    arrived (non-blocking) and steps with the newest request; a step that finds none runs on the
+    last request (counted: ``stale_overlay_steps``). Sends do not wait either (``timeout=0``: a full
+    queue is a counted send error). Behind schedule it sends at once; more than :data:`MAX_LAG_S`
+    behind (after a stall) it moves the rest of its schedule later (``slips``) instead of sending a
+    burst of stale frames.
     """
     st = PumpStats()
     # what exists now (modules, DBC objects, the schedules) leaves the collector's view: a full
@@ -258,46 +290,62 @@ def pump(
     gc.freeze()
     cpu0 = time.process_time()
     sim0 = sim.t_ns
-    wall0: float | None = None  # set at the first frame, after the first step's warm-up
+    wall0: float | None = None  # the schedule's origin: set at the first frame, moved by slips
+    wall_first = 0.0  # when the first frame went out
+    listen = closed_loop and receiver is not None
+    send_timeout = 0.0 if realtime else None  # real time: never block in send
 
-    def take(msg: can.Message | None) -> None:
-        if msg is None or receiver is None:
-            return
-        st.received += 1
-        if receiver.on_message(msg, sim.t_ns) is not None:
-            st.overlay_used += 1
+    def take_arrived() -> None:
+        n = 0
+        while n < MAX_RX_PER_STEP and (msg := bus.recv(timeout=0.0)) is not None:
+            n += 1
+            st.received += 1
+            if receiver.on_message(msg, sim.t_ns) is not None:
+                st.overlay_used += 1
 
     while not sim.done:
         if stop is not None and stop():
             break
-        if closed_loop and receiver is not None and not realtime:
-            take(bus.recv(timeout=0.0))
-        req = receiver.request(sim.t_ns) if (closed_loop and receiver is not None) else None
+        req = None
+        if listen:
+            used = st.overlay_used
+            take_arrived()
+            if st.steps > 0 and st.overlay_used == used:
+                st.stale_overlay_steps += 1
+            req = receiver.request(sim.t_ns)
         frames = sim.step(req)
+        st.steps += 1
         if keep_frames:
             st.frames.append(frames)
         for msg in to_messages(frames):
+            t_rel = (int(round(msg.timestamp * 1e9)) - sim0) * 1e-9
             if wall0 is None:
-                wall0 = time.monotonic() - (int(round(msg.timestamp * 1e9)) - sim0) * 1e-9
+                wall_first = time.monotonic()
+                wall0 = wall_first - t_rel
             if realtime:
-                due = wall0 + (int(round(msg.timestamp * 1e9)) - sim0) * 1e-9
-                while True:
-                    wait = due - time.monotonic()
-                    if wait <= 0:
-                        st.max_late_s = max(st.max_late_s, -wait)
-                        st.late_frames += -wait > LATE_S
-                        break
-                    if closed_loop and receiver is not None:
-                        take(bus.recv(timeout=wait))
-                    else:
-                        time.sleep(wait)
+                now = time.monotonic()
+                wait = wall0 + t_rel - now
+                if wait > 0:
+                    time.sleep(wait)  # a timed sleep: no frame on the bus wakes it
+                elif -wait > MAX_LAG_S:  # move the schedule: no burst of stale frames
+                    st.slips += 1
+                    st.slipped_s += -wait
+                    wall0 += -wait
+                else:
+                    st.max_late_s = max(st.max_late_s, -wait)
+                    st.late_frames += -wait > LATE_S
             try:
-                bus.send(msg)
+                bus.send(msg, timeout=send_timeout)
                 st.sent += 1
             except can.CanError as exc:
                 st.send_errors += 1
-                log.warning("send failed: %s", exc)
-    st.wall_s = time.monotonic() - wall0 if wall0 is not None else 0.0
+                if st.send_errors == 1 or st.send_errors % 1000 == 0:
+                    log.warning("send failed (%d so far): %s", st.send_errors, exc)
+        if realtime and wall0 is not None and len(frames) == 0:  # a silent step (faults): keep the pace
+            wait = wall0 + (sim.t_ns - sim0) * 1e-9 - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+    st.wall_s = time.monotonic() - wall_first if wall0 is not None else 0.0
     st.cpu_s = time.process_time() - cpu0
     st.sim_s = (sim.t_ns - sim0) * 1e-9
     return st

@@ -40,7 +40,7 @@ from .grid import (
     new_grid,
     overflow_error,
 )
-from .learned import LearnedState, load_learned, save_learned
+from .learned import LearnedSnapshot, LearnedState, load_learned, parse_learned, save_snapshot
 from .learner import tire_state
 from .overlay import limiter_params, new_limiter_state
 from .params import Vehicle
@@ -177,7 +177,7 @@ class StepBlock:
         return cls(
             t_ns=np.empty(n, np.int64),
             status=np.empty(n, np.uint8),
-            est=np.empty((n, N_OUT)),
+            est=np.full((n, N_OUT), np.nan),  # a slot a backend does not fill stays NaN
             t_overlay=np.empty(n),
             overlay_state=np.empty(n, np.uint8),
             overlay_enable=np.empty(n, np.bool_),
@@ -339,33 +339,50 @@ class Engine:
         """The backend learns the car online (:mod:`lde.learner`)."""
         return self.backend.learns
 
+    def _require_learning(self) -> None:
+        if not self.learns:
+            raise ConfigError(
+                f"backend {self.backend.name!r} does not learn: --learned needs a learning backend"
+            )
+
     def load_learned(self, path: str | Path) -> LearnedState | None:
         """Start from a learned-state file (``--learned``) when it exists (None when it does not):
         checked against this vehicle and profile (ConfigError otherwise)."""
-        if not self.learns:
-            raise ConfigError(
-                f"backend {self.backend.name!r} does not learn: --learned needs a learning backend"
-            )
+        self._require_learning()
         if not Path(path).exists():
             return None
         info = self.est.info
-        got = load_learned(path, self.profile.name, info["p"], info["lp"])
-        info["learner"][:] = got.learner
+        return self._use(load_learned(path, self.profile.name, info["p"], info["lp"]))
+
+    def load_learned_text(self, text: str, source: str) -> LearnedState:
+        """:meth:`load_learned` of a learned-state file's text (a recording's learned start)."""
+        self._require_learning()
+        info = self.est.info
+        return self._use(parse_learned(text, source, self.profile.name, info["p"], info["lp"]))
+
+    def _use(self, got: LearnedState) -> LearnedState:
+        self.est.info["learner"][:] = got.learner
         self.learned_from = got
         return got
 
-    def save_learned(self, path: str | Path, seconds: float) -> None:
-        """Write what was learned (atomically): the drives and driving time so far plus ``seconds``
-        of this run."""
-        if not self.learns:
-            raise ConfigError(
-                f"backend {self.backend.name!r} does not learn: --learned needs a learning backend"
-            )
+    def learned_snapshot(self, seconds: float) -> LearnedSnapshot:
+        """A copy of what was learned: the drives and driving time so far plus ``seconds`` of this
+        run (valid steps). ConfigError for a backend that does not learn."""
+        self._require_learning()
         prev = self.learned_from
-        drives = (prev.drives if prev is not None else 0) + 1
-        total = (prev.seconds if prev is not None else 0.0) + seconds
         info = self.est.info
-        save_learned(path, self.vehicle.name, self.profile.name, info["p"], info["learner"], drives, total)
+        return LearnedSnapshot(
+            self.vehicle.name,
+            self.profile.name,
+            info["p"].copy(),
+            info["learner"].copy(),
+            (prev.drives if prev is not None else 0) + 1,
+            (prev.seconds if prev is not None else 0.0) + float(seconds),
+        )
+
+    def save_learned(self, path: str | Path, seconds: float) -> None:
+        """Write what was learned (atomically); see :meth:`learned_snapshot`."""
+        save_snapshot(path, self.learned_snapshot(seconds))
 
     @property
     def learn_summary(self) -> str:

@@ -21,9 +21,11 @@ bias drifts with temperature), the signal filters restart.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import tempfile
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,7 +36,20 @@ from . import estimator as E
 from . import learner as Ln
 from .errors import ConfigError
 
-__all__ = ["LearnedState", "load_learned", "save_learned", "between_drives", "FORMAT", "VERSION"]
+__all__ = [
+    "LearnedState",
+    "LearnedSnapshot",
+    "LearnedKeeper",
+    "load_learned",
+    "parse_learned",
+    "save_learned",
+    "save_snapshot",
+    "between_drives",
+    "FORMAT",
+    "VERSION",
+]
+
+log = logging.getLogger("lde.learned")
 
 FORMAT, VERSION = "lde-learned", 1
 STATE_NAMES = {Ln.ST_NOT: "not learned", Ln.ST_LEARNING: "learning", Ln.ST_LEARNED: "learned"}
@@ -45,6 +60,19 @@ class LearnedState:
     """A learned-state file read for one run: the parameters (already in ``p``), the learner state,
     and how much it was learned from."""
 
+    learner: np.ndarray
+    drives: int
+    seconds: float
+    text: str = ""  # the file as read (a live recording keeps it: its replay starts from it too)
+
+
+@dataclass(frozen=True)
+class LearnedSnapshot:
+    """A copy of what was learned at one instant, ready to be written from another thread."""
+
+    vehicle_name: str
+    profile: str
+    p: np.ndarray
     learner: np.ndarray
     drives: int
     seconds: float
@@ -107,20 +135,103 @@ def save_learned(
         raise ConfigError(f"--learned {path}: cannot write: {exc}") from exc
 
 
+def save_snapshot(path: str | Path, snap: LearnedSnapshot) -> None:
+    """:func:`save_learned` of a :class:`LearnedSnapshot`."""
+    save_learned(path, snap.vehicle_name, snap.profile, snap.p, snap.learner, snap.drives, snap.seconds)
+
+
+class LearnedKeeper:
+    """Writes the live service's learned state every ``period_ns`` (``lde run --learned``: 60 s) on a
+    writer thread, so that the file system never delays a step, and once more at :meth:`close`.
+
+    The loop hands over a copy (:meth:`offer`, a few microseconds); the writer keeps only the newest
+    copy not yet written. A failed periodic write is logged and counted (the next one may succeed);
+    a failed final write raises ConfigError from :meth:`close`.
+    """
+
+    def __init__(self, path: str | Path, period_ns: int) -> None:
+        self.path = Path(path)
+        self.period_ns = int(period_ns)
+        self.next_ns: int | None = None  # the next periodic write is due at this step time
+        self.writes = 0
+        self.errors = 0
+        self._pending: LearnedSnapshot | None = None
+        self._cv = threading.Condition()
+        self._closed = False
+        self._thread = threading.Thread(target=self._writer, name="lde-learned", daemon=True)
+        self._thread.start()
+
+    def due(self, t_ns: int) -> bool:
+        """Whether a periodic write is due at step time ``t_ns`` (the first step starts the period)."""
+        if self.next_ns is None:
+            self.next_ns = t_ns + self.period_ns
+            return False
+        if t_ns < self.next_ns:
+            return False
+        self.next_ns += self.period_ns * max(1, (t_ns - self.next_ns) // self.period_ns + 1)
+        return True
+
+    def offer(self, snap: LearnedSnapshot) -> None:
+        """Hand a snapshot to the writer (replaces one not yet written)."""
+        with self._cv:
+            self._pending = snap
+            self._cv.notify()
+
+    def _writer(self) -> None:
+        while True:
+            with self._cv:
+                while self._pending is None and not self._closed:
+                    self._cv.wait()
+                snap, self._pending = self._pending, None
+                if snap is None:
+                    return
+            self._write(snap)
+
+    def _write(self, snap: LearnedSnapshot) -> None:
+        try:
+            save_snapshot(self.path, snap)
+        except ConfigError as exc:
+            self.errors += 1
+            log.error("%s (%d failed writes)", exc, self.errors)
+        else:
+            self.writes += 1
+
+    def close(self, final: LearnedSnapshot | None) -> None:
+        """Stop the writer (after a write in progress) and write ``final`` in this thread;
+        ConfigError when that write fails."""
+        with self._cv:
+            self._closed = True
+            self._pending = None
+            self._cv.notify()
+        self._thread.join()
+        if final is not None:
+            save_snapshot(self.path, final)
+            self.writes += 1
+
+
 def load_learned(path: str | Path, profile: str, p: np.ndarray, lp: np.ndarray) -> LearnedState:
     """Read ``path``: its parameters go into ``p``; returns the learner state (between-drive changes
     applied). ConfigError (one line) when it is not such a file or was learned for another vehicle
     or profile."""
-    path = Path(path)
     try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        text = Path(path).read_text()
+    except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"--learned {path}: not a readable lde learned-state file ({exc})") from exc
+    return parse_learned(text, f"--learned {path}", profile, p, lp)
+
+
+def parse_learned(text: str, source: str, profile: str, p: np.ndarray, lp: np.ndarray) -> LearnedState:
+    """:func:`load_learned` of a file's text; ``source`` names it in errors (``--learned FILE``,
+    ``the recording's learned start``)."""
+    try:
+        doc = json.loads(text)
+    except ValueError as exc:
+        raise ConfigError(f"{source}: not a readable lde learned-state file ({exc})") from exc
     if not isinstance(doc, dict) or doc.get("format") != FORMAT or doc.get("version") != VERSION:
-        raise ConfigError(f"--learned {path}: not an {FORMAT} version {VERSION} file")
+        raise ConfigError(f"{source}: not an {FORMAT} version {VERSION} file")
     if doc.get("profile") != profile:
         raise ConfigError(
-            f"--learned {path}: learned on CAN profile {doc.get('profile')!r}, this run uses {profile!r}"
+            f"{source}: learned on CAN profile {doc.get('profile')!r}, this run uses {profile!r}"
         )
     veh_doc = doc.get("vehicle")
     veh: dict[str, Any] = veh_doc if isinstance(veh_doc, dict) else {}
@@ -128,7 +239,7 @@ def load_learned(path: str | Path, profile: str, p: np.ndarray, lp: np.ndarray) 
         got = veh.get(key)
         if not isinstance(got, (int, float)) or abs(got - want) > 1e-6 * max(1.0, abs(want)):
             raise ConfigError(
-                f"--learned {path}: learned for another vehicle ({veh.get('name', '?')}: {key} {got}, "
+                f"{source}: learned for another vehicle ({veh.get('name', '?')}: {key} {got}, "
                 f"this vehicle file {want:g})"
             )
     try:
@@ -146,15 +257,15 @@ def load_learned(path: str | Path, profile: str, p: np.ndarray, lp: np.ndarray) 
             float(q.get("align_offset_Nm", 0.0)),
         ]
     except (KeyError, TypeError, ValueError) as exc:
-        raise ConfigError(f"--learned {path}: incomplete ({exc})") from exc
+        raise ConfigError(f"{source}: incomplete ({exc})") from exc
     if ls.shape != (Ln.N_LS,) or not np.all(np.isfinite(ls)) or not all(math.isfinite(v) for v in vals):
-        raise ConfigError(f"--learned {path}: learner state of the wrong size or not finite")
+        raise ConfigError(f"{source}: learner state of the wrong size or not finite")
     cf, cr, k, s, tfric, ctb, dsw, br, t0 = vals
     if not (1e3 <= cf <= 1e6 and 1e3 <= cr <= 1e6 and 10.0 <= k <= 1e5 and 0.8 <= s <= 1.4):
-        raise ConfigError(f"--learned {path}: implausible values (cf {cf:g}, cr {cr:g}, K {k:g}, s {s:g})")
+        raise ConfigError(f"{source}: implausible values (cf {cf:g}, cr {cr:g}, K {k:g}, s {s:g})")
     p[E.P_CF], p[E.P_CR], p[E.P_K], p[E.P_S] = cf, cr, k, s
     p[E.P_TFRIC], p[E.P_CTB], p[E.P_DSW], p[E.P_BR], p[E.P_T0] = tfric, ctb, dsw, br, t0
-    return LearnedState(between_drives(ls), int(doc.get("drives", 1)), float(doc.get("seconds", 0.0)))
+    return LearnedState(between_drives(ls), int(doc.get("drives", 1)), float(doc.get("seconds", 0.0)), text)
 
 
 def between_drives(ls: np.ndarray) -> np.ndarray:

@@ -85,6 +85,9 @@ ESTIMATE_TOPIC = "/lde/estimate"
 INPUTS_TOPIC = "/lde/inputs"
 DIAG_TOPIC = "/lde/diag"
 EVENTS_TOPIC = "/lde/events"
+#: ``lde`` metadata key: the learned-state file's text a live run started from (``--learned``), so
+#: that a replay of the recording starts from it too (:func:`lde.replay.run_replay`)
+LEARNED_START_KEY = "learned_start"
 
 #: estimator input names (SI) recorded on ``/lde/inputs``
 INPUT_FIELDS: tuple[str, ...] = INPUT_NAMES

@@ -40,7 +40,7 @@ from .logio import LogData, McapWriter, read_log
 from .logio.textfmt import Column, format_rows, time_column
 from .params import Vehicle
 from .profiles import PROFILE_NAMES, Profile, load_profile
-from .recording import ESTIMATE_TOPIC, EVENTS_TOPIC, StepTopicWriter
+from .recording import ESTIMATE_TOPIC, EVENTS_TOPIC, LEARNED_START_KEY, StepTopicWriter
 from .status import DEADLINE_MISS, VALID
 from .units import STEP_NS
 
@@ -255,6 +255,7 @@ class ReplaySummary:
     profile: Profile | None = None
     profile_origin: str = ""
     learned: str = ""  # what the learner holds at the end (one line; empty without a learner)
+    learned_origin: str = ""  # where learning started: a --learned file, the recording, "" (vehicle)
 
     def __len__(self) -> int:
         return self.steps
@@ -279,16 +280,24 @@ def run_replay(
     output_frames: bool = True,
     chunk_frames: int = CHUNK_FRAMES,
     learned: str | Path | None = None,
+    learned_start: str | None = None,
 ) -> ReplaySummary:
     """Stream ``frames`` (any order) through the data path in chunks; every chunk's rows go to each
     sink as ``sink(chunk_frames, rows)``. ``learned``: a learned-state file (``--learned``), read
-    first when it exists and written (atomically) at the end. Other arguments as :func:`replay`."""
+    first when it exists and written (atomically) at the end. ``learned_start``: the text of the
+    learned state a live run started from (its recording's ``learned_start``): used by a learning
+    backend when ``learned`` names no existing file, so that the recording replays to the live
+    estimates. Other arguments as :func:`replay`."""
     name = DEFAULT_BACKEND if backend is None else backend
     t0 = time.perf_counter()
     explicit = step_times_ns is not None
     engine = Engine(profile, vehicle, name, explicit=explicit, encode_outputs=output_frames)
-    if learned is not None:
-        engine.load_learned(learned)
+    origin = ""
+    if learned is not None and engine.load_learned(learned) is not None:
+        origin = str(learned)
+    elif learned_start and engine.learns:
+        engine.load_learned_text(learned_start, "the recording's learned start")
+        origin = "the recording's learned start"
     fs = frames.sort()
     n_tx = int(np.count_nonzero(~fs.is_rx))
     steps = valid = gaps = 0
@@ -335,6 +344,7 @@ def run_replay(
         recorded_steps=explicit,
         timings={"engine": time.perf_counter() - t0 - t_sinks, "outputs": t_sinks},
         learned=engine.learn_summary,
+        learned_origin=origin,
     )
 
 
@@ -350,6 +360,7 @@ def replay(
     extra_status: np.ndarray | None = None,
     output_frames: bool = True,
     learned: str | Path | None = None,
+    learned_start: str | None = None,
 ) -> ReplayResult:
     """Replay ``frames`` (any order) through the data path; every row is kept (:class:`ReplayResult`).
 
@@ -365,6 +376,7 @@ def replay(
         extra_status: status bits to add per step of ``step_times_ns`` (a recording's DEADLINE_MISS).
         output_frames: encode lde's output frames (needed by :func:`write_recording`).
         learned: a learned-state file (read when it exists, written at the end).
+        learned_start: a recording's learned start (:func:`run_replay`).
     """
     blocks: list[StepBlock] = []
     summary = run_replay(
@@ -379,6 +391,7 @@ def replay(
         extra_status=extra_status,
         output_frames=output_frames,
         learned=learned,
+        learned_start=learned_start,
     )
     block = StepBlock.concat(blocks) if len(blocks) != 1 else blocks[0]
     return ReplayResult.of(
@@ -492,6 +505,7 @@ class LogInputs:
     extra_status: np.ndarray | None
     tx_frames: int | None
     read_s: float
+    learned_start: str | None = None  # the learned state a live run started from (its recording's)
 
 
 def read_inputs(
@@ -525,7 +539,18 @@ def read_inputs(
     n_tx = None
     if log.mcap is not None and "/can/tx" in log.mcap.topics:
         n_tx = log.mcap.topics["/can/tx"].count
-    return LogInputs(log, profile, origin, steps, enable, extra, n_tx, time.perf_counter() - t0)
+    meta = log.mcap.metadata.get("lde", {}) if log.mcap is not None else {}
+    return LogInputs(
+        log,
+        profile,
+        origin,
+        steps,
+        enable,
+        extra,
+        n_tx,
+        time.perf_counter() - t0,
+        meta.get(LEARNED_START_KEY) or None,
+    )
 
 
 def replay_log(
@@ -556,6 +581,7 @@ def replay_log(
         extra_status=li.extra_status,
         output_frames=output_frames,
         learned=learned,
+        learned_start=li.learned_start,
     )
     res.timings = {"read": li.read_s, **res.timings}
     res.profile, res.profile_origin = li.profile, li.profile_origin

@@ -15,7 +15,10 @@ One step (:meth:`Service.step_once`) at step time ``t_k``:
 3. send the engine's ``LDE_Estimate`` and ``LDE_Overlay`` frames, then ``LDE_Diag`` with this step's
    timing;
 4. hand the received and sent frames, the step's row and its timing to the recorder (a queue: the
-   writing happens in the recorder's thread).
+   writing happens in the recorder's thread);
+5. with ``learned`` (``lde run --learned FILE``): every ``learned_period_s`` of step time hand a
+   copy of the learned state to a writer thread (:class:`lde.learned.LearnedKeeper`);
+   :meth:`Service.close` writes it once more.
 
 Determinism: the step uses nothing but (the frames with receive time ``<= t_k``, ``t_k``, the
 overlay enable input, the deadline-miss bit), all of which the recording keeps, so a replay of the
@@ -37,6 +40,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import can
@@ -46,14 +50,15 @@ from .clock import SimulatedClock
 from .codec import MessageEncoder
 from .diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummary, diag_signals
 from .engine import Engine, StepBlock
-from .errors import BusError
+from .errors import BusError, ConfigError
 from .frames import FrameBatch, ns_to_seconds, seconds_to_ns
+from .learned import LearnedKeeper, LearnedSnapshot
 from .params import Vehicle, load_vehicle
 from .profiles import Profile, load_profile
 from .recording import Timing
 from .signals import Receiver
-from .status import DEADLINE_MISS
-from .units import STEP_NS
+from .status import DEADLINE_MISS, VALID
+from .units import STEP_NS, STEP_S
 
 __all__ = ["Service", "StepResult", "STATUS_DEADLINE_MISS", "open_bus"]
 
@@ -111,11 +116,16 @@ class Service:
         vehicle: a :class:`lde.params.Vehicle`, a shipped vehicle name or None (reference).
         clock: a :mod:`lde.clock` clock (``now_ns()``, ``sleep_until(t_ns)``).
         backend: a registered backend name (:mod:`lde.backends`): ``fixed`` (default) or ``float``.
-        recorder: optional :class:`lde.recording.Recorder` (already started).
+        recorder: optional :class:`lde.recording.Recorder` (already started); may be set after
+            construction (before the first step), e.g. with :attr:`learned_start` in its metadata.
         overlay_enabled: False keeps the overlay request at zero (the demo's "without overlay" run).
         timebase_offset_ns: bus time minus clock time [ns]; None: measured at start (0 for a
             simulated clock).
         log_period_s: period of the timing summary log line [s]; 0 disables it.
+        learned: a learned-state file (``--learned``): read now when it exists (checked against the
+            vehicle and profile), written every ``learned_period_s`` of step time and at
+            :meth:`close`. Needs a backend that learns (ConfigError otherwise).
+        learned_period_s: period of the learned-state writes [s] (SPEC: 60 s).
     """
 
     def __init__(
@@ -130,6 +140,8 @@ class Service:
         overlay_enabled: bool = True,
         timebase_offset_ns: int | None = None,
         log_period_s: float = 10.0,
+        learned: str | Path | None = None,
+        learned_period_s: float = 60.0,
     ) -> None:
         self.bus = bus
         self.profile = load_profile(profile) if isinstance(profile, str) else profile
@@ -166,6 +178,26 @@ class Service:
         self.send_errors = 0  # frames the bus refused (full tx queue, bus-off), counted, not raised
         self.recv_errors = 0  # failed receive calls, counted, not raised
         self.last: StepResult | None = None
+        self.valid_steps = 0  # steps with status VALID: the driving time the learner saw
+        self.learned: LearnedKeeper | None = None
+        #: the learned-state file's text this run started from ("" without one): a recording keeps it
+        self.learned_start = ""
+        if learned is not None:
+            if not learned_period_s > 0:
+                raise ConfigError(f"learned period {learned_period_s} s: must be > 0")
+            got = self.engine.load_learned(learned)
+            if got is None:
+                log.info("learned state: %s does not exist yet; learning from the vehicle file", learned)
+            else:
+                self.learned_start = got.text
+                log.info(
+                    "learned state from %s (%d drives, %.0f s): %s",
+                    learned,
+                    got.drives,
+                    got.seconds,
+                    self.engine.learn_summary,
+                )
+            self.learned = LearnedKeeper(learned, int(learned_period_s * 1e9))
 
     def _warm_up(self) -> None:
         """Run the compiled loop once on a throwaway engine, so the first real step is not late
@@ -288,6 +320,10 @@ class Service:
 
         self.steps += 1
         status = int(b.status[0])
+        if status & VALID:
+            self.valid_steps += 1
+        if self.learned is not None and self.learned.due(t_k):
+            self.learned.offer(self.learned_snapshot())
         res = StepResult(
             t_ns=t_k,
             fw=float(b.est[0, 0]),
@@ -326,6 +362,19 @@ class Service:
             return
         if self.recorder is not None:
             self.recorder.tx(msg)  # only frames the bus took
+
+    # ------------------------------------------------------------------ learned state
+    def learned_snapshot(self) -> LearnedSnapshot:
+        """A copy of what was learned so far (driving time: this run's valid steps)."""
+        return self.engine.learned_snapshot(self.valid_steps * STEP_S)
+
+    def close(self) -> None:
+        """Write the learned state a last time (with ``learned``; ConfigError when that fails).
+        The bus and the recorder belong to the caller."""
+        if self.learned is not None:
+            keeper, self.learned = self.learned, None
+            keeper.close(self.learned_snapshot())
+            log.info("learned state written to %s: %s", keeper.path, self.engine.learn_summary)
 
     # ------------------------------------------------------------------ the loop
     def request_stop(self) -> None:

@@ -15,7 +15,16 @@
 # Exit codes: the command's; 77 = UML cannot run on this machine (reason on stderr, line starting
 # "run_in_uml: SKIP:"); 124 = timed out; 125 = UML booted but the run broke (console tail shown).
 # Environment: UML_KERNEL (default linux.uml), UML_TIMEOUT (s, default 900), UML_MEM (default 2G),
-# UML_NO_SHIM=1 (do not use the xstate shim; for checking whether a host needs it).
+# UML_NO_SHIM=1 (do not use the xstate shim; for checking whether a host needs it),
+# UML_SOFTIRQ_PRIO (SCHED_FIFO priority of the guest's ksoftirqd, default 99; 0 leaves it at the
+# normal scheduler), LDE_UML_HOG=N (start N busy loops in the guest before CMD: a slow guest on
+# purpose, to check that the tests skip with reasons instead of failing or hanging).
+#
+# Scheduling in the guest (UML runs everything on one CPU): real-time tasks may use at most 95 % of
+# every second (sched_rt_runtime_us 950000 of 1000000, set explicitly), so normal tasks (pytest, the
+# recorder thread) always progress; ksoftirqd runs at SCHED_FIFO UML_SOFTIRQ_PRIO because it delivers
+# the vcan frames once the guest is busy (Linux 6.1 defers softirqs to it): at the normal scheduler
+# the real-time service and simulator would wait for a thread they starve. docs/overlay.md, "UML notes".
 #
 # Host quirks handled (found by trying; details in docs/overlay.md "UML notes"):
 # * XSAVE area larger than UML 6.1 supports (AMX hosts): the kernel panics at once with
@@ -35,6 +44,10 @@ EXIT_TIMEOUT=124
 EXIT_BROKEN=125
 
 timeout_s=${UML_TIMEOUT:-900}
+softirq_prio=${UML_SOFTIRQ_PRIO:-99}
+hogs=${LDE_UML_HOG:-0}
+[[ $softirq_prio =~ ^[0-9]+$ && $softirq_prio -le 99 ]] || { echo "run_in_uml: UML_SOFTIRQ_PRIO=$softirq_prio: need 0..99" >&2; exit 2; }
+[[ $hogs =~ ^[0-9]+$ ]] || { echo "run_in_uml: LDE_UML_HOG=$hogs: need a number of busy loops" >&2; exit 2; }
 mem=${UML_MEM:-2G}
 keep=0
 quiet=0
@@ -151,6 +164,21 @@ else
     note "/dev/shm is missing, noexec or smaller than mem=$mem: UML's RAM file goes to $ramdir"
 fi
 
+# --- host mappings: UML maps guest memory into the host process of each guest process page
+# range by page range, so a large guest process (python with numba: ~1 GB) needs far more than the
+# default 65530 mappings: past vm.max_map_count it dies of SIGKILL with "UML ran out of memory on
+# the host side" on the console (seen in .ci/run). Raise the limit when allowed (root), else say so.
+want_maps=1048576
+cur_maps=$(cat /proc/sys/vm/max_map_count 2>/dev/null || echo 0)
+if [[ $cur_maps -lt $want_maps ]]; then
+    if { echo "$want_maps" >/proc/sys/vm/max_map_count; } 2>/dev/null; then
+        note "vm.max_map_count $cur_maps -> $want_maps (UML maps guest memory range by range)"
+    else
+        note "vm.max_map_count is $cur_maps and cannot be raised here: a large guest process may be killed" \
+            "('UML ran out of memory on the host side'); as root: sysctl -w vm.max_map_count=$want_maps"
+    fi
+fi
+
 # --- the guest's init ------------------------------------------------------------------------
 guest_path=$(dirname "$cmd0"):$PATH:/usr/sbin:/usr/bin:/sbin:/bin
 {
@@ -172,6 +200,13 @@ guest_path=$(dirname "$cmd0"):$PATH:/usr/sbin:/usr/bin:/sbin:/bin
         printf '%q link add dev %s type vcan >>"$W/setup.log" 2>&1 || fail "ip link add %s"\n' "$ip_bin" "$dev" "$dev"
         printf '%q link set up %s >>"$W/setup.log" 2>&1 || fail "ip link set up %s"\n' "$ip_bin" "$dev" "$dev"
     done
+    echo 'echo 1000000 > /proc/sys/kernel/sched_rt_period_us; echo 950000 > /proc/sys/kernel/sched_rt_runtime_us'
+    if [[ $softirq_prio -gt 0 ]]; then
+        chrt_bin=$(PATH=/usr/sbin:/sbin:$PATH command -v chrt || true)
+        [[ -n $chrt_bin ]] || die_skip "chrt not found (util-linux); needed for ksoftirqd's priority"
+        printf 'for p in $(ls /proc | grep -E "^[0-9]+$"); do [ "$(cat /proc/$p/comm 2>/dev/null)" = ksoftirqd/0 ] && %q -f -p %d "$p" >>"$W/setup.log" 2>&1; done\n' \
+            "$chrt_bin" "$softirq_prio"
+    fi
     echo 'date +%s%N > "$W/t_ready"'
     # the caller's environment, minus what belongs to the host session or to UML itself
     while IFS= read -r -d '' kv; do
@@ -186,6 +221,9 @@ guest_path=$(dirname "$cmd0"):$PATH:/usr/sbin:/usr/bin:/sbin:/bin
     printf 'export PATH=%q\n' "$guest_path"
     echo 'export TMPDIR="$W/scratch" TERM=dumb LDE_IN_UML=1'
     printf 'cd %q || fail "cd %q"\n' "$PWD" "$PWD"
+    for ((i = 0; i < hogs; i++)); do
+        echo "sh -c 'while :; do :; done' </dev/null >/dev/null 2>&1 &  # LDE_UML_HOG"
+    done
     printf '%q ' "$@"
     echo '</dev/null >"$W/output" 2>&1'
     echo 'echo $? > "$W/rc.tmp" && mv "$W/rc.tmp" "$W/rc"'
@@ -207,14 +245,24 @@ t_end=$(date +%s%N)
 
 if [[ -f $work/t_ready ]]; then
     boot_ms=$(( ($(cat "$work/t_ready") - t_start) / 1000000 ))
-    note "boot to vcan0 ready: ${boot_ms} ms; whole run $(( (t_end - t_start) / 1000000 )) ms"
+    hog_note=""
+    [[ $hogs -gt 0 ]] && hog_note="; $hogs busy loop(s) in the guest (LDE_UML_HOG)"
+    note "boot to vcan0 ready: ${boot_ms} ms; whole run $(( (t_end - t_start) / 1000000 )) ms$hog_note"
 fi
 [[ -f $work/output ]] && cat "$work/output"
 
 console_tail() { echo "--- UML console (last 25 lines) ---" >&2; tail -n 25 "$work/console.log" >&2 || true; }
 
 if [[ -f $work/rc ]]; then
-    exit "$(cat "$work/rc")"
+    rc=$(cat "$work/rc")
+    if [[ $rc -ge 128 ]]; then  # killed by a signal inside the guest: say whether the OOM killer did it
+        echo "run_in_uml: the command died of signal $((rc - 128)) inside the guest (mem=$mem)" >&2
+        grep -iE "out of memory|killed process|oom-kill" "$work/console.log" | tail -n 5 >&2 || true
+        if grep -q "ran out of memory on the host side" "$work/console.log"; then
+            echo "run_in_uml: host mappings exhausted: vm.max_map_count is $(cat /proc/sys/vm/max_map_count)" >&2
+        fi
+    fi
+    exit "$rc"
 fi
 if [[ $uml_rc == 124 || $uml_rc == 137 ]]; then
     echo "run_in_uml: timed out after ${timeout_s} s" >&2

@@ -13,7 +13,15 @@ the ``LDE_Overlay`` it receives), then open loop (it ignores it). Checked:
 * the closed loop works: the driver's holding torque in the simulator's truth is much smaller with
   the overlay than without -- judged whenever the simulator's inputs kept their pace (no gap longer
   than the message timeout in candump over the judged stretch), else a skip states the gaps;
-* the service's recording on real SocketCAN (kernel timestamps) replays to the live outputs exactly.
+* the service's recording on real SocketCAN (kernel timestamps) replays to the live outputs exactly;
+* every overlay request on the bus and in the recording stays within the vehicle's torque and rate
+  limits.
+
+Every subprocess has a bound from the guest's budget (tests/uml/conftest.py). A guest too slow to
+finish a run in its bound, or to keep the pace the closed-loop judgement needs, skips that judgement
+with what was measured; the E2E, counter, limit and replay checks run on whatever was recorded.
+Priorities (docs/overlay.md, "UML notes"): candump SCHED_FIFO 99, the simulator 90, the service 80;
+none of them ever waits for a process below it, and ksoftirqd (frame delivery) runs at 99.
 """
 
 from __future__ import annotations
@@ -31,8 +39,11 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from uml_bounds import Budget, run_bounded, stop_process
 
+from lde.codec import MessageCodec
 from lde.e2e import p01_check
+from lde.overlay import OverlayTiming
 from lde.params import load_vehicle
 from lde.profiles import load_profile
 from lde.recording import read_recording
@@ -49,14 +60,31 @@ LDE = [sys.executable, "-m", "lde"]
 CANDUMP_RCVBUF = 16 << 20  # bytes
 
 
-def _sim(tmp: Path, name: str, *extra: str) -> subprocess.CompletedProcess[str]:
+#: bounds [s] (each also capped by what is left of the guest's budget)
+SERVICE_START_S = 180.0  # lde run until it is stepping: imports take tens of seconds on a slow guest
+SIM_RUN_S = 20 * SIM_S  # one lde sim run: imports, 12 s of traffic, the slips of a slow guest
+SERVICE_STOP_S = 120.0  # SIGTERM to exit: ramp-out (<= 3 s) and closing the recording
+
+
+def _sim_cmd(tmp: Path, name: str, *extra: str) -> list[str]:
+    # --rt-priority switches the simulator's main thread only, after its imports (measured: started
+    # under `chrt -f 90` instead, with every thread of the process real-time from the start, it left
+    # the service 7 % of its steps instead of 70-88 %)
     cmd = [*LDE, "sim", "-i", "socketcan", "-c", CHANNEL, "--scenario", SCENARIO, "--seed", "5"]
     # --rt-priority above the service's 80: the simulator stands for the car's other ECUs, which have
     # CPUs of their own; on UML's one CPU its frames must not wait behind the service, candump or
-    # the recorder (measured, docs/service.md: at normal priority its MDPS frames stopped for longer
-    # than their timeout several times per run while the service kept sending; at 90, never)
-    cmd += ["--duration", str(SIM_S), "--truth", str(tmp / f"{name}.csv"), "--rt-priority", "90", *extra]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    # the recorder (measured, docs/service.md). It never waits for another process (it sleeps until
+    # its next frame and reads the overlay without blocking), so it cannot starve the service below.
+    return [
+        *cmd,
+        "--duration",
+        str(SIM_S),
+        "--truth",
+        str(tmp / f"{name}.csv"),
+        "--rt-priority",
+        "90",
+        *extra,
+    ]
 
 
 def _driver_torque(path: Path) -> np.ndarray:
@@ -68,33 +96,59 @@ def _driver_torque(path: Path) -> np.ndarray:
 
 
 @dataclass
+class SimRun:
+    """One ``lde sim`` run: exit code (None: killed at its bound), wall time [s], output."""
+
+    name: str
+    rc: int | None = None
+    wall_s: float = 0.0
+    out: str = "not run"
+
+    @property
+    def finished(self) -> bool:
+        return self.rc is not None
+
+
+@dataclass
 class Run:
     tmp: Path
     dump: Path
     rec_path: Path
-    closed: subprocess.CompletedProcess[str]
-    open_: subprocess.CompletedProcess[str]
-    service_rc: int
+    closed: SimRun
+    open_: SimRun
+    service_rc: int | None
     service_out: str
+    speed: str  # the guest's measured speed, for skip reasons
+    problems: list[str] = field(default_factory=list)  # bounds that were hit, with the figures
+
+    def skip_if_incomplete(self, what: str) -> None:
+        if self.problems:
+            pytest.skip(f"{what}: {'; '.join(self.problems)}{self.speed}")
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
+def run(tmp_path_factory: pytest.TempPathFactory, budget: Budget, guest_speed: str) -> Run:
     """candump, then ``lde run --record``, then ``lde sim`` closed loop, then open loop; SIGTERM."""
     if shutil.which("candump") is None:
         pytest.skip("can-utils (candump) not installed")
+    budget.require(60.0 + 2 * SIM_S, "the closed loop on vcan0", guest_speed)
     tmp = tmp_path_factory.mktemp("closed_loop")
     dump = tmp / "dump.log"
     rec_path = tmp / "service.mcap"
-    with dump.open("w") as fh:
+    service_log = tmp / "service.out"
+    problems: list[str] = []
+    closed, open_ = SimRun("closed"), SimRun("open")
+    with dump.open("w") as fh, service_log.open("w") as service_fh:
         # a large socket buffer: UML may starve candump for a while, and a dropped frame would look
         # like a counter gap of the service
-        # ... and the highest real-time priority in the guest (above the simulator's 90 and the
-        # service's 80): the observer must never be the one starved, or its losses look like the
-        # service's (seen in CI: candump missed 5 % of the frames on a slow UML guest)
+        # ... and the highest real-time priority in the guest (with ksoftirqd, above the simulator's
+        # 90 and the service's 80): the observer must never be the one starved, or its losses look
+        # like the service's (seen in CI: candump missed 5 % of the frames on a slow UML guest); it
+        # only waits for frames and takes little CPU, so it cannot starve the others
         candump = subprocess.Popen(
             [*_observer_prio(), "candump", "-L", "-r", str(CANDUMP_RCVBUF), CHANNEL], stdout=fh
         )
+        # output to a file, never a pipe: a real-time process must not wait for pytest to read
         service = subprocess.Popen(
             # --realtime: SCHED_FIFO inside the guest puts the service before the simulator and candump
             # on UML's one CPU (it falls back with a warning where not permitted)
@@ -115,33 +169,71 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
                 "--record",
                 str(rec_path),
             ],
-            stdout=subprocess.PIPE,
+            stdout=service_fh,
             stderr=subprocess.STDOUT,
-            text=True,
+            stdin=subprocess.DEVNULL,
         )
+        service_stop = ""
         try:
-            deadline = time.monotonic() + 120  # until the service is stepping (imports are slow in UML)
-            while time.monotonic() < deadline and not (rec_path.exists() and rec_path.stat().st_size > 4096):
+            t0 = time.monotonic()
+            limit = budget.bound(SERVICE_START_S)
+            while time.monotonic() - t0 < limit and not (
+                rec_path.exists() and rec_path.stat().st_size > 4096
+            ):
+                if service.poll() is not None:
+                    break
                 time.sleep(0.5)
-            closed = _sim(tmp, "closed")
-            open_ = _sim(tmp, "open", "--open-loop")
-            time.sleep(1.0)
-            service.terminate()  # SIGTERM: ramp out, close the recording
-            out, _ = service.communicate(timeout=120)
+            if service.poll() is not None:
+                pass  # ended early: test_processes_end_cleanly shows why
+            elif not (rec_path.exists() and rec_path.stat().st_size > 4096):
+                problems.append(f"lde run was not stepping {limit:.0f} s after its start")
+            else:
+                for sim, extra in ((closed, ()), (open_, ("--open-loop",))):
+                    bound = budget.bound(SIM_RUN_S)
+                    sim.rc, sim.wall_s, sim.out = run_bounded(
+                        _sim_cmd(tmp, sim.name, *extra), tmp / f"{sim.name}.out", bound
+                    )
+                    if not sim.finished:
+                        problems.append(
+                            f"lde sim ({sim.name} loop, {SIM_S:.0f} s of traffic) did not finish in its"
+                            f" bound of {bound:.0f} s ({_frames_sent(dump)} MDPS frames on the bus by then)"
+                        )
+                        break
+                time.sleep(1.0)
         finally:
-            for p in (service, candump):
-                if p.poll() is None:
-                    p.terminate()
-                    p.wait(timeout=30)
-    print(closed.stderr, open_.stderr, out, sep="\n")
-    return Run(tmp, dump, rec_path, closed, open_, service.returncode, out)
+            service_stop = stop_process(service, budget.bound(SERVICE_STOP_S, reserve_s=10.0))
+            candump_stop = stop_process(candump, 30.0)
+    if service_stop:
+        problems.append(f"lde run {service_stop}")
+    if candump_stop:
+        problems.append(f"candump {candump_stop}")
+    service_out = service_log.read_text(errors="replace")
+    print(closed.out, open_.out, service_out, sep="\n")
+    return Run(tmp, dump, rec_path, closed, open_, service.returncode, service_out, guest_speed, problems)
+
+
+def _frames_sent(dump: Path) -> int:
+    """MDPS_Sensors frames in candump's log so far (how far a simulator run got)."""
+    fid = load_profile("lde").spec("MDPS_Sensors").frame_id
+    try:
+        return sum(1 for m in can.CanutilsLogReader(str(dump)) if m.arbitration_id == fid)
+    except (OSError, ValueError):
+        return 0
 
 
 def test_processes_end_cleanly(run: Run) -> None:
-    assert run.closed.returncode == 0, run.closed.stderr
-    assert run.open_.returncode == 0, run.open_.stderr
-    assert run.service_rc == 0, run.service_out  # SIGTERM -> ramp out, recording closed, exit 0
-    assert read_recording(run.rec_path).complete
+    for sim in (run.closed, run.open_):
+        assert sim.rc in (0, None), sim.out  # None: stopped at its bound (a skip below)
+    if "lde run" not in "".join(run.problems):
+        assert run.service_rc == 0, run.service_out  # SIGTERM -> ramp out, recording closed, exit 0
+        assert read_recording(run.rec_path).complete
+    run.skip_if_incomplete("the processes could not end on their own")
+
+
+def _recording(run: Run):
+    if not run.rec_path.exists():
+        pytest.skip(f"lde run wrote no recording: {'; '.join(run.problems) or run.service_out[-300:]}")
+    return read_recording(run.rec_path)
 
 
 def test_outputs_every_step_with_valid_e2e(run: Run) -> None:
@@ -150,13 +242,15 @@ def test_outputs_every_step_with_valid_e2e(run: Run) -> None:
     frames: dict[int, list[bytes]] = defaultdict(list)
     for m in can.CanutilsLogReader(str(run.dump)):
         frames[m.arbitration_id].append(bytes(m.data))
-    rec = read_recording(run.rec_path)
+    rec = _recording(run)
     n_steps = len(rec.step_times_ns)
-    assert n_steps > 1000, f"only {n_steps} steps"
+    if n_steps == 0:
+        pytest.skip(f"the service recorded no step: {'; '.join(run.problems)}{run.speed}")
+    killed = "lde run" in "".join(run.problems)  # its last steps may be on the bus, not in the file
     for name in ("LDE_Estimate", "LDE_Overlay", "LDE_Diag"):
         fid = profile.output_id(name)
         got = frames[fid]
-        assert abs(len(got) - n_steps) <= 2, f"{name}: {len(got)} frames for {n_steps} steps"
+        assert killed or abs(len(got) - n_steps) <= 2, f"{name}: {len(got)} frames for {n_steps} steps"
         assert all(p01_check(fid, d) for d in got), name
         counters = [d[1] & 0x0F for d in got]
         gaps = [i for i, (a, b) in enumerate(zip(counters, counters[1:], strict=False)) if b != (a + 1) % 15]
@@ -177,13 +271,47 @@ def test_outputs_every_step_with_valid_e2e(run: Run) -> None:
 
 def test_recording_on_socketcan_replays_exactly(run: Run) -> None:
     """Kernel timestamps, recorded step times: the replay gives the live outputs bit for bit."""
-    rec = read_recording(run.rec_path)
+    rec = _recording(run)
+    if not rec.complete:
+        pytest.skip(f"the recording is not complete: {'; '.join(run.problems)}{run.speed}")
     _, res = replay_log(run.rec_path, load_profile("lde"), load_vehicle("reference"), backend="fixed")
     np.testing.assert_array_equal(res.t_ns, rec.step_times_ns)
     np.testing.assert_array_equal(res.fw, rec.estimate["Fw"])
     np.testing.assert_array_equal(res.mw, rec.estimate["Mw"])
     # the SIGTERM ramp-out included: the recording's /lde/events gives the replay the enable input
     np.testing.assert_array_equal(res.t_overlay, rec.estimate["T_overlay"])
+
+
+def test_overlay_requests_stay_within_the_limits(run: Run) -> None:
+    """On the bus (candump) and in the recording: |T| <= max_torque, |dT| <= max_rate * dt per step
+    (dt clamped to the limiter's dt_max, as the limiter does), whatever the pace of the run."""
+    vehicle = load_vehicle("reference")
+    lim = vehicle.overlay
+    codec = MessageCodec(load_profile("lde"), "LDE_Overlay")
+    fid = load_profile("lde").output_id("LDE_Overlay")
+    lsb = 0.01  # OverlayTorque resolution on the bus [Nm]
+    on_bus = np.array(
+        [
+            codec.decode(bytes(m.data))["OverlayTorque"]
+            for m in can.CanutilsLogReader(str(run.dump))
+            if m.arbitration_id == fid
+        ]
+    )
+    if on_bus.size == 0:
+        pytest.skip(f"no LDE_Overlay frame on the bus: {'; '.join(run.problems)}{run.speed}")
+    assert np.max(np.abs(on_bus)) <= lim.max_torque + lsb / 2
+    rec = _recording(run)
+    t = rec.step_times_ns.astype(np.int64)
+    tq = np.asarray(rec.estimate["T_overlay"], dtype=np.float64)
+    assert np.max(np.abs(tq)) <= lim.max_torque
+    dt = np.minimum(np.diff(t) * 1e-9, OverlayTiming().dt_max)
+    excess = np.abs(np.diff(tq)) - lim.max_rate * dt
+    assert np.max(excess, initial=0.0) <= 1e-9, f"rate limit exceeded by {np.max(excess):.3g} Nm"
+    print(
+        f"overlay: {on_bus.size} frames, max |T| {np.max(np.abs(on_bus)):.2f} Nm on the bus"
+        f" (limit {lim.max_torque} Nm), max |dT/dt| {np.max(np.abs(np.diff(tq)) / np.maximum(dt, 1e-9)):.2f}"
+        f" Nm/s in the recording (limit {lim.max_rate} Nm/s)"
+    )
 
 
 def _observer_prio() -> list[str]:
@@ -249,10 +377,14 @@ def test_closed_loop_relieves_the_driver(run: Run) -> None:
     timestamps). Judged when the service ran >= 90 % of its steps and such steps make up at least a
     third of the stretch; otherwise the test skips with the measured gaps.
     """
-    used = int(re.search(r"overlay frames used (\d+)", run.closed.stderr).group(1))
-    cpu = re.search(r"in ([\d.]+) s wall \(real time, CPU ([\d.]+) s\)", run.closed.stderr)
+    run.skip_if_incomplete("closed loop not judged")
+    m_used = re.search(r"overlay frames used (\d+)", run.closed.out)
+    assert m_used, f"no summary from lde sim:\n{run.closed.out[-2000:]}"
+    used = int(m_used.group(1))
+    cpu = re.search(r"in ([\d.]+) s wall \(real time, CPU ([\d.]+) s\)", run.closed.out)
     cpu_share = float(cpu.group(2)) / float(cpu.group(1)) if cpu else float("nan")
-    rec = read_recording(run.rec_path)
+    pacing = re.search(r"steps on the last overlay request.*", run.closed.out)
+    rec = _recording(run)
     t = rec.step_times_ns
     # the closed-loop run: the first SIM_S seconds of simulator traffic
     first_rx = int(rec.rx.t_ns[0]) if len(rec.rx) else int(t[-1])
@@ -301,7 +433,8 @@ def test_closed_loop_relieves_the_driver(run: Run) -> None:
             f" after {SETTLE_S - converge_s} s ({gaps.text or 'none'}), each restarting the estimator's"
             f" {converge_s} s convergence, so only {n_must} steps are away from input gaps (needs a third"
             f" of the stretch); simulator CPU {100 * cpu_share:.0f} % of the wall time;"
-            f" estimate valid in {100 * valid:.0f} % of the steps after {SETTLE_S} s"
+            f" estimate valid in {100 * valid:.0f} % of the steps after {SETTLE_S} s; simulator:"
+            f" {pacing.group(0) if pacing else 'no pacing summary'}{run.speed}"
         )
     assert valid_must >= 0.9, (
         f"the estimate was valid in only {100 * valid_must:.0f} % of the steps where it must be (away from"

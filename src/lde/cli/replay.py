@@ -144,7 +144,8 @@ def _summary(path: Path, log, res, elapsed: float) -> str:
         f" took {elapsed:.3f} s (" + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in res.timings.items()) + ")",
     ]
     if getattr(res, "learned", ""):
-        lines.append(f"  learned: {res.learned}")
+        start = getattr(res, "learned_origin", "") or "the vehicle file"
+        lines.append(f"  learned (from {start}): {res.learned}")
     if len(res) == 0:
         lines.append(
             "  note: no estimator step: the log has no accepted frame of the profile's anchor (MDPS) message"
@@ -227,6 +228,7 @@ def run(args: argparse.Namespace) -> int:
                 extra_status=li.extra_status,
                 output_frames=mcap_path is not None,
                 learned=args.learned,
+                learned_start=li.learned_start,
             )
         finally:
             for sink in sinks:

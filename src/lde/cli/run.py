@@ -3,7 +3,8 @@
 The bus is opened the python-can way: ``--interface``/``--channel``/``--bitrate`` where given, else
 python-can's environment variables (``CAN_INTERFACE``, ``CAN_CHANNEL``, ``CAN_BITRATE``) or its
 config file (``~/can.conf``, ``$XDG_CONFIG_HOME/can.conf``, ...). SIGINT/SIGTERM end the service
-cleanly: the overlay request ramps to zero, then the recording is closed.
+cleanly: the overlay request ramps to zero, then the learned state (``--learned``) is written and
+the recording is closed.
 """
 
 from __future__ import annotations
@@ -74,6 +75,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
     p.add_argument("--backend", choices=BACKEND_CHOICES, default="fixed", help="estimator backend")
     p.add_argument("--record", metavar="FILE.mcap", help="record frames, estimates and diagnostics to MCAP")
+    p.add_argument(
+        "--learned",
+        metavar="FILE",
+        help="what the estimator learned about this car: read at start when FILE exists (checked against "
+        "the vehicle and profile), written atomically every 60 s and at the end (a learning backend)",
+    )
     p.add_argument("--duration", type=float, metavar="SEC", help="stop after this many seconds")
     p.add_argument("--no-overlay", action="store_true", help="keep the overlay request at zero")
     p.add_argument(
@@ -135,6 +142,7 @@ def run(args: argparse.Namespace) -> int:
 
     bus = svc_mod.open_bus(**bus_kwargs(args))
     recorder = None
+    service = None
     stop = threading.Event()
 
     def _on_signal(signum: int, frame: FrameType | None) -> None:
@@ -142,30 +150,30 @@ def run(args: argparse.Namespace) -> int:
 
     old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        if args.record:
-            from ..recording import Recorder
-
-            recorder = Recorder(
-                args.record,
-                metadata={
-                    "profile": profile.name,
-                    "vehicle": vehicle.name,
-                    "vehicle_source": vehicle.source,
-                    "backend": args.backend,
-                    "step_ns": str(STEP_NS),
-                    "bus": str(getattr(bus, "channel_info", "")),
-                },
-            )
         service = svc_mod.Service(
             bus,
             profile,
             vehicle,
             MonotonicClock() if args.spin_us is None else MonotonicClock(spin_ns=_spin_ns(args.spin_us)),
             backend=args.backend,
-            recorder=recorder,
             overlay_enabled=not args.no_overlay,
             log_period_s=args.log_period,
+            learned=args.learned,
         )
+        if args.record:
+            from ..recording import LEARNED_START_KEY, Recorder
+
+            meta = {
+                "profile": profile.name,
+                "vehicle": vehicle.name,
+                "vehicle_source": vehicle.source,
+                "backend": args.backend,
+                "step_ns": str(STEP_NS),
+                "bus": str(getattr(bus, "channel_info", "")),
+            }
+            if service.learned_start:
+                meta[LEARNED_START_KEY] = service.learned_start
+            recorder = service.recorder = Recorder(args.record, metadata=meta)
         on_step = None
         if args.duration is not None:
             span_ns = max(STEP_NS, int(args.duration * 1e9))
@@ -192,7 +200,11 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for s, h in old.items():
             signal.signal(s, h)
-        if recorder is not None:
-            recorder.close()
-        bus.shutdown()
+        try:
+            if service is not None:
+                service.close()  # the learned state's last write
+        finally:
+            if recorder is not None:
+                recorder.close()
+            bus.shutdown()
     return 0
