@@ -30,8 +30,8 @@ R2 (rear axle; Cr)::
     (lf T_true / t - Iz r_dot) / lr = 2 Cr alpha_r - 2 Cr sigma D_dot / vx + c2,  alpha_r = T_true/(2K) - D
 
 The regressions start in cascade (R1 once R3 has samples, R2 once R1 has): without it Cr ended 5 %
-off. They learn only when the drive is excited (road-wheel rate RMS > 0.5 deg/s, lateral-force
-variation > 300 N) and disturbance-quiet (the filter's wind estimate varies less than half as much as
+off. They learn only when the drive is excited (road-wheel rate RMS > 0.2 deg/s, lateral-force
+variation > 150 N) and disturbance-quiet (the filter's wind estimate varies less than half as much as
 m a_y): a steady crosswind or a long bank gives no excitation and is never learned as a tire value.
 
 Offsets (not identifiable from a steady state: a steady crosswind looks like them):
@@ -44,9 +44,10 @@ Offsets (not identifiable from a steady state: a steady crosswind looks like the
   0.3 m ahead of the CG, only while the wind estimate is small, averaged over 30 minutes of such
   driving (a 10-minute steady wind moves it by a fraction of its leak only).
 
-Learned state of the tire group (``ST_*``): not learned (prior only), learning (after 300 excited
-samples the values are pushed), learned (after 2000 excited samples, ~31 s of manoeuvres; it then
-learns 100x slower).
+Learned state of the tire group (``ST_*``): not learned (prior only), learning (after 150 excited
+samples the values are pushed), learned (after 1000 excited samples, ~16 s of manoeuvres; it then
+learns 1000x slower in variance: a learned car is not re-learned by the next drive's disturbances).
+Constants tuned on zoo plants indep_twin, tires_minus25, suv_slow, angle_above_tb (docs/estimator.md).
 """
 
 from __future__ import annotations
@@ -148,17 +149,15 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     lp[L_D_GATE_M] = 200.0
     lp[L_RATE] = 0.02  # max relative change per push of a pushed tire parameter
     lp[L_LEARNED_REL] = 0.05
-    lp[L_MIN_SAMPLES] = 2000  # excited regression samples (15.6 ms each: ~31 s of manoeuvres) to 'learned'
+    lp[L_MIN_SAMPLES] = 1000  # excited regression samples (15.6 ms each: ~16 s of manoeuvres) to 'learned'
     lp[L_SIG_B] = 0.3 * DEG
     lp[L_ENABLE] = 1.0 if enable else 0.0
     lp[L_RELAX] = 1.0  # learn the tire relaxation terms
-    lp[L_EXC_SW] = (
-        0.5 * DEG
-    )  # road-wheel angle rate RMS [rad/s] above which R1*, R3 learn (8 deg/s at N = 16)
+    lp[L_EXC_SW] = 0.2 * DEG  # road-wheel angle rate RMS [rad/s] above which R1-R3 learn (3 deg/s at N = 16)
     lp[L_SLIDE] = 0.0  # |steering-wheel rate| [rad/s] below which a sample is left out (stiction)
     lp[L_QUIET] = 0.5  # learn only while the filter's wind varies less than this share of m a_y (0.2-3 Hz)
-    lp[L_EXC_F] = 300.0  # ... and m a_y varies by more than this [N RMS, 0.2-3 Hz]
-    lp[L_SLOW] = 100.0  # once learned, the regressions' noise variance is this much larger (slower)
+    lp[L_EXC_F] = 150.0  # ... and m a_y varies by more than this [N RMS, 0.2-3 Hz]
+    lp[L_SLOW] = 1000.0  # once learned, the regressions' noise variance is this much larger (slower)
     lp[L_SIG_CTB] = 0.3 * DEG  # prior std of the torsion twist in the angle [rad/Nm]
     return lp
 
