@@ -68,7 +68,9 @@ def spec_vehicle(plant: str) -> Any:
 Hook = Callable[[np.ndarray, np.ndarray], None]  # (p, lp) modified in place before the run
 
 
-def run_engine(frames: Any, profile: str, vehicle: Any, learned: Path | None, save: Path | None, hook: Hook | None):
+def run_engine(
+    frames: Any, profile: str, vehicle: Any, learned: Path | None, save: Path | None, hook: Hook | None
+):
     from lde.engine import Engine
     from lde.learner import init_state
     from lde.profiles import load_profile
@@ -245,7 +247,11 @@ def meets(r: dict[str, Any]) -> bool:
     if r["undist"]:
         lim = (20.0, 8.0) if warm else (60.0, 20.0)
         return r["fw"] <= lim[0] and r["mw"] <= lim[1]
-    lim = 0.10 if not warm or r["scenario"] in HARD or r["plant"] in DEFECTS or r["plant"] == "long_trail" else 0.05
+    lim = (
+        0.10
+        if not warm or r["scenario"] in HARD or r["plant"] in DEFECTS or r["plant"] == "long_trail"
+        else 0.05
+    )
     return r["fw"] <= lim and r["mw"] <= lim
 
 

@@ -78,7 +78,9 @@ def _learn(scale_f, scale_r, scale_k, steer=_weave, seconds=60.0, seed=0):
             p, xs, P, fs, ints, h, ph, 10**9 + i * STEP_NS, VX, steer(ti), yaw, tcol, tast, ay,
             True, True, True, True, True, out,
         )  # fmt: skip
-        Ln.learner_step(lp, ls, ws, p, out, VX, steer(ti), yaw, tcol, tast, ay, fs[E.F_ZFRIC], bool(st & VALID))
+        Ln.learner_step(
+            lp, ls, ws, p, out, VX, steer(ti), yaw, tcol, tast, ay, fs[E.F_ZFRIC], bool(st & VALID)
+        )
         x = ad @ x + bd * delta
     return p, p0, ls
 
