@@ -30,8 +30,8 @@ R2 (rear axle; Cr)::
     (lf T_true / t - Iz r_dot) / lr = 2 Cr alpha_r - 2 Cr sigma D_dot / vx + c2,  alpha_r = T_true/(2K) - D
 
 The regressions start in cascade (R1 once R3 has samples, R2 once R1 has): without it Cr ended 5 %
-off. They learn only when the drive is excited (road-wheel rate RMS > 0.5 deg/s, lateral-force
-variation > 300 N) and disturbance-quiet (the filter's wind estimate varies less than half as much as
+off. They learn only when the drive is excited (road-wheel rate RMS > 0.2 deg/s, lateral-force
+variation > 150 N) and disturbance-quiet (the filter's wind estimate varies less than half as much as
 m a_y): a steady crosswind or a long bank gives no excitation and is never learned as a tire value.
 
 Offsets (not identifiable from a steady state: a steady crosswind looks like them):
@@ -44,9 +44,10 @@ Offsets (not identifiable from a steady state: a steady crosswind looks like the
   0.3 m ahead of the CG, only while the wind estimate is small, averaged over 30 minutes of such
   driving (a 10-minute steady wind moves it by a fraction of its leak only).
 
-Learned state of the tire group (``ST_*``): not learned (prior only), learning (after 300 excited
-samples the values are pushed), learned (after 2000 excited samples, ~31 s of manoeuvres; it then
-learns 100x slower).
+Learned state of the tire group (``ST_*``): not learned (prior only), learning (after 150 excited
+samples the values are pushed), learned (after 1000 excited samples, ~16 s of manoeuvres; it then
+learns 1000x slower in variance: a learned car is not re-learned by the next drive's disturbances).
+Constants tuned on zoo plants indep_twin, tires_minus25, suv_slow, angle_above_tb (docs/estimator.md).
 """
 
 from __future__ import annotations
@@ -82,8 +83,8 @@ N_SIG = 7
  L_EXC_TAU, L_EXC_RDOT, L_SIG1, L_SIG2, L_SIG3, L_QI1, L_QI2, L_QI3, L_QPHYS,
  L_TORSION, L_B_TAU, L_B_GATE, L_D_TAU, L_D_GATE_F, L_D_GATE_M, L_RATE,
  L_LEARNED_REL, L_MIN_SAMPLES, L_SIG_B, L_ENABLE, L_RELAX, L_EXC_SW, L_SLIDE, L_SLOW,
- L_QUIET, L_EXC_F) = range(33)  # fmt: skip
-N_LP = 33
+ L_QUIET, L_EXC_F, L_SIG_CTB) = range(34)  # fmt: skip
+N_LP = 34
 
 # --- learner state (ls, float) -----------------------------------------------------------------------
 # svf: 3 * N_SIG (value, derivative, second derivative); then regression blocks
@@ -148,17 +149,16 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     lp[L_D_GATE_M] = 200.0
     lp[L_RATE] = 0.02  # max relative change per push of a pushed tire parameter
     lp[L_LEARNED_REL] = 0.05
-    lp[L_MIN_SAMPLES] = 2000  # excited regression samples (15.6 ms each: ~31 s of manoeuvres) to 'learned'
+    lp[L_MIN_SAMPLES] = 1000  # excited regression samples (15.6 ms each: ~16 s of manoeuvres) to 'learned'
     lp[L_SIG_B] = 0.3 * DEG
     lp[L_ENABLE] = 1.0 if enable else 0.0
     lp[L_RELAX] = 1.0  # learn the tire relaxation terms
-    lp[L_EXC_SW] = (
-        0.5 * DEG
-    )  # road-wheel angle rate RMS [rad/s] above which R1*, R3 learn (8 deg/s at N = 16)
+    lp[L_EXC_SW] = 0.2 * DEG  # road-wheel angle rate RMS [rad/s] above which R1-R3 learn (3 deg/s at N = 16)
     lp[L_SLIDE] = 0.0  # |steering-wheel rate| [rad/s] below which a sample is left out (stiction)
     lp[L_QUIET] = 0.5  # learn only while the filter's wind varies less than this share of m a_y (0.2-3 Hz)
-    lp[L_EXC_F] = 300.0  # ... and m a_y varies by more than this [N RMS, 0.2-3 Hz]
-    lp[L_SLOW] = 100.0  # once learned, the regressions' noise variance is this much larger (slower)
+    lp[L_EXC_F] = 150.0  # ... and m a_y varies by more than this [N RMS, 0.2-3 Hz]
+    lp[L_SLOW] = 1000.0  # once learned, the regressions' noise variance is this much larger (slower)
+    lp[L_SIG_CTB] = 0.3 * DEG  # prior std of the torsion twist in the angle [rad/Nm]
     return lp
 
 
@@ -188,8 +188,8 @@ def init_state(p: np.ndarray, lp: np.ndarray, friction_prior: float = 0.3) -> np
     ls[LS_T3 + 3] = p[E.P_S] * n * friction_prior / (2.0 * k0)
     # generic torsion bar 2 Nm/deg (0.5 +- 0.05 deg/Nm) where the angle sensor sits above it: the twist
     # is nearly collinear with the aligning torque (the column torque follows it), so the prior dominates
-    sig_ctb = 1e-9  # not learned: see DESIGN.md (collinear with K on driving data)
-    ls[LS_T3 + 4] = p[E.P_S] * p[E.P_CTB] if lp[L_TORSION] > 0 else 0.0
+    sig_ctb = p[E.P_S] * lp[L_SIG_CTB]
+    ls[LS_T3 + 4] = p[E.P_S] * p[E.P_CTB]
     _diag(
         ls,
         LS_P3,
@@ -347,7 +347,7 @@ def learner_step(
             xr[1] = -v_f * T_d / 2.0
             xr[2] = -v_f * T_dd / 2.0
             xr[3] = v_f * z_d
-            xr[4] = -v_f * tc_d / n if lp[L_TORSION] > 0 else 0.0
+            xr[4] = -v_f * tc_d / n
             xr[5] = 1.0
             _rls(ls, LS_T3, LS_P3, N3, xr, ay_f, slow * lp[L_SIG3] ** 2, ph)
             ls[LS_N + 1] += 1.0
@@ -444,7 +444,7 @@ def push(lp, ls, p):  # pragma: no cover - compiled
     s = ls[LS_T3 + 0]
     k = s / ls[LS_T3 + 1] if ls[LS_T3 + 1] > 0 else p[E.P_K]
     tfric = 2.0 * ls[LS_T3 + 3] / (ls[LS_T3 + 1] * n) if ls[LS_T3 + 1] > 0 else p[E.P_TFRIC]
-    ctb = ls[LS_T3 + 4] / s if lp[L_TORSION] > 0 else 0.0
+    ctb = ls[LS_T3 + 4] / s
     # R1: t = L / theta1[0];  R2: Cr = theta2[0] / 2
     t = L / ls[LS_T1 + 0] if ls[LS_T1 + 0] > 0 else p[E.P_K] / p[E.P_CF]
     cr = 0.5 * ls[LS_T2 + 0]

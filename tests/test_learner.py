@@ -1,0 +1,121 @@
+"""lde.learner beside the lateral filter, on an independently written linear truth model.
+
+The truth is the linear bicycle model with per-tire stiffnesses that differ from the filter's
+prior (the vehicle file's tires), discretised exactly; its aligning torque is 2 K alpha_f. The
+learner must move Cf, Cr and K toward the truth (a wrong sign in a regressor, a regression or a
+push moves them away), reach 'learned' on a drive of lane-change-like weaving, and leave a car alone
+on a drive without excitation.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+from lde import estimator as E
+from lde import learner as Ln
+from lde.params import load_vehicle
+from lde.status import VALID
+from lde.step import N_OUT
+from lde.units import DEG, STEP_NS, STEP_S
+
+VX = 100.0 / 3.6
+
+
+def _truth(m, iz, lf, lr, cf, cr, vx):
+    a = np.array(
+        [
+            [-2 * (cf + cr) / (m * vx), -1 - 2 * (lf * cf - lr * cr) / (m * vx**2)],
+            [-2 * (lf * cf - lr * cr) / iz, -2 * (lf**2 * cf + lr**2 * cr) / (iz * vx)],
+        ]
+    )
+    b = np.array([[2 * cf / (m * vx)], [2 * lf * cf / iz]])
+    big = np.zeros((3, 3))
+    big[:2, :2], big[:2, 2:] = a, b
+    e = expm(big * STEP_S)
+    return e[:2, :2], e[:2, 2]
+
+
+def _weave(t):
+    """Lane-change-like weaving: 0.2-0.6 Hz, up to ~25 deg at the steering wheel."""
+    return DEG * (12 * math.sin(2 * math.pi * 0.25 * t) + 8 * math.sin(2 * math.pi * 0.55 * t + 1.0))
+
+
+def _learn(scale_f, scale_r, scale_k, steer=_weave, seconds=60.0, seed=0):
+    """Run filter + learner on a truth whose Cf, Cr, K are the prior's times the scales; returns the
+    filter's parameter vector at the end, the prior's and the learner state."""
+    veh = load_vehicle("reference")
+    b, t = veh.body, veh.tires
+    n_ratio = veh.steering.ratio
+    p = E.params_vector(veh)
+    p0 = p.copy()
+    lp = Ln.default_lp()
+    ls = Ln.init_state(p, lp, friction_prior=p[E.P_TFRIC])
+    p[E.P_TFRIC] = 0.0  # the truth has no friction; the prior is left as a vehicle file gives it
+    cf, cr, k = t.cf * scale_f, t.cr * scale_r, t.align_rate * scale_k
+    s = p[E.P_S]
+    ad, bd = _truth(b.mass, b.yaw_inertia, b.lf, b.lr, cf, cr, VX)
+    x, xs, P = np.zeros(2), np.zeros(E.NX), np.zeros((E.NX, E.NX))
+    fs, ints = np.zeros(E.N_F), np.zeros(E.N_I, np.int64)
+    E.reset_kernel(p, xs, P, fs, ints)
+    h, ph, out, ws = np.zeros(E.NX), np.zeros(E.NX), np.zeros(N_OUT), np.zeros((2, Ln.N3))
+    rng = np.random.default_rng(seed)
+    for i in range(int(seconds / STEP_S)):
+        ti = i * STEP_S
+        delta = steer(ti) / n_ratio
+        beta, r = x
+        af = delta - beta - b.lf * r / VX
+        ar = -beta + b.lr * r / VX
+        t_align = 2 * k * af
+        ay = s * (2 * cf * af + 2 * cr * ar) / b.mass + rng.normal(0, 0.02)
+        yaw = r + rng.normal(0, 0.05 * DEG)
+        tcol = t_align / n_ratio / 4 + rng.normal(0, 0.01)
+        tast = 3 * t_align / n_ratio / 4
+        st = E.step_kernel(
+            p, xs, P, fs, ints, h, ph, 10**9 + i * STEP_NS, VX, steer(ti), yaw, tcol, tast, ay,
+            True, True, True, True, True, out,
+        )  # fmt: skip
+        Ln.learner_step(
+            lp, ls, ws, p, out, VX, steer(ti), yaw, tcol, tast, ay, fs[E.F_ZFRIC], bool(st & VALID)
+        )
+        x = ad @ x + bd * delta
+    return p, p0, ls
+
+
+@pytest.mark.parametrize("scale", [1.2, 0.8])
+def test_tires_move_toward_the_truth(scale):
+    """Cf, Cr, K all 20 % above (below) the prior: each learned value moves up (down), more than half
+    way, and the learner says 'learned'. A sign error in any regression moves one the other way."""
+    p, p0, ls = _learn(scale, scale, scale)
+    assert Ln.tire_state(ls) == Ln.ST_LEARNED
+    for slot in (E.P_CF, E.P_CR, E.P_K):
+        moved = p[slot] / p0[slot] - 1.0
+        assert moved * (scale - 1.0) > 0.0, (slot, p[slot], p0[slot])  # the right direction
+        assert abs(moved) > 0.5 * abs(scale - 1.0), (slot, p[slot] / p0[slot])
+
+
+def test_the_axle_balance_is_learned():
+    """Front stiffer, rear softer than the prior (the balance Mw hangs on): Cf up, Cr down."""
+    p, p0, _ = _learn(1.15, 0.85, 1.15)
+    assert p[E.P_CF] > 1.05 * p0[E.P_CF]
+    assert p[E.P_CR] < 0.95 * p0[E.P_CR]
+
+
+def test_no_excitation_no_learning():
+    """Straight driving with a steady small angle: no tire value moves, the state stays 'not learned'."""
+    p, p0, ls = _learn(1.2, 1.2, 1.2, steer=lambda t: 1.0 * DEG, seconds=30.0)
+    assert Ln.tire_state(ls) == Ln.ST_NOT
+    for slot in (E.P_CF, E.P_CR, E.P_K):
+        assert p[slot] == pytest.approx(p0[slot], rel=1e-9)
+
+
+def test_defaults_are_the_tuned_gates():
+    """The constants docs/estimator.md states (tuned on the zoo's tuning plants)."""
+    lp = Ln.default_lp()
+    assert lp[Ln.L_EXC_SW] == pytest.approx(0.2 * DEG)
+    assert lp[Ln.L_EXC_F] == 150.0
+    assert lp[Ln.L_MIN_SAMPLES] == 1000
+    assert lp[Ln.L_SLOW] == 1000.0
