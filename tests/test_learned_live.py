@@ -136,3 +136,50 @@ def test_keeper_period_and_failures(tmp_path) -> None:
     assert bad.errors == 1
     with pytest.raises(ConfigError, match="cannot write"):  # the final one: the caller hears of it
         bad.close(_snap(2.0))
+
+
+def test_overlay_law_uses_the_learned_tires(tmp_path) -> None:
+    """The overlay's holding-torque gain K / (N Cf L) comes from the backend's current (learned)
+    tires: a learned file with Cf doubled halves the gain, and in ACTIVE steady state the request
+    follows -g (lr Fw + Mw) with that gain, not with the vehicle file's."""
+    from lde import estimator as E
+    from lde.overlay import OverlayState, feedforward_gain
+    from lde.profiles import load_profile
+    from lde.step import O_GAIN
+    from vcan_sim.run import simulate
+
+    vehicle = load_vehicle("reference")
+    frames = simulate("light_load", seed=3, duration=12.0).frames  # below the torque limit
+    profile = load_profile("lde")
+    base = tmp_path / "base.learned"
+    replay(frames, profile, vehicle, "lateral", learned=base)  # writes a file with the car's values
+    doc = json.loads(base.read_text())
+    cf0 = doc["params"]["cf_N_per_rad"]
+    doc["params"]["cf_N_per_rad"] = 2.0 * cf0
+    stiff = tmp_path / "stiff.learned"
+    stiff.write_text(json.dumps(doc))
+
+    cold = replay(frames, profile, vehicle, "lateral")
+    warm = replay(frames, profile, vehicle, "lateral", learned=stiff)
+    g_cold, g_warm = cold.block.est[:, O_GAIN], warm.block.est[:, O_GAIN]
+    p = E.params_vector(vehicle)
+    assert g_cold[0] == pytest.approx(p[E.P_K] / (p[E.P_N] * p[E.P_CF] * (p[E.P_LF] + p[E.P_LR])), rel=1e-12)
+    assert g_cold[0] == pytest.approx(feedforward_gain(vehicle), rel=1e-9)  # both derivations agree
+    k_ratio = doc["params"]["k_Nm_per_rad"] / p[E.P_K] if "k_Nm_per_rad" in doc["params"] else 1.0
+    assert g_warm[0] == pytest.approx(g_cold[0] * k_ratio / 2.0, rel=1e-9)
+
+    lr = vehicle.body.lr
+    for res, g in ((cold, g_cold), (warm, g_warm)):
+        active = res.overlay_state == OverlayState.ACTIVE
+        assert active.sum() > 500, "the scenario must bring the overlay into ACTIVE"
+        demand = -g * (lr * res.fw + res.mw)
+        lim = vehicle.overlay.max_torque
+        inside = active & (np.abs(demand) < 0.9 * lim)
+        err = np.abs(res.t_overlay[inside] - demand[inside])
+        assert np.median(err) < 0.02, np.median(err)  # the rate limit lags by at most a step or two
+    # ... and not with the vehicle file's gain (the check above can fail): with a doubled Cf the
+    # filter explains the same measured aligning torque by a larger Fw, so the product -g (lr Fw + Mw)
+    # stays near the holding torque only with the learned gain
+    active = (warm.overlay_state == OverlayState.ACTIVE) & (np.abs(warm.t_overlay) < 0.9 * lim)
+    wrong = -g_cold * (lr * warm.fw + warm.mw)
+    assert np.median(np.abs(warm.t_overlay[active] - wrong[active])) > 0.1

@@ -63,7 +63,7 @@ def _row(res: StepResult, inputs: SimpleNamespace, e2e_rejects: int) -> tuple[St
     b = StepBlock.empty(1)
     b.t_ns[0] = res.t_ns
     b.status[0] = res.status
-    b.est[0] = [res.fw, res.mw, res.t_align, 0.001, 0.002, res.fw - 100.0, res.mw, 0.01, 1]
+    b.est[0] = [res.fw, res.mw, res.t_align, 0.001, 0.002, res.fw - 100.0, res.mw, 0.01, 1, 0.002]
     b.t_overlay[0] = res.t_overlay
     b.overlay_state[0] = res.overlay_state
     b.overlay_enable[0] = True

@@ -63,6 +63,7 @@ from .step import (
     O_BETA,
     O_FW,
     O_FW_WIND,
+    O_GAIN,
     O_LEARN,
     O_MW,
     O_MW_WIND,
@@ -124,6 +125,7 @@ def _no_lateral(out):  # pragma: no cover - compiled
     out[O_MW_WIND] = np.nan
     out[O_BANK] = np.nan
     out[O_LEARN] = LEARN_NONE
+    out[O_GAIN] = np.nan
 
 
 @njit(cache=True)
@@ -281,6 +283,8 @@ def lateral_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no 
         mdps_ok and esc_ok and (status & VALID) != 0,
     )
     out[O_LEARN] = ls[Ln.LS_STATE]
+    # the overlay law with the learned trail K/Cf (the holding torque is 2 K alpha_f / N)
+    out[O_GAIN] = p[E.P_K] / (p[E.P_N] * p[E.P_CF] * (p[E.P_LF] + p[E.P_LR]))
     return status
 
 

@@ -177,7 +177,7 @@ class StepBlock:
         return cls(
             t_ns=np.empty(n, np.int64),
             status=np.empty(n, np.uint8),
-            est=np.empty((n, N_OUT)),
+            est=np.full((n, N_OUT), np.nan),  # a slot a backend does not fill stays NaN
             t_overlay=np.empty(n),
             overlay_state=np.empty(n, np.uint8),
             overlay_enable=np.empty(n, np.bool_),

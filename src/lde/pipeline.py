@@ -52,7 +52,7 @@ from .grid import (
     grid_frame,
     grid_step_done,
 )
-from .overlay import LS_STATE, overlay_kernel
+from .overlay import LP_GAIN, LS_STATE, overlay_kernel
 from .signals import (
     I_COLUMN_TORQUE,
     I_SPEED,
@@ -62,7 +62,7 @@ from .signals import (
     rx_sample,
 )
 from .status import DEGRADED, VALID
-from .step import O_BANK, O_FW, O_FW_WIND, O_LEARN, O_MW, O_MW_WIND, O_T_ALIGN
+from .step import O_BANK, O_FW, O_FW_WIND, O_GAIN, O_LEARN, O_MW, O_MW_WIND, O_T_ALIGN
 from .units import DEG
 
 __all__ = [
@@ -261,6 +261,9 @@ def _run_loop(
             est = o_est[n]
             status = STEP(bp, bs, tk, vin, fresh, ok_m, ok_e, est)
             status |= extra
+            gain = est[O_GAIN]
+            if math.isfinite(gain) and gain > 0.0:  # the backend's learned tires (else the vehicle file's)
+                lp[LP_GAIN] = gain
             torque = overlay_kernel(
                 lp,
                 lsi,

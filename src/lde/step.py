@@ -115,7 +115,10 @@ O_FW_WIND = 5  #: the wind's part of Fw [N] (NaN: the backend does not tell wind
 O_MW_WIND = 6  #: the wind's yaw moment [Nm] (NaN: not told apart)
 O_BANK = 7  #: road bank angle [rad], road's left side lower positive (NaN: not told apart)
 O_LEARN = 8  #: learned state of the tires: 0 not learned, 1 learning, 2 learned, 3 no learner
-N_OUT = 9
+#: the overlay law's gain K / (N Cf L) [Nm at the column per N m] from the backend's current (learned)
+#: tires; NaN: the vehicle file's (lde.overlay.feedforward_gain)
+O_GAIN = 9
+N_OUT = 10
 #: ``O_LEARN`` of a backend without a learner
 LEARN_NONE = 3
 

@@ -164,6 +164,21 @@ else
     note "/dev/shm is missing, noexec or smaller than mem=$mem: UML's RAM file goes to $ramdir"
 fi
 
+# --- host mappings: UML maps guest memory into the host process of each guest process page
+# range by page range, so a large guest process (python with numba: ~1 GB) needs far more than the
+# default 65530 mappings: past vm.max_map_count it dies of SIGKILL with "UML ran out of memory on
+# the host side" on the console (seen in .ci/run). Raise the limit when allowed (root), else say so.
+want_maps=1048576
+cur_maps=$(cat /proc/sys/vm/max_map_count 2>/dev/null || echo 0)
+if [[ $cur_maps -lt $want_maps ]]; then
+    if { echo "$want_maps" >/proc/sys/vm/max_map_count; } 2>/dev/null; then
+        note "vm.max_map_count $cur_maps -> $want_maps (UML maps guest memory range by range)"
+    else
+        note "vm.max_map_count is $cur_maps and cannot be raised here: a large guest process may be killed" \
+            "('UML ran out of memory on the host side'); as root: sysctl -w vm.max_map_count=$want_maps"
+    fi
+fi
+
 # --- the guest's init ------------------------------------------------------------------------
 guest_path=$(dirname "$cmd0"):$PATH:/usr/sbin:/usr/bin:/sbin:/bin
 {
@@ -243,6 +258,9 @@ if [[ -f $work/rc ]]; then
     if [[ $rc -ge 128 ]]; then  # killed by a signal inside the guest: say whether the OOM killer did it
         echo "run_in_uml: the command died of signal $((rc - 128)) inside the guest (mem=$mem)" >&2
         grep -iE "out of memory|killed process|oom-kill" "$work/console.log" | tail -n 5 >&2 || true
+        if grep -q "ran out of memory on the host side" "$work/console.log"; then
+            echo "run_in_uml: host mappings exhausted: vm.max_map_count is $(cat /proc/sys/vm/max_map_count)" >&2
+        fi
     fi
     exit "$rc"
 fi

@@ -18,12 +18,17 @@ python-can's environment variables or config file.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
+import signal
 import sys
+import threading
 import time
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
+from types import FrameType
 
 from ..errors import ConfigError
 from .run import add_bus_arguments, bus_kwargs
@@ -161,6 +166,32 @@ def _sched_fifo(priority: int) -> None:
         log.warning("--rt-priority: %s", w)
 
 
+class _Stopped(BaseException):
+    """SIGTERM (or SIGINT) while simulating: end the run, then write what was simulated."""
+
+
+@contextlib.contextmanager
+def _signals_stop() -> Iterator[list[str]]:
+    """SIGINT and SIGTERM end the simulation as a normal stop: the body is left, the list yielded
+    names the signal, and the outputs are written after it (SIGTERM's default would kill the process
+    and lose them). The previous handlers are restored."""
+    stopped: list[str] = []
+
+    def _raise(signum: int, frame: FrameType | None) -> None:
+        raise _Stopped(signal.Signals(signum).name)
+
+    old = {}
+    if threading.current_thread() is threading.main_thread():
+        old = {s: signal.signal(s, _raise) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stopped
+    except (_Stopped, KeyboardInterrupt) as exc:
+        stopped.append(str(exc) or "SIGINT")
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.list:
         return _print_list()
@@ -194,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
     if live:
         from lde.service import open_bus
         from vcan_sim.closed_loop import OverlayReceiver
-        from vcan_sim.emitter import LATE_S, MAX_LAG_S, pump
+        from vcan_sim.emitter import LATE_S, MAX_LAG_S, PumpStats, pump
 
         realtime = True if args.realtime is None else args.realtime
         if args.rt_priority is not None and not realtime:
@@ -211,12 +242,21 @@ def run(args: argparse.Namespace) -> int:
         if args.rt_priority is not None:
             _sched_fifo(args.rt_priority)
         bus = open_bus(**kw)
+        st: PumpStats | None = None
+        print(
+            f"lde sim: {args.scenario} on {getattr(bus, 'channel_info', 'the bus')} "
+            f"({'real time' if realtime else 'fast'}, {sim.duration:.0f} s); SIGINT/SIGTERM stop it",
+            file=sys.stderr,
+            flush=True,
+        )
         try:
-            st = pump(sim, bus, realtime=realtime, closed_loop=not args.open_loop, receiver=receiver)
-        except KeyboardInterrupt:
-            st = None
+            with _signals_stop() as stopped:
+                st = pump(sim, bus, realtime=realtime, closed_loop=not args.open_loop, receiver=receiver)
         finally:
             bus.shutdown()
+        if stopped:
+            st = None
+            print(f"lde sim: stopped by {stopped[0]}; writing what was simulated", file=sys.stderr)
         if st is not None:
             used = receiver.stats.used if receiver else 0
             # closed loop: the steps that found no new overlay frame ran on the last request
@@ -236,7 +276,10 @@ def run(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
     else:
-        sim.run()
+        with _signals_stop() as stopped:
+            sim.run()
+        if stopped:
+            print(f"lde sim: stopped by {stopped[0]}; writing what was simulated", file=sys.stderr)
     res = sim.result()
     written = write_outputs(res, log=args.log, truth=args.truth, mcap=args.mcap, channel=args.log_channel)
     if not live:
