@@ -100,6 +100,10 @@ def run(args: argparse.Namespace) -> int:
         tires=not args.keep_tires,
     )
     print("calibration: " + cal.summary())
+    print("identified (95 % intervals: Newey-West over the drive plus the fit's systematic term; a")
+    print("correction is written only when its interval excludes zero):")
+    for line in cal.report_lines():
+        print("  " + line)
     print(f"wrote {out}")
 
     # self-check on the same drive: it has no disturbance, so the estimate should be ~0
