@@ -42,8 +42,8 @@ def cache_dirs() -> list[Path]:
 
 
 #: the compiled data-path loops, one per backend (:data:`lde.backends.BACKENDS`, named by
-#: :func:`lde.pipeline.make_loop`): fixed, float, lateral
-LOOPS = ("run_paper_fixed", "run_paper", "run_lateral")
+#: :func:`lde.pipeline.make_loop`): fixed, float (lateral), paper-fixed, paper
+LOOPS = ("run_lateral_fixed", "run_lateral", "run_paper_fixed", "run_paper")
 
 
 def is_warm(loops: tuple[str, ...] = LOOPS) -> bool:

@@ -4,9 +4,11 @@ Each part runs a tiny workload through its kernels, so numba compiles them and w
 cache (:mod:`lde.jitcache`); parts can run in parallel processes (one core each):
 
 ===========  ======================================================================================
-``fixed``    the data path with the fixed-point backend and its float shadow (lde.pipeline's loop)
-``float``    the data path with the float backend
-``lateral``  the data path with the lateral backend (its filter and learner)
+``fixed``    the data path with the default backend (the lateral filter in fixed point, its float
+             shadow and the learner)
+``float``    the data path with the lateral filter in float
+``paper-fixed``  the paper's filter in fixed point with its shadow
+``paper``    the paper's filter in float
 ``logio``    candump parser and writer, MCAP writer and reader, CSV / JSON row formatting
 ``sim``      the vehicle simulator (``lde demo``, ``lde sim``) and the batch decoder and grid
 ===========  ======================================================================================
@@ -37,7 +39,7 @@ from .signals import decode_batch
 
 __all__ = ["PARTS", "warm_up"]
 
-PARTS = ("fixed", "float", "lateral", "logio", "sim")
+PARTS = ("fixed", "float", "paper-fixed", "paper", "logio", "sim")
 
 
 def _frames() -> FrameBatch:
@@ -84,7 +86,8 @@ def _sim() -> None:
 _RUN: dict[str, Callable[[], None]] = {
     "fixed": lambda: _engine("fixed"),
     "float": lambda: _engine("float"),
-    "lateral": lambda: _engine("lateral"),
+    "paper-fixed": lambda: _engine("paper-fixed"),
+    "paper": lambda: _engine("paper"),
     "logio": _logio,
     "sim": _sim,
 }
