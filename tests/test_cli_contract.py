@@ -147,8 +147,9 @@ def replayed(sim) -> Path:
         lde_here("replay", d / "h.log", "--profile", "hyundai", "--csv", d / "h.csv", "-q"),
         lde_here("replay", d / "h.log", "--csv", d / "wrong.csv"),
     ]
-    for r in runs:
+    for r in runs[:-1]:
         assert r.returncode == 0, r.stderr
+    assert runs[-1].returncode == 3, runs[-1].stderr  # replayed, but nothing usable: an honest exit
     (d / "wrong.err").write_text(runs[-1].stderr)
     return d
 
@@ -239,7 +240,9 @@ def test_hyundai_profile_sim_and_replay_with_own_start_time(replayed: Path):
     assert 1234567890_250000 <= t[0] < 1234567890_300000 and np.all(np.diff(t) == STEP_US)
     assert column(header, rows, "esc_ok")[-1] == 1 and column(header, rows, "mdps_ok")[-1] == 1
     # the same log under the default profile: no MDPS frame, a header-only CSV and a note
-    assert "no estimator step" in (replayed / "wrong.err").read_text()
+    err = (replayed / "wrong.err").read_text()
+    assert "no estimator step" in err
+    assert "no frame of MDPS_Sensors (0x2A0), ESC_Motion (0x2A8)" in err and "fit profile hyundai" in err
     assert (replayed / "wrong.csv").read_text().splitlines() == [",".join(header)]
 
 

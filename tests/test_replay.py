@@ -346,9 +346,10 @@ def test_recording_replays_under_the_profile_it_names(tmp_path: Path, capsys):
     assert main(["replay", str(d / "h1.mcap"), "--csv", str(d / "h2.csv"), *args]) == 0
     assert capsys.readouterr().err == ""
     assert (d / "h2.csv").read_bytes() == (d / "h1.csv").read_bytes()
-    assert main(["replay", str(d / "h1.mcap"), "--profile", "lde", "--csv", str(d / "h3.csv"), *args]) == 0
+    assert main(["replay", str(d / "h1.mcap"), "--profile", "lde", "--csv", str(d / "h3.csv"), *args]) == 3
     err = capsys.readouterr().err
-    assert "no valid estimate" in err and "wrong --profile" in err and "used lde, given" in err
+    assert "no valid estimate: no frame of MDPS_Sensors (0x2A0), ESC_Motion (0x2A8)" in err, err
+    assert "(profile lde, given)" in err and "fit profile hyundai (4 of its 4" in err
     status = np.loadtxt(d / "h3.csv", delimiter=",", skiprows=1, usecols=5)
     assert status.size > 0 and not np.any(status.astype(int) & 1)
 
@@ -463,3 +464,23 @@ def test_a_cold_kernel_cache_is_announced_at_once(tmp_path: Path, capsys, monkey
     assert is_warm()
     assert main(args) == 0
     assert "compiling" not in capsys.readouterr().err
+
+
+def test_several_logs_go_on_past_a_bad_one_and_exit_non_zero(tmp_path, capsys) -> None:
+    """A log that cannot be read is reported and skipped, the others are replayed; exit 2 at the end.
+    All readable but one without a VALID step: exit 3 (issue 13 item 4)."""
+    from vcan_sim.output import write_outputs
+    from vcan_sim.run import simulate
+
+    good, hy = tmp_path / "good.log", tmp_path / "hy.log"
+    write_outputs(simulate("straight", seed=1, duration=3.0), log=good)
+    write_outputs(simulate("straight", seed=1, duration=3.0, profile="hyundai"), log=hy)
+    bad = tmp_path / "bad.log"
+    bad.write_text("not a log\n")
+    out = tmp_path / "out"
+    assert main(["replay", str(bad), str(good), "--csv", str(out), "--backend", "float"]) == 2
+    err = capsys.readouterr().err
+    assert "bad.log: not a candump" in err and "1 failed" in err
+    assert (out / "good.csv").stat().st_size > 1000  # the good log after the bad one was replayed
+    assert main(["replay", str(good), str(hy), "--csv", str(out), "--backend", "float"]) == 3
+    assert main(["replay", str(good), "--csv", str(out / "g.csv"), "--backend", "float", "-q"]) == 0

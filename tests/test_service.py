@@ -524,3 +524,40 @@ def test_run_states_the_defaults_a_vehicle_file_leaves_out(tmp_path, caplog) -> 
     note = [r.getMessage() for r in caplog.records if "defaults used for" in r.getMessage()]
     assert note and "[estimator]" in note[0], caplog.text
     assert "[estimator]" in read_recording(path).metadata["vehicle_defaults"]
+
+
+def test_a_blind_service_says_which_input_is_missing_and_what_arrived(caplog) -> None:
+    """Wrong profile: the bus carries the hyundai profile's messages, the service decodes lde's. The
+    log names the missing message, its id, the bus and the profile, and the profile the traffic fits
+    (issue 13 item 2; lde.watch)."""
+    ch = f"lde-test-service-{next(_channels)}"
+    feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    try:
+        svc = Service(svc_bus, "lde", load_vehicle("reference"), SimulatedClock(T0), backend="float")
+        hy = load_profile("hyundai")
+        for k in range(150):  # 1.5 s of the hyundai profile's input messages, every 10 ms
+            for spec in hy.messages.values():
+                feed_bus.send(
+                    can.Message(
+                        timestamp=(T0 + k * 10_000_000) / 1e9,
+                        arbitration_id=spec.frame_id,
+                        is_extended_id=False,
+                        data=bytes(spec.length),
+                    )
+                )
+        with caplog.at_level("INFO", logger="lde.service"):
+            svc.run(max_steps=300)  # 1.17 s of steps
+        warns = [
+            r.getMessage()
+            for r in caplog.records
+            if r.levelname == "WARNING" and "no input" in r.getMessage()
+        ]
+        assert warns, caplog.text
+        assert "MDPS_Sensors (0x2A0) never received" in warns[0]
+        assert ch in warns[0] and "profile lde" in warns[0]
+        assert "fit profile hyundai (4 of its 4 input messages" in warns[0]
+        assert svc.watch.warnings == len(warns) <= 2  # MDPS first, ESC_Motion when it joins; not every step
+    finally:
+        feed_bus.shutdown()
+        svc_bus.shutdown()

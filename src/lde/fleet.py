@@ -97,6 +97,12 @@ class LogReport:
         return not self.error
 
     @property
+    def usable(self) -> bool:
+        """Replayed, and at least one step gave a VALID estimate (else the outputs hold nothing
+        usable: the exit code says so)."""
+        return self.ok and self.valid_steps > 0
+
+    @property
     def duration_s(self) -> float:
         """Stepped time [s]."""
         return self.steps * STEP_NS * 1e-9

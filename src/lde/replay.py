@@ -56,6 +56,7 @@ from .profiles import PROFILE_NAMES, Profile, load_profile
 from .recording import ESTIMATE_TOPIC, EVENTS_TOPIC, LEARNED_START_KEY, StepTopicWriter
 from .status import DEADLINE_MISS, VALID
 from .units import STEP_NS
+from .watch import describe_ids
 
 __all__ = [
     "ReplayResult",
@@ -114,6 +115,7 @@ class FrameCounts:
     tx: int
     ignored: int
     messages: dict[str, ReceiverStats]
+    ids: dict[int, int] = field(default_factory=dict)  # received frames per 11-bit id
 
     @property
     def used(self) -> int:
@@ -320,6 +322,7 @@ def run_replay(
         origin = "the recording's learned start"
     pieces = split(frames.sort(), chunk_frames) if isinstance(frames, FrameBatch) else frames
     n = n_tx = 0
+    id_counts = np.zeros(0x800, np.int64)
     steps = valid = gaps = 0
     last_t: int | None = None
     t_sinks = t_read = 0.0
@@ -334,6 +337,9 @@ def run_replay(
             chunk = FrameBatch.empty()
         n += len(chunk)
         n_tx += int(np.count_nonzero(~chunk.is_rx))
+        if len(chunk):  # received frames per 11-bit id (the summary names them when inputs are missing)
+            rx_ids = chunk.can_id[chunk.is_rx & ~chunk.is_extended]
+            id_counts += np.bincount(rx_ids & 0x7FF, minlength=0x800)[:0x800]
         kw: dict[str, Any] = {}
         if explicit and first:
             times = np.ascontiguousarray(step_times_ns, np.int64)
@@ -364,6 +370,7 @@ def run_replay(
         tx=n_tx if known_tx is None else known_tx,
         ignored=engine.n_ignored,
         messages=engine.stats(),
+        ids={int(i): int(id_counts[i]) for i in np.flatnonzero(id_counts)},
     )
     if learned is not None:
         engine.save_learned(learned, valid * STEP_NS * 1e-9)
@@ -515,15 +522,32 @@ def recorded_profile(log: LogData | LogStream) -> str | None:
 
 
 def no_valid_note(res: ReplayResult | ReplaySummary) -> str | None:
-    """A one-line explanation when a replay has steps but not one VALID estimate (all zeros: most
-    often the wrong CAN profile), else None."""
+    """A one-line explanation when a replay has not one VALID estimate (no step, or steps that all
+    stayed invalid: most often the wrong CAN profile; the missing input messages are named with the
+    ids the log has and the profile they fit, :mod:`lde.watch`), else None."""
     if isinstance(res, ReplaySummary):
-        if res.steps == 0 or res.valid_steps:
+        if res.valid_steps:
             return None
-    elif len(res) == 0 or np.any(res.status & VALID):
+    elif len(res) and np.any(res.status & VALID):
         return None
     anchor = res.profile.anchor_message if res.profile is not None else ""
     m = res.frames.messages.get(anchor)
+    if res.profile is not None:
+        missing = [
+            f"{name} (0x{spec.frame_id:X})"
+            for name, spec in res.profile.messages.items()
+            if (st := res.frames.messages.get(name)) is None or st.received == 0
+        ]
+        if missing:
+            counts = res.frames.ids
+            if counts:
+                ids = "; " + describe_ids(counts, res.profile)
+            else:
+                ids = "; no received frame at all" if res.frames.total == res.frames.tx else ""
+            return (
+                f"no valid estimate: no frame of {', '.join(missing)} in the log (profile"
+                f" {res.profile.name}, {_ORIGIN.get(res.profile_origin, res.profile_origin)}){ids}"
+            )
     if m is None or m.received == 0:
         why = f"no {anchor or 'MDPS'} frames of this profile in the log"
     elif m.used == 0:
@@ -532,9 +556,11 @@ def no_valid_note(res: ReplayResult | ReplaySummary) -> str | None:
         why = f"{anchor} frames used {m.used} of {m.received}; the estimate never became valid"
     if res.profile is None:
         return f"no valid estimate: {why}"
-    where = {"given": "given", "recording": "from the recording", "default": "the default"}
-    origin = where.get(res.profile_origin, res.profile_origin)
+    origin = _ORIGIN.get(res.profile_origin, res.profile_origin)
     return f"no valid estimate: {why} — wrong --profile? (used {res.profile.name}, {origin})"
+
+
+_ORIGIN = {"given": "given", "recording": "from the recording", "default": "the default"}
 
 
 def late_note(stats: ReadStats, window_ns: int | None) -> str | None:

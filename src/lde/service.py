@@ -80,6 +80,7 @@ from .profiles import Profile, load_profile
 from .signals import Receiver
 from .status import DEADLINE_MISS, VALID
 from .units import STEP_NS, STEP_S
+from .watch import InputWatch, describe_ids
 
 __all__ = ["Service", "StepResult", "STATUS_DEADLINE_MISS", "GRIDS", "open_bus", "set_input_filters"]
 
@@ -100,6 +101,10 @@ GRIDS = ("mdps", "fixed")
 _PENDING_CAP = 4096
 #: a young generation this large is collected in the idle time after a step (gc is off in the loop)
 _GC_YOUNG = 700
+
+
+_WATCH_PERIOD_NS = 250_000_000  # how often the input watch looks (its warnings repeat every 30 s)
+_PROBE_NS = 1_000_000_000  # SocketCAN filters lifted this long to name the ids on the bus
 
 
 @dataclass(frozen=True)
@@ -227,6 +232,11 @@ class Service:
         self._input_ids = frozenset(m.frame_id for m in self.profile.messages.values())
         self.filters = set_input_filters(bus, self.profile) if input_filters else "none"
         self.foreign = 0  # frames of other messages that reached the service (dropped)
+        where = f"{getattr(bus, 'channel_info', type(bus).__name__)}"
+        #: loud when blind: a required input that does not arrive is logged (lde.watch)
+        self.watch = InputWatch(self.profile, where)
+        self._watch_next = 0  # bus time of the next check [ns]
+        self._probe_until: int | None = None  # SocketCAN filters lifted to see what arrives, until
         self._warm_up()
         self.stats = TimingStats()
         self._newest_input_ns = -1  # receive time of the newest frame fed so far
@@ -320,16 +330,18 @@ class Service:
     def _take(self, msg: can.Message) -> None:
         """One received frame into the pending columns (and the recording, and the locked grid);
         frames of other messages are dropped (counted in ``foreign``)."""
-        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+        if msg.is_error_frame or msg.is_remote_frame:
             return
-        if msg.arbitration_id not in self._input_ids:
+        if msg.is_extended_id or msg.arbitration_id not in self._input_ids:
             self.foreign += 1
+            self.watch.saw(msg.arbitration_id, 0)  # counted, for the blind warning's list of ids
             return
         t_rx = seconds_to_ns(msg.timestamp)
         if self._restamp is None:
             self._decide_restamp(t_rx)
         if self._restamp:
             t_rx = seconds_to_ns(self.now_ns() / 1e9)
+        self.watch.saw(msg.arbitration_id, t_rx)
         can_id, ext, dlc = msg.arbitration_id, msg.is_extended_id, msg.dlc
         anchor = can_id == self._anchor[0] and ext == self._anchor[1]
         last = self._last_t_k
@@ -575,6 +587,7 @@ class Service:
                 res = self.step_once(t_k, now)
                 if on_step is not None:
                     on_step(res)
+                self.check_inputs(t_k)
                 if self.log_period_ns > 0 and now - self.offset_ns >= next_log:
                     log.info("%s", self.stats.take_window().log_line())
                     late = now - self.offset_ns - next_log
@@ -595,6 +608,32 @@ class Service:
             if was_enabled:
                 gc.enable()
         return self.stats.summary()
+
+    def check_inputs(self, t_ns: int) -> None:
+        """Loud when blind (:mod:`lde.watch`), at most every 0.25 s of bus time ``t_ns`` [ns]: log a
+        missing input message with what arrived instead. Where the kernel filters the inputs
+        (SocketCAN), the first warning lifts the filters for 1 s so that the ids on the bus can be
+        named, then puts them back."""
+        if self._probe_until is not None and t_ns >= self._probe_until:
+            self._probe_until = None
+            self.filters = set_input_filters(self.bus, self.profile)
+            log.warning(
+                "ids on %s while the input filters were lifted for 1 s: %s",
+                self.watch.where,
+                describe_ids(self.watch.ids, self.profile),
+            )
+        if t_ns < self._watch_next:
+            return
+        self._watch_next = t_ns + _WATCH_PERIOD_NS
+        for level, text in self.watch.check(t_ns):
+            (log.warning if level == "warning" else log.info)("%s", text)
+            first = level == "warning" and self.watch.warnings == 1
+            if first and self.filters.startswith("kernel (SocketCAN"):
+                try:
+                    self.bus.set_filters(None)
+                    self._probe_until = t_ns + _PROBE_NS
+                except (can.CanError, OSError) as exc:
+                    log.info("could not lift the input filters to look at the bus: %s", exc)
 
     def _idle(self) -> None:
         """After a step's send: a young-generation collection when due (gc is off in the loop)."""

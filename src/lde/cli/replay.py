@@ -20,6 +20,11 @@ from pathlib import Path
 from ..errors import ConfigError, LdeError
 from . import BACKEND_CHOICES, BACKEND_HELP
 
+#: exit code of a replay that ran but gave no VALID estimate (no step, or every step invalid): the
+#: outputs are written, and hold nothing usable (the warning says why); 2 is an error (unreadable log,
+#: bad option), 0 success
+EXIT_NOTHING_USABLE = 3
+
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
@@ -278,7 +283,8 @@ def run(args: argparse.Namespace) -> int:
             if not args.quiet and rep.ok:
                 lines.append(_summary(rep))
             if rep.error and many:
-                lines.append(f"lde: error: {rep.log}: {rep.error}")
+                err = rep.error if rep.error.startswith(str(rep.log)) else f"{rep.log}: {rep.error}"
+                lines.append(f"lde: error: {err}")
             for text in lines:
                 if show_bar:
                     tqdm.write(text, file=sys.stderr)
@@ -295,7 +301,9 @@ def run(args: argparse.Namespace) -> int:
         if not many:
             if reports[0].error:
                 raise LdeError(reports[0].error)
-            return 0
+            return 0 if reports[0].usable else EXIT_NOTHING_USABLE
         if not args.quiet:
             print(summary_table(reports), file=sys.stderr)
-        return 2 if any(not r.ok for r in reports) else 0
+        if any(not r.ok for r in reports):
+            return 2
+        return 0 if all(r.usable for r in reports) else EXIT_NOTHING_USABLE
