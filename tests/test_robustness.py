@@ -547,3 +547,21 @@ def test_bad_run_duration_is_a_one_line_error(capsys):
     for bad in ("-1", "0", "nan", "inf"):
         rc, _, err = run_cli(capsys, "run", "-i", "virtual", "-c", "lde-dur-test", "--duration", bad)
         assert_one_line_error(rc, err, "--duration")
+
+
+def test_a_time_jump_is_reported_with_where_and_how_long(drive, tmp_path, capsys):
+    """A 5 s silence in the middle of a log (a paused logger): the summary names it (issue 13 item 4)."""
+    jumped = drive.take(np.arange(len(drive)))
+    half = jumped.t_ns >= jumped.t_ns[len(jumped) // 2]
+    jumped.t_ns = jumped.t_ns + np.where(half, 5_000_000_000, 0)
+    p = tmp_path / "jump.log"
+    write_candump(p, jumped)
+    rc, _, err = run_cli(capsys, "replay", str(p), "--csv", str(tmp_path / "j.csv"))
+    assert rc == 0, err
+    t_before = int(jumped.t_ns[~half].max())
+    assert "1 time jump in the received frames (silences > 1 s; longest 5.0" in err, err
+    assert f"after log time {t_before / 1e9:.6f} s" in err
+    plain = tmp_path / "plain.log"
+    write_candump(plain, drive)
+    rc, _, err = run_cli(capsys, "replay", str(plain), "--csv", str(tmp_path / "n.csv"))
+    assert rc == 0 and "time jump" not in err, err

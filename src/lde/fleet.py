@@ -29,6 +29,7 @@ from .profiles import load_profile
 from .replay import (
     CsvWriter,
     RecordingWriter,
+    gaps_note,
     late_note,
     no_valid_note,
     profile_metadata,
@@ -201,7 +202,8 @@ def _replay(job: ReplayJob, rep: LogReport) -> None:
     rep.profile, rep.profile_origin, rep.backend = li.profile.name, li.profile_origin, res.backend
     rep.timings = {"open": li.read_s, **res.timings}
     rep.learned, rep.learned_origin = res.learned, res.learned_origin
-    rep.warnings = [w for w in (no_valid_note(res), late_note(stats, job.reorder_window_ns)) if w]
+    notes = (no_valid_note(res), gaps_note(res), late_note(stats, job.reorder_window_ns))
+    rep.warnings = [w for w in notes if w]
 
 
 def run_jobs(

@@ -68,6 +68,7 @@ __all__ = [
     "recorded_profile",
     "profile_metadata",
     "no_valid_note",
+    "gaps_note",
     "late_note",
     "resolve_backend",
     "write_csv",
@@ -267,6 +268,8 @@ class ReplaySummary:
     profile_origin: str = ""
     learned: str = ""  # what the learner holds at the end (one line; empty without a learner)
     learned_origin: str = ""  # where learning started: a --learned file, the recording, "" (vehicle)
+    #: silences in the received frames longer than :data:`JUMP_NS`: (log time before [ns], length [ns])
+    input_gaps: list[tuple[int, int]] = field(default_factory=list)
 
     def __len__(self) -> int:
         return self.steps
@@ -323,6 +326,8 @@ def run_replay(
     pieces = split(frames.sort(), chunk_frames) if isinstance(frames, FrameBatch) else frames
     n = n_tx = 0
     id_counts = np.zeros(0x800, np.int64)
+    input_gaps: list[tuple[int, int]] = []
+    last_rx: int | None = None
     steps = valid = gaps = 0
     last_t: int | None = None
     t_sinks = t_read = 0.0
@@ -338,8 +343,17 @@ def run_replay(
         n += len(chunk)
         n_tx += int(np.count_nonzero(~chunk.is_rx))
         if len(chunk):  # received frames per 11-bit id (the summary names them when inputs are missing)
-            rx_ids = chunk.can_id[chunk.is_rx & ~chunk.is_extended]
+            rx = chunk.is_rx
+            rx_ids = chunk.can_id[rx & ~chunk.is_extended]
             id_counts += np.bincount(rx_ids & 0x7FF, minlength=0x800)[:0x800]
+            t_rx = chunk.t_ns[rx]
+            if len(t_rx):
+                if last_rx is not None and int(t_rx[0]) - last_rx > JUMP_NS:
+                    input_gaps.append((last_rx, int(t_rx[0]) - last_rx))
+                d = np.diff(t_rx)
+                for i in np.flatnonzero(d > JUMP_NS)[:_MAX_GAPS_KEPT].tolist():
+                    input_gaps.append((int(t_rx[i]), int(d[i])))
+                last_rx = int(t_rx[-1])
         kw: dict[str, Any] = {}
         if explicit and first:
             times = np.ascontiguousarray(step_times_ns, np.int64)
@@ -388,6 +402,7 @@ def run_replay(
         },
         learned=engine.learn_summary,
         learned_origin=origin,
+        input_gaps=input_gaps,
     )
 
 
@@ -561,6 +576,25 @@ def no_valid_note(res: ReplayResult | ReplaySummary) -> str | None:
 
 
 _ORIGIN = {"given": "given", "recording": "from the recording", "default": "the default"}
+
+
+#: a silence in the received frames longer than this is reported as a time jump (a logger paused, a
+#: clock stepped, logs joined): the inputs time out and the estimate restarts after it, as live
+JUMP_NS = 1_000_000_000
+_MAX_GAPS_KEPT = 1000
+
+
+def gaps_note(res: ReplaySummary) -> str | None:
+    """A one-line warning naming the time jumps in the received frames (:data:`JUMP_NS`), else None."""
+    if not res.input_gaps:
+        return None
+    t, d = max(res.input_gaps, key=lambda g: g[1])
+    n = len(res.input_gaps)
+    return (
+        f"{n} time jump{'s' if n > 1 else ''} in the received frames (silences > {JUMP_NS / 1e9:.0f} s;"
+        f" longest {d / 1e9:.3f} s after log time {t / 1e9:.6f} s): the inputs timed out there and the"
+        f" estimate restarted after {'each' if n > 1 else 'it'}"
+    )
 
 
 def late_note(stats: ReadStats, window_ns: int | None) -> str | None:
