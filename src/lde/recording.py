@@ -927,3 +927,7 @@ def read_recording(path: str | Path) -> Recording:
             metadata=dict(m.metadata.get("lde", {})),
             complete=m.complete,
         )
+
+
+if __name__ == "__main__":  # the recorder's writer process (Recorder starts it)
+    _writer_main(int(sys.argv[1]), int(sys.argv[2]))
