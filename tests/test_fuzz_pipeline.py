@@ -2,7 +2,7 @@
 the overlay limiter and the output encoder, through :class:`lde.engine.Engine` (live and replay run
 the same loop), with seeded random faults on a simulated drive.
 
-For every case, on both backends and both profiles:
+For every case, on every backend (fixed, float, paper-fixed, paper) and both profiles:
 
 * no exception escapes, every output is finite, every step's status is a valid bit map;
 * the overlay never exceeds its magnitude limit nor its rate limit between consecutive steps;
@@ -57,7 +57,7 @@ def _drive(pname: str) -> FrameBatch:
 def faults(draw: st.DrawFn) -> dict:
     return {
         "pname": draw(st.sampled_from(["lde", "hyundai"])),
-        "backend": draw(st.sampled_from(["float", "fixed"])),
+        "backend": draw(st.sampled_from(["float", "fixed", "paper", "paper-fixed"])),
         "seed": draw(st.integers(0, 2**31 - 1)),
         "p_drop": draw(st.floats(0.0, 0.3)),
         "p_corrupt": draw(st.floats(0.0, 0.2)),
@@ -152,8 +152,8 @@ def test_the_pipeline_survives_faults_and_keeps_its_promises(f, vehicle):
     for name, s in e.stats().items():
         assert s.received == s.used + s.rejected + s.resync, (name, s)
     # the float filter's covariance: symmetric positive definite
-    if f["backend"] == "float":
-        P = e.est.state[1]
+    if f["backend"] in ("float", "paper"):
+        P = e.est.state[2] if f["backend"] == "float" else e.est.state[1]  # lateral: (p, x, P, ...)
         np.testing.assert_allclose(P, P.T, rtol=0, atol=1e-9 * np.abs(P).max())
         assert np.all(np.linalg.eigvalsh(P) > 0)
     # recovery: VALID again once the faults have stopped (re-sync: a few frames of the slowest

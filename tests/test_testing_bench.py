@@ -242,7 +242,7 @@ def test_frames_decode_by_name_and_give_columns() -> None:
 def test_service_options_are_checked() -> None:
     with Bench() as bench:
         with pytest.raises(ConfigError, match="does not learn"):
-            bench.service(backend="float", learned="state.learned")
+            bench.service(backend="paper", learned="state.learned")
         with pytest.raises(ConfigError, match="not an lde output message"):
             bench.service(drop=["MDPS_Sensors"])
         with pytest.raises(ConfigError, match="add a simulator first"):

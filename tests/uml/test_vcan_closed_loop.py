@@ -276,10 +276,18 @@ def test_outputs_every_step_with_valid_e2e(run: Run) -> None:
     if n_steps == 0:
         pytest.skip(f"the service recorded no step: {'; '.join(run.problems)}{run.speed}")
     killed = "lde run" in "".join(run.problems)  # its last steps may be on the bus, not in the file
-    for name in ("LDE_Estimate", "LDE_Overlay", "LDE_Diag"):
+    # steps the recorder dropped because its writer did not keep up: counted and logged by the
+    # service ("ring full, dropped F frames and S steps"), so the bus has S more steps than the file
+    m = re.search(r"ring full, dropped \d+ frames and (\d+) steps", run.service_out)
+    dropped = int(m.group(1)) if m else 0
+    if dropped:
+        print(f"the recorder dropped {dropped} steps (its writer was starved){run.speed}")
+    for name in ("LDE_Estimate", "LDE_Overlay", "LDE_Diag", "LDE_Disturbance"):
         fid = profile.output_id(name)
         got = frames[fid]
-        assert killed or abs(len(got) - n_steps) <= 2, f"{name}: {len(got)} frames for {n_steps} steps"
+        assert killed or abs(len(got) - n_steps - dropped) <= 2, (
+            f"{name}: {len(got)} frames for {n_steps} recorded + {dropped} dropped steps"
+        )
         assert all(p01_check(fid, d) for d in got), name
         counters = [d[1] & 0x0F for d in got]
         gaps = [i for i, (a, b) in enumerate(zip(counters, counters[1:], strict=False)) if b != (a + 1) % 15]
