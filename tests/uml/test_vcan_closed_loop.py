@@ -222,7 +222,7 @@ def _warm_up(tmp: Path, budget: Budget, guest_speed: str) -> None:
     then start in seconds, not in the minutes a cold numba cache takes in the guest."""
     log = tmp / "warm.log"
     for what, cmd in (
-        ("lde sim (offline)", [*LDE, "sim", "--scenario", SCENARIO, "--duration", "1", "--log", str(log)]),
+        ("lde sim (offline)", [*LDE, "sim", "--scenario", SCENARIO, "--duration", "3", "--log", str(log)]),
         (
             "lde replay",
             [*LDE, "replay", str(log), "--backend", "fixed", "--csv", str(tmp / "warm.csv")],
@@ -233,7 +233,8 @@ def _warm_up(tmp: Path, budget: Budget, guest_speed: str) -> None:
         print(f"warm-up: {what} took {wall_s:.1f} s (exit {rc})")
         if rc is None:  # a slow guest: skip with the figures; a failure is a failure
             pytest.skip(f"warm-up {what} did not finish in {bound:.0f} s: {out[-300:]}{guest_speed}")
-        assert rc == 0, f"warm-up {what} failed (exit {rc}):\n{out[-2000:]}"
+        # 3: lde replay ran but found no VALID step (a warm-up only has to compile and read)
+        assert rc in (0, 3), f"warm-up {what} failed (exit {rc}):\n{out[-2000:]}"
 
 
 def _pct(a: np.ndarray, q: float) -> float:
