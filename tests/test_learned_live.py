@@ -168,7 +168,7 @@ def test_overlay_law_uses_the_learned_tires(tmp_path) -> None:
     p = E.params_vector(vehicle)
     assert g_cold[0] == pytest.approx(p[E.P_K] / (p[E.P_N] * p[E.P_CF] * (p[E.P_LF] + p[E.P_LR])), rel=1e-12)
     assert g_cold[0] == pytest.approx(feedforward_gain(vehicle), rel=1e-9)  # both derivations agree
-    k_ratio = doc["params"]["k_Nm_per_rad"] / p[E.P_K] if "k_Nm_per_rad" in doc["params"] else 1.0
+    k_ratio = doc["params"]["align_rate_Nm_per_rad"] / p[E.P_K]  # the file's K (not changed here)
     assert g_warm[0] == pytest.approx(g_cold[0] * k_ratio / 2.0, rel=1e-9)
 
     lr = vehicle.body.lr

@@ -75,11 +75,7 @@ def describe_ids(counts: Counter[int] | dict[int, int], profile: Profile) -> str
     text = "ids that arrived: " + ", ".join(f"0x{fid:X} x{n}" for fid, n in top)
     if more > 0:
         text += f" and {more} more"
-    own = (
-        set(_input_ids(profile.name))
-        if profile.name in PROFILE_NAMES
-        else {spec.frame_id for spec in profile.messages.values()}
-    )
+    own = {spec.frame_id for spec in profile.messages.values()}
     fits = [f for f in profile_fit(frozenset(counts)) if f.profile != profile.name]
     if own & set(counts):
         text += f"; some are this profile's ({profile.name}) inputs, arriving late or out of time"
