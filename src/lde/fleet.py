@@ -181,8 +181,10 @@ def _replay(job: ReplayJob, rep: LogReport) -> None:
             learned=job.learned,
             learned_start=li.learned_start,
         )
+        tc = time.perf_counter()
         for sink in sinks:
-            sink.close()
+            sink.close()  # waits for a writer thread's last blocks
+        res.timings["outputs"] += time.perf_counter() - tc
     except BaseException:
         for sink in sinks:
             sink.abort()

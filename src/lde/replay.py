@@ -24,7 +24,9 @@ from __future__ import annotations
 
 import contextlib
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -750,6 +752,11 @@ def _mcap_data(m: McapLog | None, frames: FrameBatch) -> McapData | None:
 
 
 # ----------------------------------------------------------------------------- outputs
+#: blocks a :class:`CsvWriter` holds while its thread formats and writes (the memory bound: each is
+#: one engine block, about 47 k rows of a 65 k-frame piece)
+CSV_PENDING = 2
+
+
 def _csv_columns(b: StepBlock) -> list[Column]:
     data: dict[str, np.ndarray] = {
         "Fw": b.fw,
@@ -776,19 +783,24 @@ def _csv_columns(b: StepBlock) -> list[Column]:
 class CsvWriter:
     """The replay CSV (:data:`CSV_COLUMNS`; NaN as ``nan``) written block by block: a sink of
     :func:`run_replay`. ``t`` is the step time in seconds in the log's own time base, printed exactly
-    from the integer ns (6 decimals when every step time of a block is a whole microsecond, else 9)."""
+    from the integer ns (6 decimals when every step time of a block is a whole microsecond, else 9).
 
-    def __init__(self, path: str | Path) -> None:
+    Blocks are formatted and written by one writer thread (the formatter and the file write release
+    the GIL), so that the CSV does not take the engine's core: at most :data:`CSV_PENDING` blocks
+    wait (memory stays bounded), in order. A write error surfaces, as :class:`LogFormatError`, at the
+    next :meth:`write` or at :meth:`close`; ``background=False`` formats and writes in the caller."""
+
+    def __init__(self, path: str | Path, *, background: bool = True) -> None:
         self.path = Path(path)
         try:
             self._fh = open(self.path, "wb")  # noqa: SIM115 - closed by close()
             self._fh.write((",".join(name for name, _, _ in CSV_COLUMNS) + "\n").encode())
         except OSError as exc:
             raise LogFormatError(f"{path}: cannot write: {exc}") from exc
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="lde-csv") if background else None
+        self._pending: deque[Future[None]] = deque()
 
-    def write(self, block: StepBlock) -> None:
-        if len(block) == 0:
-            return
+    def _write_now(self, block: StepBlock) -> None:
         cols = _csv_columns(block)
         text, _ = format_rows(cols, [""] + [","] * (len(cols) - 1), "\n")
         try:
@@ -796,17 +808,41 @@ class CsvWriter:
         except OSError as exc:
             raise LogFormatError(f"{self.path}: cannot write: {exc}") from exc
 
+    def write(self, block: StepBlock) -> None:
+        """Queue ``block`` (its arrays must not change afterwards: the engine gives new ones)."""
+        if len(block) == 0:
+            return
+        if self._pool is None:
+            self._write_now(block)
+            return
+        while len(self._pending) >= CSV_PENDING:
+            self._pending.popleft().result()
+        self._pending.append(self._pool.submit(self._write_now, block))
+
     def __call__(self, _frames: FrameBatch, block: StepBlock) -> None:
         self.write(block)
 
+    def _drain(self) -> None:
+        try:
+            while self._pending:
+                self._pending.popleft().result()
+        finally:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True, cancel_futures=True)
+
     def close(self) -> None:
         try:
-            self._fh.close()
-        except OSError as exc:
-            raise LogFormatError(f"{self.path}: cannot write: {exc}") from exc
+            self._drain()
+        finally:
+            try:
+                self._fh.close()
+            except OSError as exc:
+                raise LogFormatError(f"{self.path}: cannot write: {exc}") from exc
 
     def abort(self) -> None:
         """The replay failed: close and remove the incomplete file."""
+        with contextlib.suppress(Exception):
+            self._drain()
         with contextlib.suppress(OSError):
             self._fh.close()
             self.path.unlink()
