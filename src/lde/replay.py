@@ -752,8 +752,9 @@ def _mcap_data(m: McapLog | None, frames: FrameBatch) -> McapData | None:
 
 
 # ----------------------------------------------------------------------------- outputs
-#: blocks a :class:`CsvWriter` holds while its thread formats and writes (the memory bound: each is
-#: one engine block, about 47 k rows of a 65 k-frame piece)
+#: rows a :class:`CsvWriter` hands its thread at once (a copy of their CSV columns, 1 MB), and how
+#: many such parts may wait: the memory the thread adds stays a few MB, whatever the engine's block
+CSV_ROWS = 8192
 CSV_PENDING = 2
 
 
@@ -786,9 +787,10 @@ class CsvWriter:
     from the integer ns (6 decimals when every step time of a block is a whole microsecond, else 9).
 
     Blocks are formatted and written by one writer thread (the formatter and the file write release
-    the GIL), so that the CSV does not take the engine's core: at most :data:`CSV_PENDING` blocks
-    wait (memory stays bounded), in order. A write error surfaces, as :class:`LogFormatError`, at the
-    next :meth:`write` or at :meth:`close`; ``background=False`` formats and writes in the caller."""
+    the GIL), so that the CSV does not take the engine's core: rows go in parts of :data:`CSV_ROWS`, at
+    most :data:`CSV_PENDING` waiting (memory stays bounded), in order. A write error surfaces, as
+    :class:`LogFormatError`, at the next :meth:`write` or at :meth:`close`; ``background=False``
+    formats and writes in the caller."""
 
     def __init__(self, path: str | Path, *, background: bool = True) -> None:
         self.path = Path(path)
@@ -800,8 +802,7 @@ class CsvWriter:
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="lde-csv") if background else None
         self._pending: deque[Future[None]] = deque()
 
-    def _write_now(self, block: StepBlock) -> None:
-        cols = _csv_columns(block)
+    def _write_now(self, cols: list[Column]) -> None:
         text, _ = format_rows(cols, [""] + [","] * (len(cols) - 1), "\n")
         try:
             self._fh.write(text.data)
@@ -809,15 +810,21 @@ class CsvWriter:
             raise LogFormatError(f"{self.path}: cannot write: {exc}") from exc
 
     def write(self, block: StepBlock) -> None:
-        """Queue ``block`` (its arrays must not change afterwards: the engine gives new ones)."""
+        """Write ``block``'s rows (queued: a copy of its CSV columns, so that the block itself is
+        not held)."""
         if len(block) == 0:
             return
         if self._pool is None:
-            self._write_now(block)
+            self._write_now(_csv_columns(block))
             return
-        while len(self._pending) >= CSV_PENDING:
-            self._pending.popleft().result()
-        self._pending.append(self._pool.submit(self._write_now, block))
+        cols = _csv_columns(block)
+        for a in range(0, len(block), CSV_ROWS):
+            part = [
+                Column(c.name, np.array(c.values[a : a + CSV_ROWS]), c.decimals, c.prescaled) for c in cols
+            ]
+            while len(self._pending) >= CSV_PENDING:
+                self._pending.popleft().result()
+            self._pending.append(self._pool.submit(self._write_now, part))
 
     def __call__(self, _frames: FrameBatch, block: StepBlock) -> None:
         self.write(block)
