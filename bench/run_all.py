@@ -405,6 +405,7 @@ def bench_startup(repeat: int, cold: bool, tmp: Path) -> dict:
     if cold:
         cache = tmp / "numba-cold"
         env = child_env(NUMBA_CACHE_DIR=str(cache), PYTHONDONTWRITEBYTECODE="1")
+        _children_cpu()  # the baseline: the CPU of the children before this one (reaped already)
         t0 = time.perf_counter()
         proc = subprocess.Popen(
             lde_cmd("replay", str(SAMPLE), "--csv", str(tmp / "c.csv")),
