@@ -37,9 +37,7 @@ def _phi_entries(vx: float, p: np.ndarray) -> np.ndarray:
     a01 = -1.0 - 2.0 * (lf * cf - lr * cr) / (m * vx * vx)
     a10 = -2.0 * (lf * cf - lr * cr) / iz
     a11 = -2.0 * (lf * lf * cf + lr * lr * cr) / (iz * vx)
-    return np.array(
-        [1 + a00 * dt, a01 * dt, dt / (m * vx), dt / (m * vx), a10 * dt, 1 + a11 * dt, dt / iz]
-    )
+    return np.array([1 + a00 * dt, a01 * dt, dt / (m * vx), dt / (m * vx), a10 * dt, 1 + a11 * dt, dt / iz])
 
 
 def _phi(f: np.ndarray) -> np.ndarray:
@@ -64,7 +62,12 @@ def model():
     R = np.diag([p[E.P_RR], p[E.P_RA]])
     P0 = np.diag([p[E.P_P0B], p[E.P_P0R], p[E.P_P0FA], p[E.P_P0MA], p[E.P_P0FB]]) ** 2
     delta = 0.02 * np.sin(np.arange(n) / 5.0)  # road-wheel angle [rad]
-    Eu = np.array([[2 * cf / (m * v) * dt * d, 2 * p[E.P_LF] * cf / p[E.P_IZ] * dt * d] for v, d in zip(vx, delta)])
+    Eu = np.array(
+        [
+            [2 * cf / (m * v) * dt * d, 2 * p[E.P_LF] * cf / p[E.P_IZ] * dt * d]
+            for v, d in zip(vx, delta, strict=True)
+        ]
+    )
     x = rng.multivariate_normal(np.zeros(5), P0)
     z = []
     for k in range(n):
@@ -184,7 +187,9 @@ def test_a_held_step_is_not_smoothed_across():
 @pytest.fixture(scope="module")
 def sample():
     frames = read_log(SAMPLE).frames
-    res = replay(frames, load_profile("lde"), load_vehicle(SAMPLE_VEHICLE), "float", output_frames=False, smooth=True)
+    res = replay(
+        frames, load_profile("lde"), load_vehicle(SAMPLE_VEHICLE), "float", output_frames=False, smooth=True
+    )
     return frames, res
 
 
@@ -251,7 +256,9 @@ def _read_csv(path: Path) -> tuple[list[str], np.ndarray]:
 def test_cli_smooth_csv_and_mcap(tmp_path, capsys):
     base = ["replay", str(SAMPLE), "--vehicle", str(SAMPLE_VEHICLE), "--backend", "float", "-q"]
     assert main([*base, "--csv", str(tmp_path / "c.csv")]) == 0
-    assert main([*base, "--csv", str(tmp_path / "s.csv"), "--mcap", str(tmp_path / "s.mcap"), "--smooth"]) == 0
+    assert (
+        main([*base, "--csv", str(tmp_path / "s.csv"), "--mcap", str(tmp_path / "s.mcap"), "--smooth"]) == 0
+    )
     head_c, causal = _read_csv(tmp_path / "c.csv")
     head_s, smooth = _read_csv(tmp_path / "s.csv")
     assert head_c == [c for c, _, _ in CSV_COLUMNS]
@@ -267,7 +274,17 @@ def test_cli_smooth_csv_and_mcap(tmp_path, capsys):
 
 
 def test_cli_smooth_with_the_fixed_backend_says_what_is_smoothed(tmp_path, capsys):
-    rc = main(["replay", str(SAMPLE), "--vehicle", str(SAMPLE_VEHICLE), "--csv", str(tmp_path / "f.csv"), "--smooth"])
+    rc = main(
+        [
+            "replay",
+            str(SAMPLE),
+            "--vehicle",
+            str(SAMPLE_VEHICLE),
+            "--csv",
+            str(tmp_path / "f.csv"),
+            "--smooth",
+        ]
+    )
     err = capsys.readouterr().err
     assert rc == 0
     assert "--smooth with backend fixed: the *_smooth columns are the float lateral filter's" in err

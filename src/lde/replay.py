@@ -887,7 +887,9 @@ class RecordingWriter:
         )
         self._steps = StepTopicWriter(self._w)
         self._smooth = smooth
-        self._smooth_topic = SmoothTopicWriter(self._w, tuple((n, d) for n, _, d in SMOOTHED)) if smooth is not None else None
+        self._smooth_topic = (
+            SmoothTopicWriter(self._w, tuple((n, d) for n, _, d in SMOOTHED)) if smooth is not None else None
+        )
         self._ids = np.array([profile.spec(m).frame_id for m in OUTPUT_MESSAGES], np.uint32)
         self._lens = np.array([profile.spec(m).length for m in OUTPUT_MESSAGES], np.uint8)
 

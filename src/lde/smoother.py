@@ -46,8 +46,8 @@ from __future__ import annotations
 
 import math
 import shutil
-import time
 import tempfile
+import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -238,8 +238,12 @@ class TracingEngine(Engine):
     the same rows as an ``Engine(..., "float")``; after every compiled call the trace rows of its steps
     go to ``spill``."""
 
-    def __init__(self, profile: Profile, vehicle: Vehicle, spill: TraceSpill, *, explicit: bool = False) -> None:
-        super().__init__(profile, vehicle, "float", explicit=explicit, encode_outputs=False, shadow_thread=False)
+    def __init__(
+        self, profile: Profile, vehicle: Vehicle, spill: TraceSpill, *, explicit: bool = False
+    ) -> None:
+        super().__init__(
+            profile, vehicle, "float", explicit=explicit, encode_outputs=False, shadow_thread=False
+        )
         self.backend = TRACED
         self.spill = spill
         self.reset()
@@ -332,7 +336,8 @@ def rts_backward(tr, xs, Ps, have, out_x, out_p, out_f):  # pragma: no cover - c
     ``xs`` (NX,), ``Ps`` (NX, NX), ``have`` (1,): the smoothed state of the step after row n-1 and
     whether it continues row n-1's run (the carry between chunks; ``have[0] = 0`` at the log's end).
     Writes the smoothed state of every row into ``out_x`` (n, NX), its covariance's diagonal into
-    ``out_p`` (n, NX) and the filtered state it recovered into ``out_f`` (n, NX), and leaves the carry for row 0 in ``xs``, ``Ps``, ``have``. Returns the
+    ``out_p`` (n, NX) and the filtered state it recovered into ``out_f`` (n, NX), and leaves the
+    carry for row 0 in ``xs``, ``Ps``, ``have``. Returns the
     number of steps where the predicted covariance was not positive definite (smoothed = filtered).
     """
     n = tr.shape[0]
@@ -548,7 +553,11 @@ def smooth_run(
             kw: dict[str, Any] = {}
             if explicit and first:
                 times = np.ascontiguousarray(step_times_ns, np.int64)
-                en = overlay_enable if overlay_enable is not None and len(overlay_enable) == len(times) else None
+                en = (
+                    overlay_enable
+                    if overlay_enable is not None and len(overlay_enable) == len(times)
+                    else None
+                )
                 ex = extra_status if extra_status is not None and len(extra_status) == len(times) else None
                 kw = {"step_times": times, "enable": en, "extra_status": ex}
             first = False
@@ -564,4 +573,3 @@ def smooth_run(
         raise
     t2 = time.perf_counter()
     return SmoothTrack(spill.dir, spill.n, bad, {"smooth_forward": t1 - t0, "smooth_backward": t2 - t1})
-

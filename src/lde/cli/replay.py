@@ -1,4 +1,4 @@
-"""``lde replay LOG... [--profile P] [--vehicle FILE] [--backend fixed|float] [--csv OUT] [--mcap OUT] [--smooth]``.
+"""``lde replay LOG... [--profile P] [--vehicle FILE] [--backend B] [--csv OUT] [--mcap OUT] [--smooth]``.
 
 Replays CAN logs (MCAP, candump ``-L``, or any python-can format; each also gzip-compressed, as
 ``x.log.gz``) through the estimator on the 3.9 ms grid and writes one CSV row per step (``t`` in the
