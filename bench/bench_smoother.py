@@ -60,6 +60,8 @@ def filterpy_vs_numba(log: Path, limit: int | None) -> dict:
     f = tr[:, S.T_F : S.T_F + 7]
     Fs[1:, 0, 0], Fs[1:, 0, 1], Fs[1:, 0, 2], Fs[1:, 0, 4] = f[:-1, 0], f[:-1, 1], f[:-1, 2], f[:-1, 3]
     Fs[1:, 1, 0], Fs[1:, 1, 1], Fs[1:, 1, 3] = f[:-1, 4], f[:-1, 5], f[:-1, 6]
+    held = np.flatnonzero(tr[:-1, S.T_PROP] == 0.0) + 1
+    Fs[held] = np.eye(5)  # a held step: no transition
     Qs = np.zeros((n, 5, 5))
     Qs[:, range(5), range(5)] = tr[:, S.T_Q : S.T_Q + 5]
     Ps = np.zeros((n, 5, 5))
@@ -109,6 +111,8 @@ def main() -> int:
     r["smooth_fixed"] = child_stats(
         lde_cmd("replay", str(log), "--csv", csv, "-q", "--smooth"), a.repeat, env_new
     )
+    if a.out:
+        a.out.write_text(json.dumps(r, indent=1))
     r["backward"] = filterpy_vs_numba(log, a.filterpy_steps)
     r["load_after"] = os.getloadavg()[0]
     text = json.dumps(r, indent=1)
