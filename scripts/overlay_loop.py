@@ -72,11 +72,12 @@ def main() -> None:
     h, u = tf(err), tf(unbalanced)
     print(f"backend {a.backend}, scenario {a.scenario}, seed {a.seed}")
     print("   f [Hz]   |H|  phase [deg]   unbalanced column torque per Nm of overlay")
-    for f, hv, uv in zip(FREQS, h, u):
+    for f, hv, uv in zip(FREQS, h, u, strict=True):
         print(f"  {f:6.2f} {abs(hv):6.2f} {np.degrees(np.angle(hv)):8.0f}      {abs(uv):.2f}")
     for tau in TAUS:
         loop = h / (1.0 + 2j * np.pi * FREQS * tau) * np.exp(-2j * np.pi * FREQS * STEP_S)
-        print(f"  law tau {tau:.1f} s: max |L| {np.abs(loop).max():.2f}, min |1 - L| {np.abs(1 - loop).min():.2f}")
+        big, margin = np.abs(loop).max(), np.abs(1 - loop).min()
+        print(f"  law tau {tau:.1f} s: max |L| {big:.2f}, min |1 - L| {margin:.2f}")
 
 
 if __name__ == "__main__":

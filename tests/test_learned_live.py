@@ -16,8 +16,8 @@ from lde.frames import FrameBatch
 from lde.learned import LearnedKeeper, LearnedSnapshot
 from lde.params import load_vehicle
 from lde.replay import read_inputs, replay, replay_log
-from lde.testing import Bench
 from lde.status import Status
+from lde.testing import Bench
 from lde.units import STEP_NS, STEP_S
 
 
@@ -182,7 +182,10 @@ def test_overlay_law_uses_the_learned_tires(tmp_path) -> None:
         usable = (res.status & int(Status.VALID)) != 0
         m_f = np.empty_like(moment)
         for k in range(moment.size):
-            m_f[k] = moment[k] if k == 0 or not usable[k] else m_f[k - 1] + dt / (tau + dt) * (moment[k] - m_f[k - 1])
+            if k == 0 or not usable[k]:
+                m_f[k] = moment[k]
+            else:
+                m_f[k] = m_f[k - 1] + dt / (tau + dt) * (moment[k] - m_f[k - 1])
         return m_f
 
     for res, g in ((cold, g_cold), (warm, g_warm)):

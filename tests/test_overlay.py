@@ -165,7 +165,8 @@ def test_unbalanced_column_torque_returns_to_the_law_with_gain_plus_one(vx_kmh, 
 
 def _law_step_response(tau: float, n: int) -> np.ndarray:
     v = load_vehicle("reference")
-    v = dataclasses.replace(v, overlay=dataclasses.replace(v.overlay, law_time=tau, max_torque=10.0, max_rate=1e6))
+    limits = dataclasses.replace(v.overlay, law_time=tau, max_torque=10.0, max_rate=1e6)
+    v = dataclasses.replace(v, overlay=limits)
     lim = OverlayLimiter(v)
     out = []
     for k in range(n):
