@@ -13,6 +13,7 @@ from lde.params import load_vehicle
 from lde.recording import read_recording
 from lde.replay import replay_log
 from lde.service import STATUS_DEADLINE_MISS
+from lde.units import STEP_S
 
 
 def _fixed_available() -> bool:
@@ -88,24 +89,19 @@ def test_overlay_relieves_the_driver_and_estimate_tracks_truth(tmp_path: Path) -
     assert "driver torque" in text and "lateral drift" in text
 
 
-@pytest.mark.parametrize(
-    "backend",
-    [
-        "paper-fixed",
-        pytest.param(
-            "fixed",
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="known: with the lateral filter (default) the closed loop settles into a 1.3-2.2 Hz "
-                "limit cycle, the overlay moving at its rate limit every step: ~95 N RMS Fw error, zero "
-                "mean (light load: 19.8 % against 3.0 % for the paper filter; without overlay 23 N)",
-            ),
-        ),
-    ],
-)
+@pytest.mark.parametrize("backend", ["paper-fixed", "fixed"])
 def test_closed_loop_estimate_tracks_truth_on_light_load(backend: str) -> None:
-    summary, _, _ = run_demo("light_load", seed=2, duration=14.0, backend=backend, mcap=None, png=None)
-    assert summary.accuracy.nrmse_fw < 0.25
+    """Closed loop (the simulator's driver + the overlay applied by the simulated MDPS): no limit
+    cycle. Before the law's band limit (docs/overlay.md, "Closed loop") the lateral filter (`fixed`)
+    sat at the overlay's rate limit on 88 % of the steps, 1.9 Hz, Fw NRMSE 40 %; measured after it
+    (seed 2, 14 s): `fixed` 6.9 % with no rate-limited step, `paper-fixed` 4.4 %."""
+    summary, on, _ = run_demo("light_load", seed=2, duration=14.0, backend=backend, mcap=None, png=None)
+    assert summary.accuracy.nrmse_fw < 0.15
+    s = on.series
+    t_ov = s["t_overlay"][s["t"] >= 2.0]
+    at_rate_limit = np.abs(np.diff(t_ov)) > 0.9 * 5.0 * STEP_S  # reference vehicle: 5 Nm/s
+    assert np.mean(at_rate_limit) < 0.2, "the overlay moves at its rate limit: a limit cycle"
+    assert np.count_nonzero(t_ov) > 0.9 * t_ov.size, "the overlay must be engaged for the test to mean much"
 
 
 def test_fast_no_overlay_run_equals_the_lockstep_one() -> None:

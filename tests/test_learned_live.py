@@ -16,8 +16,9 @@ from lde.frames import FrameBatch
 from lde.learned import LearnedKeeper, LearnedSnapshot
 from lde.params import load_vehicle
 from lde.replay import read_inputs, replay, replay_log
+from lde.status import Status
 from lde.testing import Bench
-from lde.units import STEP_NS
+from lde.units import STEP_NS, STEP_S
 
 
 def _wait_for(path: Path, timeout_s: float = 30.0) -> dict:
@@ -172,10 +173,25 @@ def test_overlay_law_uses_the_learned_tires(tmp_path) -> None:
     assert g_warm[0] == pytest.approx(g_cold[0] * k_ratio / 2.0, rel=1e-9)
 
     lr = vehicle.body.lr
+
+    def law_input(res) -> np.ndarray:
+        # the law's input low-pass (lde.overlay: backward Euler, tau = [overlay] law_time_constant_s,
+        # restarted while the estimate is not usable)
+        tau, dt = vehicle.overlay.law_time, STEP_S
+        moment = lr * res.fw + res.mw
+        usable = (res.status & int(Status.VALID)) != 0
+        m_f = np.empty_like(moment)
+        for k in range(moment.size):
+            if k == 0 or not usable[k]:
+                m_f[k] = moment[k]
+            else:
+                m_f[k] = m_f[k - 1] + dt / (tau + dt) * (moment[k] - m_f[k - 1])
+        return m_f
+
     for res, g in ((cold, g_cold), (warm, g_warm)):
         active = res.overlay_state == OverlayState.ACTIVE
         assert active.sum() > 500, "the scenario must bring the overlay into ACTIVE"
-        demand = -g * (lr * res.fw + res.mw)
+        demand = -g * law_input(res)
         lim = vehicle.overlay.max_torque
         inside = active & (np.abs(demand) < 0.9 * lim)
         err = np.abs(res.t_overlay[inside] - demand[inside])
@@ -184,5 +200,5 @@ def test_overlay_law_uses_the_learned_tires(tmp_path) -> None:
     # filter explains the same measured aligning torque by a larger Fw, so the product -g (lr Fw + Mw)
     # stays near the holding torque only with the learned gain
     active = (warm.overlay_state == OverlayState.ACTIVE) & (np.abs(warm.t_overlay) < 0.9 * lim)
-    wrong = -g_cold * (lr * warm.fw + warm.mw)
+    wrong = -g_cold * law_input(warm)
     assert np.median(np.abs(warm.t_overlay[active] - wrong[active])) > 0.1

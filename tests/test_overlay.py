@@ -126,6 +126,90 @@ def test_law_holds_linear_model_straight(vx_kmh):
     assert abs(x[1]) < 1e-6
 
 
+def _lateral_filter_on_constant_inputs(v, vx: float, t_col: float, seconds: float = 20.0):
+    """The lateral filter (lde.estimator, float) on a straight drive whose only non-zero input is
+    the column torque: (Fw, Mw) at the end."""
+    from lde import estimator as E
+    from lde.step import N_OUT, O_FW, O_MW
+
+    p = E.params_vector(v)
+    x, P = np.zeros(E.NX), np.zeros((E.NX, E.NX))
+    fs, ints = np.zeros(E.N_F), np.zeros(E.N_I, np.int64)
+    h, ph, out = np.zeros(E.NX), np.zeros(E.NX), np.zeros(N_OUT)
+    E.reset_kernel(p, x, P, fs, ints)
+    for k in range(int(seconds / (STEP_NS * 1e-9))):
+        E.step_kernel(
+            p, x, P, fs, ints, h, ph, T0 + k * STEP_NS, vx, 0.0, 0.0, t_col, 0.0, 0.0,
+            True, True, True, True, True, out,
+        )  # fmt: skip
+    return out[O_FW], out[O_MW]
+
+
+@pytest.mark.parametrize("vx_kmh", [60.0, 100.0, 160.0])
+@pytest.mark.parametrize("dt_col", [0.3, -0.5])
+def test_unbalanced_column_torque_returns_to_the_law_with_gain_plus_one(vx_kmh, dt_col):
+    """The closed loop's structural gain (docs/overlay.md, "Closed loop"): a column torque that the
+    aligning torque does not balance (steering friction, inertia, the overlay itself before the rack
+    has moved) is read by the filter as a front-tire force, and the law turns it back into overlay
+    torque of the same size and sign: T_ov = +dT (K/(N Cf L) * L * Cf/K * N = 1). A law with the wrong
+    sign gives -dT, a wrong size (no N, no L, K/Cf inverted) another ratio: this is what makes the
+    law's band limit necessary and what its margin is computed against."""
+    v = load_vehicle("reference")
+    fw, mw = _lateral_filter_on_constant_inputs(v, vx_kmh * KMH, dt_col)
+    assert feedforward_torque(v, fw, mw) == pytest.approx(dt_col, rel=0.02)
+    lim = OverlayLimiter(v)  # the kernel's law (after its low-pass has settled on the constant estimate)
+    for k in range(1000):
+        out = lim.step_values(T0 + k * STEP_NS, fw, mw, VALID, vx_kmh * KMH, 0.0, 0.0)
+    assert out.demand == pytest.approx(dt_col, rel=0.02)
+
+
+def _law_step_response(tau: float, n: int) -> np.ndarray:
+    v = load_vehicle("reference")
+    limits = dataclasses.replace(v.overlay, law_time=tau, max_torque=10.0, max_rate=1e6)
+    v = dataclasses.replace(v, overlay=limits)
+    lim = OverlayLimiter(v)
+    out = []
+    for k in range(n):
+        fw = 0.0 if k < 10 else 500.0
+        out.append(lim.step_values(T0 + k * STEP_NS, fw, 0.0, VALID, 100 * KMH, 0.0, 0.0).demand)
+    return np.array(out)
+
+
+def test_law_low_pass_time_constant_and_zero_is_the_plain_law():
+    v = load_vehicle("reference")
+    target = feedforward_torque(v, 500.0, 0.0)
+    plain = _law_step_response(0.0, 400)
+    np.testing.assert_array_equal(plain[10:], target)
+    lp = _law_step_response(0.3, 400)
+    assert np.all(lp[:10] == 0.0)
+    # backward Euler of a 0.3 s first-order lag: 1 - (tau / (tau + dt))^k after k steps
+    dt = STEP_NS * 1e-9
+    k = np.arange(1, 391)
+    np.testing.assert_allclose(lp[10:], target * (1.0 - (0.3 / (0.3 + dt)) ** k), rtol=1e-12, atol=1e-12)
+    i63 = 10 + int(np.argmax(np.abs(lp[10:]) >= 0.632 * abs(target)))
+    assert abs((i63 - 9) * dt - 0.3) < 2 * dt
+
+
+def test_law_low_pass_restarts_on_an_unusable_estimate():
+    """While the estimate is not ready the filter follows it, so engaging starts from the estimate
+    of that moment, not from a lag through a start-up transient; a NaN never enters the filter."""
+    v = load_vehicle("reference")
+    lim = OverlayLimiter(v)
+    nc = VALID | int(Status.NOT_CONVERGED)
+    for k in range(5):
+        lim.step_values(T0 + k * STEP_NS, 800.0 * k, 0.0, nc, 100 * KMH, 0.0, 0.0)
+    out = lim.step_values(T0 + 5 * STEP_NS, 4000.0, 0.0, nc, 100 * KMH, 0.0, 0.0)
+    assert out.demand == pytest.approx(feedforward_torque(v, 4000.0, 0.0))
+    lim.step_values(T0 + 6 * STEP_NS, math.nan, 0.0, VALID, 100 * KMH, 0.0, 0.0)
+    out = lim.step_values(T0 + 7 * STEP_NS, 4000.0, 0.0, VALID, 100 * KMH, 0.0, 0.0)
+    assert math.isfinite(out.demand)
+
+
+def test_law_time_constant_is_read_and_checked():
+    assert load_vehicle("reference").overlay.law_time == 0.3
+    assert OverlayLimits().law_time == 0.3
+
+
 # --- helpers for the limiter --------------------------------------------------------------------
 
 

@@ -37,6 +37,7 @@ from .replay import (
     resolve_backend,
     run_replay,
 )
+from .smoother import SmoothTrack, check_backend, smooth_run
 from .units import STEP_NS
 
 __all__ = ["ReplayJob", "LogReport", "replay_job", "run_jobs", "summary_table", "progress_bar", "job_done"]
@@ -62,6 +63,7 @@ class ReplayJob:
     mcap_index: bool = False
     shadow_thread: bool = False
     learned: Path | None = None
+    smooth: bool = False  # also the RTS smoother's columns / topic (lde.smoother): a second pass
 
 
 @dataclass
@@ -147,6 +149,48 @@ def _replay(job: ReplayJob, rep: LogReport) -> None:
         _VEHICLES[job.vehicle] = load_vehicle(job.vehicle)
     vehicle = _VEHICLES[job.vehicle]
     backend, _fn, _note = resolve_backend(job.backend)
+    track = _smoothed(job, profile, vehicle, backend) if job.smooth else None
+    try:
+        _replay_outputs(job, rep, profile, vehicle, backend, track)
+    finally:
+        if track is not None:
+            track.close()
+    if track is not None:
+        rep.timings.update(track.timings or {})
+        if track.bad:
+            rep.warnings.append(
+                f"--smooth: at {track.bad} steps the predicted covariance was not positive definite;"
+                " the smoothed value there is the filtered one"
+            )
+
+
+def _smoothed(job: ReplayJob, profile: Any, vehicle: Any, backend: str) -> SmoothTrack:
+    """The smoother's forward and backward passes over the job's log (opened on its own: the causal
+    replay reads it again, on the same step grid)."""
+    check_backend(backend)
+    li = read_inputs(
+        job.log,
+        profile,
+        use_recorded_steps=job.use_recorded_steps,
+        profiles=_PROFILES,
+        reorder_window_ns=job.reorder_window_ns,
+    )
+    with li.stream as stream:
+        return smooth_run(
+            stream,
+            li.profile,
+            vehicle,
+            step_times_ns=li.step_times_ns,
+            overlay_enable=li.overlay_enable,
+            extra_status=li.extra_status,
+            learned=job.learned,
+            learned_start=li.learned_start,
+        )
+
+
+def _replay_outputs(
+    job: ReplayJob, rep: LogReport, profile: Any, vehicle: Any, backend: str, track: SmoothTrack | None
+) -> None:
     li = read_inputs(
         job.log,
         profile,
@@ -157,7 +201,7 @@ def _replay(job: ReplayJob, rep: LogReport) -> None:
     sinks: list[Any] = []
     try:
         if job.csv is not None:
-            sinks.append(CsvWriter(job.csv))
+            sinks.append(CsvWriter(job.csv, smooth=track))
         if job.mcap is not None:
             meta = {
                 "source": str(job.log),
@@ -165,7 +209,9 @@ def _replay(job: ReplayJob, rep: LogReport) -> None:
                 "vehicle": vehicle.name,
                 "backend": backend,
             }
-            sinks.append(RecordingWriter(job.mcap, li.profile, meta, indexed=job.mcap_index))
+            if track is not None:
+                meta["smooth"] = "RTS, float lateral filter"
+            sinks.append(RecordingWriter(job.mcap, li.profile, meta, indexed=job.mcap_index, smooth=track))
         res = run_replay(
             li.stream,
             li.profile,

@@ -155,7 +155,8 @@ def feedforward_torque(vehicle: Vehicle, fw: float | np.ndarray, mw: float | np.
 
 LP_GAIN, LP_LR, LP_MAX_T, LP_MAX_RATE, LP_MIN_V, LP_MAX_V, LP_MAX_STEER, LP_OVERRIDE = range(8)
 LP_HOLD_OFF_NS, LP_REARM_NS, LP_FAULT_PERSIST_NS, LP_FAULT_RECOVER_NS, LP_DT_MAX = range(8, 13)
-N_LP = 13
+LP_LAW_TAU = 13  # time constant of the law's input low-pass [s] (0: none)
+N_LP = 14
 
 # int64 state slots (times in ns; -1 = "not set")
 LS_STATE = 0  # OverlayState
@@ -169,7 +170,8 @@ N_LS = 7
 # float64 state slots
 LF_TORQUE = 0  # output torque of the previous step [Nm]
 LF_DEMAND = 1  # law output of the previous step, before clipping [Nm] (diagnostics)
-N_LF = 2
+LF_MOMENT = 2  # low-passed law input lr Fw + Mw [Nm]; NaN until the first usable estimate
+N_LF = 3
 
 
 def _timing_from(limits: OverlayLimits, timing: OverlayTiming | None) -> OverlayTiming:
@@ -209,6 +211,7 @@ def limiter_params(vehicle: Vehicle, timing: OverlayTiming | None = None) -> np.
     p[LP_FAULT_PERSIST_NS] = round(tm.fault_persist * 1e9)
     p[LP_FAULT_RECOVER_NS] = round(tm.fault_recover * 1e9)
     p[LP_DT_MAX] = tm.dt_max
+    p[LP_LAW_TAU] = o.law_time
     return p
 
 
@@ -220,6 +223,7 @@ def new_limiter_state() -> tuple[np.ndarray, np.ndarray]:
     si[LS_LAST_T] = 0
     si[LS_OVERRIDE_UNTIL] = np.iinfo(np.int64).min
     sf = np.zeros(N_LF, dtype=np.float64)
+    sf[LF_MOMENT] = np.nan
     return si, sf
 
 
@@ -244,14 +248,25 @@ def overlay_kernel(p, si, sf, t_ns, fw, mw, status, speed, steer, col_tq, enable
     else:
         dt = 0.0  # repeated or backwards time: no change allowed
 
-    # T_ov = -K (lr Fw + Mw) / (N Cf L) = -g (lr Fw + Mw)
-    demand = -p[LP_GAIN] * (p[LP_LR] * fw + mw)
-    sf[LF_DEMAND] = demand
-
-    # classify this step's conditions
-    finite = math.isfinite(demand) and math.isfinite(speed) and math.isfinite(steer) and math.isfinite(col_tq)
+    # T_ov = -K (lr Fw + Mw) / (N Cf L) = -g (lr Fw + Mw), on the low-passed moment lr Fw + Mw
+    moment = p[LP_LR] * fw + mw
+    finite = math.isfinite(moment) and math.isfinite(speed) and math.isfinite(steer) and math.isfinite(col_tq)
     input_fault = (not finite) or (status & FAULT_BITS) != 0
     not_ready = (status & _VALID_BIT) == 0 or (status & NOT_READY_BITS) != 0
+    if math.isfinite(moment):
+        # the law holds in steady state only; above ~1 Hz the overlay is carried by the steering's
+        # friction and inertia, which the filter reads as disturbance with a loop gain of +1
+        # (docs/overlay.md): backward Euler, exact restart on an unusable estimate
+        m_f = sf[LF_MOMENT]
+        if input_fault or not_ready or not math.isfinite(m_f) or p[LP_LAW_TAU] <= 0.0:
+            m_f = moment
+        else:
+            m_f += dt / (p[LP_LAW_TAU] + dt) * (moment - m_f)
+        sf[LF_MOMENT] = m_f
+        demand = -p[LP_GAIN] * m_f
+    else:
+        demand = -p[LP_GAIN] * moment
+    sf[LF_DEMAND] = demand
     # driver override: the driver's torque outside what the disturbance explains. In the demand's
     # direction the driver may hold anything from 0 up to the whole holding torque |demand| (the
     # overlay is clipped, the driver holds the rest), so the band is [-thr, |demand| + thr] along

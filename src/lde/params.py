@@ -104,6 +104,10 @@ class OverlayLimits:
         rearm_delay: all engage conditions must hold this long before (re-)engaging [s].
         fault_persist: an input fault lasting this long enters FAULT [s].
         fault_recover: FAULT is left after the input fault has been clear this long [s].
+        law_time: time constant of the first-order low-pass on the law's input, the disturbance
+            moment about the rear axle ``lr Fw + Mw`` [s]: the law is a steady state and must stay
+            below the band where the steering's own dynamics carry the overlay (docs/overlay.md,
+            "Closed loop: why the law is band-limited"); 0 is the unfiltered law.
     """
 
     max_torque: float = 3.0
@@ -116,6 +120,7 @@ class OverlayLimits:
     rearm_delay: float = 0.2
     fault_persist: float = 0.5
     fault_recover: float = 1.0
+    law_time: float = 0.3
 
 
 @dataclass(frozen=True)
@@ -326,6 +331,7 @@ _SCHEMA: dict[str, tuple[type, dict[str, tuple[str, float | None]]]] = {
             "rearm_delay_s": ("rearm_delay", 1.0),
             "fault_persist_s": ("fault_persist", 1.0),
             "fault_recover_s": ("fault_recover", 1.0),
+            "law_time_constant_s": ("law_time", 1.0),
         },
     ),
     "estimator": (
@@ -616,6 +622,7 @@ def validate(v: Vehicle) -> None:
         ("rearm_delay_s", o.rearm_delay),
         ("fault_persist_s", o.fault_persist),
         ("fault_recover_s", o.fault_recover),
+        ("law_time_constant_s", o.law_time),
     ):
         _check(0.0 <= val <= 60.0, s, f"overlay {key} must lie in 0..60 s, got {val}")
     for name in ("q_beta", "q_yaw", "q_fw", "q_mw", "r_yaw", "r_align"):

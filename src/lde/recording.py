@@ -79,6 +79,8 @@ __all__ = [
     "INPUTS_TOPIC",
     "DIAG_TOPIC",
     "EVENTS_TOPIC",
+    "SMOOTH_TOPIC",
+    "SmoothTopicWriter",
     "CAN_RX_TOPIC",
     "CAN_TX_TOPIC",
 ]
@@ -91,6 +93,8 @@ ESTIMATE_TOPIC = "/lde/estimate"
 INPUTS_TOPIC = "/lde/inputs"
 DIAG_TOPIC = "/lde/diag"
 EVENTS_TOPIC = "/lde/events"
+#: ``lde replay --smooth --mcap``: the RTS smoother's outputs, one message per step (log time = t_k)
+SMOOTH_TOPIC = "/lde/smooth"
 #: ``lde`` metadata key: the learned-state file's text a live run started from (``--learned``), so
 #: that a replay of the recording starts from it too (:func:`lde.replay.run_replay`)
 LEARNED_START_KEY = "learned_start"
@@ -331,6 +335,19 @@ class StepTopicWriter:
             cols = [Column("overlay_enable", en[ev]), Column("deadline_miss", miss[ev].astype(np.int64))]
             _write_json_channel(self.writer, self._events, t[ev], cols)
         self._last_enable = int(en[-1])
+
+
+class SmoothTopicWriter:
+    """The ``/lde/smooth`` channel (:data:`SMOOTH_TOPIC`): the smoother's columns per step
+    (``fields``: name and description of each, :data:`lde.smoother.SMOOTHED`)."""
+
+    def __init__(self, writer: McapWriter, fields: tuple[tuple[str, str], ...]) -> None:
+        self.writer = writer
+        props = {name: {"type": "number", "description": desc} for name, desc in fields}
+        self._id = writer.add_json_channel(SMOOTH_TOPIC, props, title="lde.Smooth")
+
+    def write(self, t_ns: np.ndarray, columns: list[Column]) -> None:
+        _write_json_channel(self.writer, self._id, t_ns, columns)
 
 
 def _write_json_channel(w: McapWriter, cid: int, t: np.ndarray, cols: list[Column]) -> None:

@@ -55,7 +55,8 @@ from .logio.stream import split
 from .logio.textfmt import Column, format_rows, time_column
 from .params import Vehicle
 from .profiles import PROFILE_NAMES, Profile, load_profile
-from .recording import ESTIMATE_TOPIC, EVENTS_TOPIC, LEARNED_START_KEY, StepTopicWriter
+from .recording import ESTIMATE_TOPIC, EVENTS_TOPIC, LEARNED_START_KEY, SmoothTopicWriter, StepTopicWriter
+from .smoother import NS, S_BANK, SMOOTHED, SmoothTrack, check_backend, smooth_run
 from .status import DEADLINE_MISS, VALID
 from .units import STEP_NS
 from .watch import describe_ids
@@ -84,6 +85,7 @@ __all__ = [
     "output_frames",
     "CSV_COLUMNS",
     "DEFAULT_BACKEND",
+    "smoothed_columns",
 ]
 
 
@@ -179,6 +181,9 @@ class ReplayResult:
     diag: dict[str, np.ndarray] = field(default_factory=dict)
     profile: Profile | None = None
     profile_origin: str = ""
+    #: with ``smooth``: the RTS smoother's outputs per step (n, :data:`lde.smoother.NS`; SI, the
+    #: bank in rad; :data:`lde.smoother.SMOOTHED` order), else None
+    smooth: np.ndarray | None = None
 
     @classmethod
     def of(cls, block: StepBlock, frames: FrameCounts, backend: str, **kw: Any) -> ReplayResult:
@@ -421,6 +426,7 @@ def replay(
     output_frames: bool = True,
     learned: str | Path | None = None,
     learned_start: str | None = None,
+    smooth: bool = False,
 ) -> ReplayResult:
     """Replay ``frames`` (any order) through the data path; every row is kept (:class:`ReplayResult`).
 
@@ -437,7 +443,23 @@ def replay(
         output_frames: encode lde's output frames (needed by :func:`write_recording`).
         learned: a learned-state file (read when it exists, written at the end).
         learned_start: a recording's learned start (:func:`run_replay`).
+        smooth: also the RTS smoother's outputs (:mod:`lde.smoother`; :attr:`ReplayResult.smooth`).
     """
+    name = DEFAULT_BACKEND if backend is None else get_backend(backend).name
+    smoothed = None
+    if smooth:
+        check_backend(name)
+        with smooth_run(
+            split(frames.sort(), CHUNK_FRAMES),
+            profile,
+            vehicle,
+            step_times_ns=step_times_ns,
+            overlay_enable=overlay_enable,
+            extra_status=extra_status,
+            learned=learned,
+            learned_start=learned_start,
+        ) as track:
+            t_s, smoothed = track.read_all()
     blocks: list[StepBlock] = []
     summary = run_replay(
         frames,
@@ -454,9 +476,14 @@ def replay(
         learned_start=learned_start,
     )
     block = StepBlock.concat(blocks) if len(blocks) != 1 else blocks[0]
-    return ReplayResult.of(
+    res = ReplayResult.of(
         block, summary.frames, summary.backend, recorded_steps=summary.recorded_steps, timings=summary.timings
     )
+    if smoothed is not None:
+        if not np.array_equal(t_s, block.t_ns):
+            raise RuntimeError("smoothed run and causal replay are not on the same step grid")
+        res.smooth = smoothed
+    return res
 
 
 def _mcap_of(log: LogData | LogStream) -> McapData | McapLog | None:
@@ -781,22 +808,37 @@ def _csv_columns(b: StepBlock) -> list[Column]:
     return cols
 
 
+def smoothed_columns(rows: np.ndarray) -> list[Column]:
+    """The smoother's outputs (:data:`lde.smoother.SMOOTHED`; the bank in degrees) as columns."""
+    vals = [rows[:, i] for i in range(NS)]
+    vals[S_BANK] = np.degrees(vals[S_BANK])
+    return [Column(name, v, dec) for (name, dec, _), v in zip(SMOOTHED, vals, strict=True)]
+
+
 class CsvWriter:
-    """The replay CSV (:data:`CSV_COLUMNS`; NaN as ``nan``) written block by block: a sink of
+    """The replay CSV (:data:`CSV_COLUMNS`, then with ``smooth`` the smoother's
+    :data:`lde.smoother.SMOOTHED`; NaN as ``nan``) written block by block: a sink of
     :func:`run_replay`. ``t`` is the step time in seconds in the log's own time base, printed exactly
     from the integer ns (6 decimals when every step time of a block is a whole microsecond, else 9).
 
     Blocks are formatted and written by one writer thread (the formatter and the file write release
     the GIL), so that the CSV does not take the engine's core: rows go in parts of :data:`CSV_ROWS`, at
-    most :data:`CSV_PENDING` waiting (memory stays bounded), in order. A write error surfaces, as
-    :class:`LogFormatError`, at the next :meth:`write` or at :meth:`close`; ``background=False``
-    formats and writes in the caller."""
+    most :data:`CSV_PENDING` waiting (memory stays bounded), in order. The smoothed rows are read in
+    the caller (``smooth.rows_for`` follows the causal replay's blocks in order, shared with the MCAP
+    sink). A write error surfaces, as :class:`LogFormatError`, at the next :meth:`write` or at
+    :meth:`close`; ``background=False`` formats and writes in the caller."""
 
-    def __init__(self, path: str | Path, *, background: bool = True) -> None:
+    def __init__(
+        self, path: str | Path, smooth: SmoothTrack | None = None, *, background: bool = True
+    ) -> None:
         self.path = Path(path)
+        self._smooth = smooth
+        names = [name for name, _, _ in CSV_COLUMNS]
+        if smooth is not None:
+            names += [name for name, _, _ in SMOOTHED]
         try:
             self._fh = open(self.path, "wb")  # noqa: SIM115 - closed by close()
-            self._fh.write((",".join(name for name, _, _ in CSV_COLUMNS) + "\n").encode())
+            self._fh.write((",".join(names) + "\n").encode())
         except OSError as exc:
             raise LogFormatError(f"{path}: cannot write: {exc}") from exc
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="lde-csv") if background else None
@@ -814,10 +856,12 @@ class CsvWriter:
         not held)."""
         if len(block) == 0:
             return
-        if self._pool is None:
-            self._write_now(_csv_columns(block))
-            return
         cols = _csv_columns(block)
+        if self._smooth is not None:
+            cols += smoothed_columns(self._smooth.rows_for(block))
+        if self._pool is None:
+            self._write_now(cols)
+            return
         for a in range(0, len(block), CSV_ROWS):
             part = [
                 Column(c.name, np.array(c.values[a : a + CSV_ROWS]), c.decimals, c.prescaled) for c in cols
@@ -870,7 +914,8 @@ def write_csv(path: str | Path, res: ReplayResult) -> None:
 class RecordingWriter:
     """An lde MCAP recording of a replay, written block by block (a sink of :func:`run_replay`):
     the input frames (``/can/rx``), lde's output frames (``/can/tx``, as the engine encoded them) and
-    the step topics (:class:`lde.recording.StepTopicWriter`). It replays to the same estimates."""
+    the step topics (:class:`lde.recording.StepTopicWriter`); with ``smooth`` also the smoother's
+    outputs (``/lde/smooth``). It replays to the same estimates."""
 
     def __init__(
         self,
@@ -880,12 +925,17 @@ class RecordingWriter:
         *,
         compression: str = "zstd",
         indexed: bool = False,
+        smooth: SmoothTrack | None = None,
     ) -> None:
         self.path = Path(path)
         self._w = McapWriter(
             path, metadata=metadata, compression=compression, indexed=indexed, buffer_bytes=32 << 20
         )
         self._steps = StepTopicWriter(self._w)
+        self._smooth = smooth
+        self._smooth_topic = (
+            SmoothTopicWriter(self._w, tuple((n, d) for n, _, d in SMOOTHED)) if smooth is not None else None
+        )
         self._ids = np.array([profile.spec(m).frame_id for m in OUTPUT_MESSAGES], np.uint32)
         self._lens = np.array([profile.spec(m).length for m in OUTPUT_MESSAGES], np.uint8)
 
@@ -899,6 +949,8 @@ class RecordingWriter:
         if extra_frames is not None:
             self._w.write_frames(extra_frames)
         self._steps.write(block)
+        if self._smooth is not None and self._smooth_topic is not None and len(block):
+            self._smooth_topic.write(block.t_ns, smoothed_columns(self._smooth.rows_for(block)))
 
     def close(self) -> None:
         self._w.close()

@@ -1,4 +1,4 @@
-"""``lde replay LOG... [--profile P] [--vehicle FILE] [--backend fixed|float] [--csv OUT] [--mcap OUT]``.
+"""``lde replay LOG... [--profile P] [--vehicle FILE] [--backend B] [--csv OUT] [--mcap OUT] [--smooth]``.
 
 Replays CAN logs (MCAP, candump ``-L``, or any python-can format; each also gzip-compressed, as
 ``x.log.gz``) through the estimator on the 3.9 ms grid and writes one CSV row per step (``t`` in the
@@ -96,6 +96,13 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="what the estimator learned about this car: read at start when FILE exists (checked against "
         "the vehicle and profile), written at the end; several LOGs pass it on in the given order "
         "(one after the other: not with --jobs / --scheduler)",
+    )
+    p.add_argument(
+        "--smooth",
+        action="store_true",
+        help="also the non-causal RTS-smoothed estimate for analysis (CSV columns Fw_smooth, Mw_smooth, "
+        "Fw_wind_smooth, Mw_wind_smooth, bank_deg_smooth; MCAP topic /lde/smooth): the float lateral "
+        "filter run forward over the same inputs and grid, then backward; backends float and fixed",
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no summary on stderr")
     p.set_defaults(func=run)
@@ -243,6 +250,19 @@ def run(args: argparse.Namespace) -> int:
         backend, _fn, note = resolve_backend(args.backend)
         if note and not args.quiet:
             print(f"lde replay: note: {note}", file=sys.stderr)
+        if args.smooth:
+            from ..smoother import check_backend
+
+            check_backend(backend)
+            if args.csv is None and args.mcap is None:
+                raise ConfigError("--smooth writes its columns to --csv and/or --mcap: give one")
+            if backend != "float" and not args.quiet:
+                print(
+                    f"lde replay: note: --smooth with backend {backend}: the *_smooth columns are the float "
+                    "lateral filter's, smoothed (the smoother is float analysis); the other columns are "
+                    f"the {backend} backend's",
+                    file=sys.stderr,
+                )
         if many:
             for opt in (args.csv, args.mcap):
                 if opt is not None:
@@ -272,6 +292,7 @@ def run(args: argparse.Namespace) -> int:
                 mcap_index=args.mcap_index,
                 shadow_thread=args.shadow_thread,
                 learned=learned,
+                smooth=args.smooth,
             )
             for p in logs
         ]
