@@ -121,7 +121,7 @@ def _hogs(n: int, avoid: set[int]) -> list[subprocess.Popen]:
 def _py_spy_top(pid: int, seconds: float, out_dir: Path) -> tuple[subprocess.Popen | None, Path]:
     raw = out_dir / f"pyspy-{pid}.txt"
     cmd = ["py-spy", "record", "--pid", str(pid), "--duration", str(int(seconds)), "--rate", "1000"]
-    cmd += ["--format", "raw", "--output", str(raw), "--nonblocking", "--native"]
+    cmd += ["--format", "raw", "--output", str(raw), "--nonblocking"]  # --native needs blocking
     try:
         return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL), raw
     except OSError:
@@ -169,6 +169,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--record", default=None, help="also record to this MCAP file")
     ap.add_argument("--realtime", action="store_true", help="the service at SCHED_FIFO --priority, mlockall")
     ap.add_argument("--priority", type=int, default=80)
+    ap.add_argument(
+        "--cpu-latency-us", type=int, default=0, help="with --realtime: PM QoS bound as lde run (-1: none)"
+    )
+    ap.add_argument(
+        "--no-fast-io", action="store_true", help="python-can's recv/send (lde.busio generic path)"
+    )
     ap.add_argument("--cpu", type=int, action="append", help="pin the service to this CPU (repeatable)")
     ap.add_argument("--spin-us", type=float, default=200.0, help="fixed grid: busy-wait before a deadline")
     ap.add_argument("--busy", type=int, nargs="?", const=1, default=0, help="busy loops on the other core(s)")
@@ -194,8 +200,14 @@ def main(argv: list[str] | None = None) -> int:
     hogs = _hogs(args.busy, set(args.cpu or ())) if args.busy else []
     rt_note = "normal scheduler"
     if args.realtime:
-        res = enable_realtime(priority=args.priority, cpus=args.cpu, lock_memory=True)
+        lat = None if args.cpu_latency_us < 0 else args.cpu_latency_us
+        try:
+            res = enable_realtime(priority=args.priority, cpus=args.cpu, lock_memory=True, cpu_latency_us=lat)
+        except TypeError:  # a checkout before the PM QoS bound
+            res = enable_realtime(priority=args.priority, cpus=args.cpu, lock_memory=True)
         rt_note = f"SCHED_FIFO {args.priority}, mlockall" if res.ok else f"refused: {res.warnings}"
+        if getattr(res, "cpu_latency_us", None) is not None:
+            rt_note += f", cpu_dma_latency {res.cpu_latency_us} us"
     elif args.cpu:
         os.sched_setaffinity(0, set(args.cpu))
 
@@ -204,7 +216,9 @@ def main(argv: list[str] | None = None) -> int:
     profile, vehicle = load_profile("lde"), load_vehicle("reference")
     clock = MonotonicClock(spin_ns=int(args.spin_us * 1e3))
     rec = Recorder(args.record, metadata={"profile": "lde", "bench": "1"}) if args.record else None
-    kw = {"grid": args.grid}
+    kw: dict[str, object] = {"grid": args.grid}
+    if args.no_fast_io:
+        kw["fast_io"] = False
     try:
         svc = Service(bus, profile, vehicle, clock, backend=args.backend, recorder=rec, log_period_s=0, **kw)
         grid = args.grid
@@ -330,6 +344,7 @@ def main(argv: list[str] | None = None) -> int:
         "sim_rt_priority": args.sim_rt_priority,
         "sim_cpus": sim_cpus,
         "filters": getattr(svc, "filters", "none"),
+        "io": getattr(getattr(svc, "io", None), "kind", "python-can"),
         "machine": f"{platform.machine()}, {os.cpu_count()} cpus, python {platform.python_version()}",
         "load_avg": [round(x, 2) for x in (*load_before, *load_after)],
         "period_error_p50_us": _pctl(w["pe"], 50),

@@ -106,6 +106,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "busy-wait this long before each deadline (fixed grid) [us] (default 200; 0 blocks/sleeps only: "
         "on a CPU shared with the simulator, user-mode Linux say, the spin takes time the others need)",
     )
+    p.add_argument(
+        "--cpu-latency-us",
+        type=int,
+        default=0,
+        metavar="US",
+        help="with --realtime: hold the CPUs' wake-up latency at most US (PM QoS, /dev/cpu_dma_latency; "
+        "default 0: idle CPUs poll instead of halting, the step runs on warm caches; -1 leaves it alone)",
+    )
     p.add_argument("--log-period", type=float, default=10.0, metavar="SEC", help="timing log line period")
     p.set_defaults(func=run)
 
@@ -117,7 +125,8 @@ def _realtime(args: argparse.Namespace) -> None:
     if enable is None:
         log.warning("--realtime: lde.clock.enable_realtime is not available; normal scheduling")
         return
-    result = enable(priority=args.priority, cpus=args.cpu, lock_memory=True)
+    latency = None if args.cpu_latency_us < 0 else args.cpu_latency_us
+    result = enable(priority=args.priority, cpus=args.cpu, lock_memory=True, cpu_latency_us=latency)
     for w in getattr(result, "warnings", ()) or ():
         log.warning("--realtime: %s", w)
 
