@@ -432,8 +432,20 @@ class Service:
         cols = self._heads.get(n)
         if cols is None:  # made once per count: a step sees 0 to a few frames
             cols = self._heads[n] = (*(a[:n] for a in self._pcols), self._prx[:n])
+        pt, pid, pext, pdlc, pword, prx = cols
         fed, steps = self.engine.run_arrays(
-            *cols, self._block, step_times=self._tk, enable=self._enable, extra_status=self._extra, final=True
+            pt,
+            pid,
+            pext,
+            pdlc,
+            pword,
+            prx,
+            self._block,
+            step_times=self._tk,
+            enable=self._enable,
+            extra_status=self._extra,
+            final=True,
+            pinned=True,
         )
         if steps != 1:  # the engine runs every given step when final: a broken invariant
             raise RuntimeError(f"the engine ran {steps} steps for one step time")
@@ -513,7 +525,7 @@ class Service:
             vals[slot] = v
         ctr, mod, inv = self._diag_ctr
         self._diag_word[0] = encode_word(vals, *self._diag_args, ctr)  # type: ignore[call-arg]
-        self._diag_ctr = (int(advance_counter(ctr, mod, inv)), mod, inv)
+        self._diag_ctr = (advance_counter.py_func(ctr, mod, inv), mod, inv)  # plain Python: no dispatch
         view = self._diag_view
         view[:] = self._diag_bytes[: view.shape[0]]
         return self._diag_tx
@@ -680,6 +692,12 @@ class Service:
                 if now > end:  # every frame up to now is in: the window ended without an MDPS frame
                     self._drain()
                     if not due:
+                        # behind by more than a period (no MDPS frame, a slow CPU): the windows that
+                        # ended before the last one are skipped and counted, the phase is kept
+                        n = (now - end - 1) // STEP_NS
+                        if n > 0:
+                            lock[L_REF] += n * STEP_NS
+                            self.stats.record_skipped(int(n))
                         self._make_due(int(lock_timeout(lock, now)))
                     break
                 try:
