@@ -217,6 +217,8 @@ def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path, lde_bench: Bench) 
                 "0.5",
                 "--backend",
                 "float",
+                "--grid",
+                "fixed",
                 "--record",
                 str(path),
             ]
@@ -231,8 +233,8 @@ def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path, lde_bench: Bench) 
     n = len(rec.step_times_ns)
     steps = rec.step_times_ns
     assert steps[-1] - steps[0] >= 0.5e9 - STEP_NS  # --duration (plus the ramp-out)
-    # the default fixed grid: every step on the 3.9 ms grid (the MDPS-locked grid's rule is checked
-    # deterministically, on a simulated clock, in test_run_on_the_mdps_grid_...)
+    # the fixed grid: every step on the 3.9 ms grid (the MDPS-locked grid, lde run's default, is checked
+    # deterministically on a simulated clock in test_run_on_the_mdps_grid_...; the other lde run tests use it)
     np.testing.assert_array_equal(np.diff(steps) % STEP_NS, 0)
     assert len(rec.rx) > 100 and len(rec.tx) == 4 * n  # LDE_Estimate, _Overlay, _Disturbance, _Diag
     assert rec.metadata["backend"] == "float"

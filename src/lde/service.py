@@ -229,6 +229,7 @@ class Service:
             dc.index[n] for n in ("PeriodError", "StepTime", "Latency", "DeadlineMisses", "E2ERejects")
         )
         self._diag_word = np.zeros(1, np.uint64)
+        self._encode_word = _resolved(encode_word, self._diag_vals, *self._diag_args, 0)
         self._diag_bytes = self._diag_word.view(np.uint8)
         self._diag_ctr = (0, dc.scheme.modulus, dc.scheme.invalid_counter)
         # the frames received and not fed yet, in preallocated columns (the engine reads slices)
@@ -524,7 +525,7 @@ class Service:
         for slot, v in zip(self._diag_slots, diag_values(timing, rejects), strict=True):
             vals[slot] = v
         ctr, mod, inv = self._diag_ctr
-        self._diag_word[0] = encode_word(vals, *self._diag_args, ctr)  # type: ignore[call-arg]
+        self._diag_word[0] = self._encode_word(vals, *self._diag_args, ctr)
         self._diag_ctr = (advance_counter.py_func(ctr, mod, inv), mod, inv)  # plain Python: no dispatch
         view = self._diag_view
         view[:] = self._diag_bytes[: view.shape[0]]
@@ -721,6 +722,18 @@ class Service:
                 self.stats.record_skipped(1)
                 continue
             return t_k, now
+
+
+def _resolved(fn: Any, *args: Any) -> Any:
+    """numba's compiled overload of ``fn`` for the types of ``args`` (compiled or loaded now), to be
+    called directly with arguments of exactly these types: no type dispatch per call (a few us on a
+    cold cache). ``fn`` itself when it is not a numba dispatcher."""
+    overloads = getattr(fn, "overloads", None)
+    if overloads is None:
+        return fn
+    fn(*args)
+    sig = tuple(fn.typeof_pyval(a) for a in args)
+    return overloads[sig].entry_point if sig in overloads else fn
 
 
 # a classic BPF program for python-can's udp_multicast bus (SO_ATTACH_FILTER, linux/filter.h)

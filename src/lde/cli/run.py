@@ -92,10 +92,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--grid",
         choices=("mdps", "fixed"),
-        default="fixed",
-        help="fixed (default): absolute 3.9 ms deadlines on the clock; mdps: each step runs right after the "
-        "MDPS frame it consumes (the MDPS-locked grid; a step at 1.5 periods when a frame is missing; "
-        "not the default yet: on a slow single CPU without MDPS frames it fell behind without bound)",
+        default="mdps",
+        help="mdps (default): each step runs right after the MDPS frame it consumes (the MDPS-locked grid; "
+        "a step at 1.5 periods when a frame is missing; windows it fell behind by are skipped and counted); "
+        "fixed: absolute 3.9 ms deadlines on the clock (input-to-output latency up to a period)",
     )
     p.add_argument(
         "--spin-us",
@@ -109,10 +109,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--cpu-latency-us",
         type=int,
-        default=0,
+        default=-1,
         metavar="US",
-        help="with --realtime: hold the CPUs' wake-up latency at most US (PM QoS, /dev/cpu_dma_latency; "
-        "default 0: idle CPUs poll instead of halting, the step runs on warm caches; -1 leaves it alone)",
+        help="with --realtime: hold the CPUs' wake-up latency at most US (PM QoS, /dev/cpu_dma_latency, "
+        "all CPUs; 0: idle CPUs poll instead of halting; default -1: leave it alone)",
     )
     p.add_argument("--log-period", type=float, default=10.0, metavar="SEC", help="timing log line period")
     p.set_defaults(func=run)
