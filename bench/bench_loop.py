@@ -219,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--realtime", action="store_true", help="the service at SCHED_FIFO --priority, mlockall")
     ap.add_argument("--priority", type=int, default=80)
     ap.add_argument(
-        "--cpu-latency-us", type=int, default=-1, help="with --realtime: PM QoS bound as lde run (-1: none)"
+        "--cpu-latency-us", type=int, default=0, help="with --realtime: PM QoS bound as lde run (-1: none)"
     )
     ap.add_argument(
         "--no-fast-io", action="store_true", help="python-can's recv/send (lde.busio generic path)"
