@@ -249,6 +249,7 @@ class Service:
         self._watch_next = 0  # bus time of the next check [ns]
         self._probe_until: int | None = None  # SocketCAN filters lifted to see what arrives, until
         self._warm_up()
+        self._run_engine_empty()  # resolves the pinned overload now (28 ms of numba typing), not at step 1
         self.stats = TimingStats()
         self._newest_input_ns = -1  # receive time of the newest frame fed so far
         self._restamp: bool | None = None  # stamp frames on receipt (decided at the first frame)
@@ -458,6 +459,27 @@ class Service:
                     a[:rest] = a[fed:n].copy()
             self._np = rest
         return fed
+
+    def _run_engine_empty(self) -> None:
+        """The live call with no frame and no step time: nothing runs, nothing changes, but the
+        compiled overload for the live argument types is resolved (``Engine.run_arrays(pinned=True)``)."""
+        pt, pid, pext, pdlc, pword = (a[:0] for a in self._pcols)
+        fed, steps = self.engine.run_arrays(
+            pt,
+            pid,
+            pext,
+            pdlc,
+            pword,
+            self._prx[:0],
+            self._block,
+            step_times=self._tk[:0],
+            enable=self._enable[:0],
+            extra_status=self._extra[:0],
+            final=True,
+            pinned=True,
+        )
+        if fed or steps:
+            raise RuntimeError(f"the engine ran {steps} steps on no step time")
 
     def step_once(self, t_k: int, t_start: int | None = None) -> StepResult:
         """Run one step at step time ``t_k`` [ns, bus time base] and send its outputs.
