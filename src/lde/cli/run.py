@@ -215,6 +215,7 @@ def run(args: argparse.Namespace) -> int:
         )
         summary = service.run(stop_event=stop, on_step=on_step)
         log.info("%s", summary.log_line())
+        log.info("%s", service.fault_summary())
         if service.late_rx:
             log.info("frames that reached the service after the step of their timestamp: %d", service.late_rx)
     finally:
