@@ -20,7 +20,6 @@ from lde.busfaults import BusFaults, FaultTracker, WindowCounts, describe_error_
 from lde.clock import SimulatedClock
 from lde.overlay import OverlayTiming
 from lde.params import load_vehicle
-from lde.profiles import load_profile
 from lde.service import Service, StepResult
 from lde.testing import InputFeeder
 from lde.units import DEG, KMH, STEP_NS
@@ -202,7 +201,9 @@ def test_interface_down_and_up_the_service_keeps_stepping_and_recovers(caplog) -
     def link(bus: FaultyBus, feed: can.BusABC, t_ns: int) -> None:
         bus.down = T0 + int(FAULT_S * S) <= t_ns < T0 + int(CLEAR_S * S)
 
-    down = lambda m, t: T0 + int(FAULT_S * S) <= t < T0 + int(CLEAR_S * S)  # noqa: E731: frames lost
+    def down(message: str, t: int) -> bool:  # the feeder's frames are lost while the link is down
+        return T0 + int(FAULT_S * S) <= t < T0 + int(CLEAR_S * S)
+
     run = _run(caplog, link, silent=down)
     fig = _check_ramp_and_resume(run, ramps=True)
     svc = run.svc
@@ -217,11 +218,13 @@ def test_interface_down_and_up_the_service_keeps_stepping_and_recovers(caplog) -
     assert len(_said(run, "warning", "CAN receive failing")) == 1
     assert len(_said(run, "info", "CAN receive failing: cleared")) == 1
     assert _said(run, "warning", "no input: MDPS_Sensors (0x2A0) none for")
-    print(f"link down 1.5 s: ramp-out {fig['ramp_steps']:.0f} steps, overlay back {fig['resume_s']:.2f} s after up")
+    print(f"link down 1.5 s: ramp-out {fig['ramp_steps']:.0f} steps, back {fig['resume_s']:.2f} s after")
 
 
 def test_an_input_message_that_stops_and_comes_back(caplog) -> None:
-    mdps_off = lambda m, t: m == "MDPS_Sensors" and T0 + int(FAULT_S * S) <= t < T0 + int(CLEAR_S * S)  # noqa: E731
+    def mdps_off(message: str, t: int) -> bool:
+        return message == "MDPS_Sensors" and T0 + int(FAULT_S * S) <= t < T0 + int(CLEAR_S * S)
+
     run = _run(caplog, lambda *a: None, silent=mdps_off)
     _check_ramp_and_resume(run, ramps=True)
     assert len(_said(run, "warning", "no input: MDPS_Sensors (0x2A0) none for")) == 1
@@ -231,7 +234,8 @@ def test_an_input_message_that_stops_and_comes_back(caplog) -> None:
 def test_error_frames_are_counted_and_said_and_the_inputs_stay_in_use(caplog) -> None:
     def errors(feed: can.BusABC, t_ns: int) -> None:
         if T0 + int(FAULT_S * S) <= t_ns < T0 + int(CLEAR_S * S):
-            feed.send(can.Message(timestamp=t_ns / 1e9, arbitration_id=0x80 | 0x08, is_error_frame=True, dlc=8))
+            err = can.Message(timestamp=t_ns / 1e9, arbitration_id=0x80 | 0x08, is_error_frame=True, dlc=8)
+            feed.send(err)
 
     run = _run(caplog, lambda *a: None, extra=errors)
     assert run.svc is not None and run.svc.error_frames == int((CLEAR_S - FAULT_S) * S / STEP_NS)
@@ -264,8 +268,9 @@ def test_foreign_frames_reaching_the_service_are_dropped_and_a_flood_is_said(cap
 
     def flood(feed: can.BusABC, t_ns: int) -> None:
         if T0 + int(FAULT_S * S) <= t_ns < T0 + int(CLEAR_S * S):
+            msg = can.Message(timestamp=t_ns / 1e9, arbitration_id=0x123, is_extended_id=False, data=bytes(8))
             for _ in range(per_step):
-                feed.send(can.Message(timestamp=t_ns / 1e9, arbitration_id=0x123, is_extended_id=False, data=bytes(8)))
+                feed.send(msg)
 
     run = _run(caplog, lambda *a: None, extra=flood)
     assert run.svc is not None and run.svc.foreign > 0

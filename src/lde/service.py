@@ -67,6 +67,7 @@ from typing import Any
 import can
 import numpy as np
 
+from .busfaults import FLOOD_FOREIGN_HZ, BusFaults, WindowCounts
 from .clock import SimulatedClock
 from .codec import MessageCodec, encode_word
 from .diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummary, diag_values
@@ -82,7 +83,6 @@ from .signals import Receiver
 from .status import DEADLINE_MISS, VALID
 from .units import STEP_NS, STEP_S
 from .watch import InputWatch, describe_ids
-from .busfaults import FLOOD_FOREIGN_HZ, BusFaults, WindowCounts
 
 __all__ = ["Service", "StepResult", "STATUS_DEADLINE_MISS", "GRIDS", "open_bus", "set_input_filters"]
 
@@ -248,7 +248,7 @@ class Service:
         self.faults = BusFaults(where, flood_hz=flood_hz)
         self._bus_counter = _open_bus_counter(bus)  # SocketCAN: the interface's rx_packets, or None
         self._window: tuple[int, ...] | None = None  # the counts at the previous bus check
-        self._e2e_prev: dict[str, tuple[int, int]] = {}  # message -> (rejected, used) at that check
+        self._e2e_prev: dict[str, tuple[int, ...]] = {}  # message -> E2E counts at that check
         self._warm_up()
         self.stats = TimingStats()
         self._newest_input_ns = -1  # receive time of the newest frame fed so far
@@ -666,8 +666,8 @@ class Service:
         """Hand the counts since the previous check to the fault trackers (:mod:`lde.busfaults`) and
         log what they say: a line when a fault starts, a reminder every 30 s, a line when it clears."""
         bus_frames = _read_counter(self._bus_counter)
-        cur = (t_ns, self.send_errors, self.sent, self.recv_errors, self.received, self.error_frames)
-        cur += (self.foreign, bus_frames)
+        cur: tuple[int, ...] = (t_ns, self.send_errors, self.sent, self.recv_errors, self.received)
+        cur += (self.error_frames, self.foreign, bus_frames)
         e2e = []
         n_input = self._np
         for name, st in self.engine.stats().items():
