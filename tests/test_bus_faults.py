@@ -175,6 +175,12 @@ def _check_ramp_and_resume(run: LiveRun, *, ramps: bool, resume_within_s: float 
     dt = np.minimum(np.diff(t), OverlayTiming().dt_max)
     assert np.all(np.abs(np.diff(tq)) <= lim.max_rate * dt + 1e-9)
     assert np.all(np.abs(tq) <= lim.max_torque)
+    # every ramp-out step (RAMP_OUT, FAULT, or OFF with torque left) moves toward 0 at the rate limit
+    state = np.array([r.overlay_state for r in run.steps])
+    for i in range(1, len(t)):
+        if tq[i - 1] != 0.0 and (state[i] in (3, 4) or state[i] == 0):
+            want = max(0.0, abs(tq[i - 1]) - lim.max_rate * dt[i - 1])
+            assert abs(abs(tq[i]) - want) <= 1e-9 and tq[i] * tq[i - 1] >= 0, (i, tq[i - 1], tq[i], want)
     figures: dict[str, float] = {}
     i0 = int(np.searchsorted(t, FAULT_S))
     if ramps:

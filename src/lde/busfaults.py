@@ -126,7 +126,7 @@ class WindowCounts:
         bus_frames: frames the interface counted (SocketCAN ``rx_packets``), -1 when unknown.
         own_frames: frames of the profile on the bus in the window (inputs received + outputs sent).
         e2e: per input message (label, frames rejected, frames used, what the rejections were).
-        last_error: the text of the last failed send or receive.
+        send_error, recv_error: the text of the last failed send / receive.
     """
 
     t_ns: int
@@ -141,7 +141,8 @@ class WindowCounts:
     bus_frames: int = -1
     own_frames: int = 0
     e2e: tuple[tuple[str, int, int, str], ...] = ()
-    last_error: str = ""
+    send_error: str = ""
+    recv_error: str = ""
 
 
 @dataclass
@@ -177,14 +178,14 @@ class BusFaults:
         out += self.send.update(
             w.t_ns,
             w.send_errors,
-            f"{w.send_errors} frames not sent in {w.span_ns * 1e-9:.2f} s on {self.where} ({w.last_error});"
+            f"{w.send_errors} frames not sent in {w.span_ns * 1e-9:.2f} s on {self.where} ({w.send_error});"
             " the outputs do not reach the bus (the MDPS times the overlay out); the loop keeps stepping",
             ok=w.sent > 0,
         )
         out += self.recv.update(
             w.t_ns,
             w.recv_errors,
-            f"{w.recv_errors} failed receive calls on {self.where} ({w.last_error}); the loop keeps stepping",
+            f"{w.recv_errors} failed receive calls on {self.where} ({w.recv_error}); the loop keeps stepping",
             ok=w.received > 0,
         )
         out += self.errors.update(

@@ -264,7 +264,8 @@ class Service:
         self.received = 0  # frames received (any id, error frames included)
         self.error_frames = 0  # error frames received (counted; inputs stay in use while E2E passes)
         self._error_id = 0  # the last error frame's id (its classes)
-        self._last_error = ""  # the last failed send's or receive's text
+        self._send_error = ""  # the last failed send's text
+        self._recv_error = ""  # the last failed receive's text
         self.gc_collections = 0  # young-generation collections run in the idle time of run()
         self.last: StepResult | None = None
         self.valid_steps = 0  # steps with status VALID: the driving time the learner saw
@@ -342,7 +343,7 @@ class Service:
     def _recv_failed(self, exc: Exception) -> None:
         # said in the log once per fault by the bus check (lde.busfaults), not per call
         self.recv_errors += 1
-        self._last_error = str(exc)
+        self._recv_error = str(exc)
 
     def _take(self, msg: can.Message) -> None:
         """One received frame into the pending columns (and the recording, and the locked grid);
@@ -534,7 +535,7 @@ class Service:
             # a full tx queue, a bus-off or the interface down must not kill the loop: count and go
             # on (said in the log once per fault by the bus check, lde.busfaults)
             self.send_errors += 1
-            self._last_error = str(exc)
+            self._send_error = str(exc)
             return
         self.sent += 1
         if self.recorder is not None:  # only frames the bus took
@@ -697,7 +698,8 @@ class Service:
             bus_frames=d[7] if bus_frames >= 0 and prev[7] >= 0 else -1,
             own_frames=d[8] + d[2],
             e2e=tuple(e2e),
-            last_error=self._last_error,
+            send_error=self._send_error,
+            recv_error=self._recv_error,
         )
         for level, text in self.faults.check(w):
             (log.warning if level == "warning" else log.info)("%s", text)

@@ -106,6 +106,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "busy-wait this long before each deadline (fixed grid) [us] (default 200; 0 blocks/sleeps only: "
         "on a CPU shared with the simulator, user-mode Linux say, the spin takes time the others need)",
     )
+    p.add_argument(
+        "--flood-rate",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="frames of other messages per second on the bus logged as a flood (default 2000; SocketCAN "
+        "counts them at the interface, elsewhere those that reach the service; raise it on a shared bus)",
+    )
     p.add_argument("--log-period", type=float, default=10.0, metavar="SEC", help="timing log line period")
     p.set_defaults(func=run)
 
@@ -135,6 +143,8 @@ def run(args: argparse.Namespace) -> int:
     from ..profiles import load_profile
     from ..units import STEP_NS
 
+    if args.flood_rate is not None and not (args.flood_rate > 0 and math.isfinite(args.flood_rate)):
+        raise ConfigError(f"--flood-rate {args.flood_rate}: need frames per second > 0")
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
     logging.getLogger("lde.service").setLevel(logging.INFO)
@@ -175,6 +185,7 @@ def run(args: argparse.Namespace) -> int:
             log_period_s=args.log_period,
             grid=args.grid,
             learned=args.learned,
+            **({} if args.flood_rate is None else {"flood_hz": args.flood_rate}),
         )
         if args.record:
             from ..recording import LEARNED_START_KEY, Recorder
