@@ -12,7 +12,9 @@ Linux, where ``lde sim`` and the service share one emulated CPU, the inputs keep
 It paces the records on the monotonic clock (sleeping until each one), sends late records at once
 but moves its schedule later when more than MAX_LAG_S behind (as ``lde sim`` does: no burst of stale
 frames), and never stops on a failed send (ENETDOWN while the interface is down: counted). RESULT
-gets the epoch time of every action and mark record (in order), the counts, its lateness and CPU.
+gets the epoch time of every action and mark record (in order: the interface down and the flood's
+start when their command began, the interface up and the flood's end when it had finished), the
+counts, its lateness and CPU.
 """
 
 from __future__ import annotations
@@ -76,6 +78,7 @@ def main(argv: list[str]) -> int:
             except OSError:
                 counts["failed"] += 1
             continue
+        t_before = time.time()  # the link goes down / the flood starts during the call: its start
         if kind in (1, 2):
             subprocess.run(["ip", "link", "set", channel, "down" if kind == 1 else "up"], check=True)
         elif kind == 3:
@@ -89,7 +92,8 @@ def main(argv: list[str]) -> int:
             flood.terminate()
             flood.wait(timeout=30)
             flood_rx.append(_counter(channel, "rx_packets"))
-        events.append((kind, time.time()))
+        # a fault's start is when its action began, its end when the action had finished
+        events.append((kind, t_before if kind in (1, 3) else time.time()))
     cpu1 = os.times()
     late_ms.sort()
     result = {
