@@ -260,12 +260,15 @@ def test_a_sender_that_restarts_its_counter(caplog) -> None:
     assert st.wrong_sequence >= 1
     assert len(_said(run, "warning", "E2E MDPS_Sensors (0x2A0)", "wrong sequence (counter jumped) 1")) == 1
     assert len(_said(run, "info", "E2E MDPS_Sensors (0x2A0): cleared")) == 1
-    t, tq = run.t_s(), run.overlay()
-    lim = run.svc.vehicle.overlay
-    dt = np.minimum(np.diff(t), OverlayTiming().dt_max)
-    assert np.all(np.abs(np.diff(tq)) <= lim.max_rate * dt + 1e-9)
+    # the re-synchronisation leaves the MDPS input untrusted for a few steps: an MDPS fault, so the
+    # overlay ramps out at its rate limit and the estimator reconverges (about 1.2 s)
+    _check_ramp_and_resume(run, ramps=True)
+    t = run.t_s()
     active = np.array([r.overlay_state in (1, 2) for r in run.steps])
-    assert active[t < FAULT_S][-1] and active[-1]
+    off = np.nonzero(~active & (t >= FAULT_S))[0]
+    assert off.size and t[off[0]] - FAULT_S < 0.05  # disengaged at once
+    back = np.nonzero(active & (t > t[off[0]]))[0]
+    print(f"counter restart: overlay off for {t[back[0]] - t[off[0]]:.2f} s")
 
 
 @pytest.mark.parametrize("rate_hz", [1000, 5000])
