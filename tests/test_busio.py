@@ -10,7 +10,7 @@ import can
 import numpy as np
 import pytest
 
-from lde.busio import BusIO, bus_io, message_fields, socketcan_fields
+from lde.busio import ERROR_FRAME, NOT_DATA, BusIO, bus_io, message_fields, socketcan_fields
 from lde.frames import seconds_to_ns
 from lde.params import load_vehicle
 from lde.profiles import load_profile
@@ -185,8 +185,10 @@ def test_socketcan_frame_parse_equals_python_cans() -> None:
         can_id, dlc, flags, data = dissect_can_frame(cf)
         ext = bool(can_id & 0x80000000)
         want = (
-            (0, -1, False, 0, 0)
-            if can_id & 0x60000000
+            (seconds_to_ns(TS), ERROR_FRAME, False, 0, can_id & 0x1FFFFFFF)
+            if can_id & 0x20000000
+            else (0, NOT_DATA, False, 0, 0)
+            if can_id & 0x40000000
             else (
                 seconds_to_ns(TS),
                 can_id & (0x1FFFFFFF if ext else 0x7FF),

@@ -6,8 +6,10 @@ numbers, not a ``can.Message``. :func:`bus_io` gives it an object with
 
 * ``recv(timeout) -> (t_ns, can_id, is_extended, dlc, word) | None``: the next frame, ``t_ns`` its
   receive time [ns] rounded to the microsecond as python-can's timestamp would be
-  (:func:`lde.frames.seconds_to_ns`), ``word`` its first 8 data bytes little-endian; ``can_id`` -1 for
-  an error or remote frame (to be dropped); None when none came within ``timeout`` [s] (0: poll);
+  (:func:`lde.frames.seconds_to_ns`), ``word`` its first 8 data bytes little-endian; ``can_id``
+  :data:`NOT_DATA` (-1) for a remote frame or one the bus would drop, :data:`ERROR_FRAME` (-2) for an
+  error frame, whose ``word`` is then its error class (python-can's ``arbitration_id``); None when
+  none came within ``timeout`` [s] (0: poll);
 * ``tx(msg) -> TxFrame``: a prebuilt output frame whose ``view`` (uint8, ``dlc`` bytes) is filled in
   place and sent with ``send(tx, t_s)`` (``t_s``: the send timestamp [s], as ``msg.timestamp``).
 
@@ -36,10 +38,14 @@ import numpy as np
 
 from .frames import seconds_to_ns
 
-__all__ = ["BusIO", "TxFrame", "bus_io"]
+__all__ = ["ERROR_FRAME", "NOT_DATA", "BusIO", "TxFrame", "bus_io"]
 
-#: one received frame: (t_ns, can_id (-1: not a data frame), is_extended, dlc, word)
+#: one received frame: (t_ns, can_id (< 0: not a data frame), is_extended, dlc, word)
 RxFrame = tuple[int, int, bool, int, int]
+#: ``can_id`` of a remote frame or of a frame the bus would not deliver (dropped)
+NOT_DATA = -1
+#: ``can_id`` of an error frame (counted by the service); ``word`` carries the error class
+ERROR_FRAME = -2
 
 _TS = struct.Struct("@ll")  # struct timespec, as python-can reads SO_TIMESTAMPNS
 _BE_DOUBLE = struct.Struct(">d")
@@ -103,9 +109,11 @@ class BusIO:
 
 
 def message_fields(msg: can.Message) -> RxFrame:
-    """A received ``can.Message`` as the service's five numbers (can_id -1: error/remote frame)."""
-    if msg.is_error_frame or msg.is_remote_frame:
-        return (0, -1, False, 0, 0)
+    """A received ``can.Message`` as the service's five numbers (can_id < 0: not a data frame)."""
+    if msg.is_error_frame:
+        return (seconds_to_ns(msg.timestamp), ERROR_FRAME, False, 0, msg.arbitration_id)
+    if msg.is_remote_frame:
+        return (0, NOT_DATA, False, 0, 0)
     data = msg.data
     word = int.from_bytes(data if len(data) <= 8 else data[:8], "little")
     return (seconds_to_ns(msg.timestamp), msg.arbitration_id, msg.is_extended_id, msg.dlc, word)
@@ -194,7 +202,7 @@ class _UdpMulticastIO(_SocketIO):
         except Exception as exc:  # python-can raises the same for a datagram it cannot unpack
             raise can.CanOperationError("could not unpack received message") from exc
         if msg.is_fd and not self._fd_bus:  # python-can drops FD frames on a classic bus
-            return (0, -1, False, 0, 0)
+            return (0, NOT_DATA, False, 0, 0)
         return message_fields(msg)
 
     def tx(self, msg: can.Message) -> TxFrame:
@@ -252,8 +260,10 @@ def socketcan_fields(cf: bytes, ts: float) -> RxFrame:
     """A ``struct can_frame``/``canfd_frame`` received at ``ts`` [s] as the service's five numbers
     (python-can's ``dissect_can_frame`` and ``capture_message``, without the ``can.Message``)."""
     can_id = int.from_bytes(cf[0:4], "little" if _LITTLE else "big")
-    if can_id & (_SocketcanIO._RTR | _SocketcanIO._ERR):
-        return (0, -1, False, 0, 0)
+    if can_id & _SocketcanIO._ERR:
+        return (seconds_to_ns(ts), ERROR_FRAME, False, 0, can_id & 0x1FFFFFFF)
+    if can_id & _SocketcanIO._RTR:
+        return (0, NOT_DATA, False, 0, 0)
     ext = bool(can_id & _SocketcanIO._EFF)
     dlc = cf[4]
     if len(cf) != 72 and dlc == 8 and 8 < cf[7] <= 15:  # a classic frame's len8_dlc, as python-can reads it

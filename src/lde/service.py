@@ -53,6 +53,7 @@ from __future__ import annotations
 import ctypes
 import gc
 import logging
+import os
 import socket
 import struct
 import threading
@@ -66,7 +67,8 @@ from typing import Any
 import can
 import numpy as np
 
-from .busio import RxFrame, TxFrame, bus_io
+from .busfaults import FLOOD_FOREIGN_HZ, BusFaults, WindowCounts
+from .busio import ERROR_FRAME, RxFrame, TxFrame, bus_io
 from .clock import SimulatedClock
 from .codec import MessageCodec, encode_word
 from .diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummary, diag_values
@@ -106,6 +108,8 @@ _GC_YOUNG = 700
 
 _WATCH_PERIOD_NS = 250_000_000  # how often the input watch looks (its warnings repeat every 30 s)
 _PROBE_NS = 1_000_000_000  # SocketCAN filters lifted this long to name the ids on the bus
+#: E2E rejection kinds, as the bus check names them (the wrong sequence of a counter that jumped)
+_E2E_KINDS = ("wrong sequence (counter jumped)", "wrong CRC", "repeated counter", "malformed")
 
 
 @dataclass(frozen=True)
@@ -165,6 +169,8 @@ class Service:
             vehicle and profile), written every ``learned_period_s`` of step time and at
             :meth:`close`. Needs a backend that learns (ConfigError otherwise).
         learned_period_s: period of the learned-state writes [s] (SPEC: 60 s).
+        flood_hz: frames of other messages on the bus above this rate [1/s] are logged as a flood
+            (:mod:`lde.busfaults`).
     """
 
     def __init__(
@@ -184,6 +190,7 @@ class Service:
         fast_io: bool = True,
         learned: str | Path | None = None,
         learned_period_s: float = 60.0,
+        flood_hz: float = FLOOD_FOREIGN_HZ,
     ) -> None:
         if grid not in GRIDS:
             raise ConfigError(f"unknown grid {grid!r}: {' or '.join(GRIDS)}")
@@ -248,6 +255,11 @@ class Service:
         self.watch = InputWatch(self.profile, where)
         self._watch_next = 0  # bus time of the next check [ns]
         self._probe_until: int | None = None  # SocketCAN filters lifted to see what arrives, until
+        #: live bus faults said once (lde.busfaults): failed sends/receives, error frames, E2E, floods
+        self.faults = BusFaults(where, flood_hz=flood_hz)
+        self._bus_counter = _open_bus_counter(bus)  # SocketCAN: the interface's rx_packets, or None
+        self._window: tuple[int, ...] | None = None  # the counts at the previous bus check
+        self._e2e_prev: dict[str, tuple[int, ...]] = {}  # message -> E2E counts at that check
         self._warm_up()
         self._run_engine_empty()  # resolves the pinned overload now (28 ms of numba typing), not at step 1
         self.stats = TimingStats()
@@ -260,6 +272,12 @@ class Service:
         self.steps = 0
         self.send_errors = 0  # frames the bus refused (full tx queue, bus-off), counted, not raised
         self.recv_errors = 0  # failed receive calls, counted, not raised
+        self.sent = 0  # frames the bus took
+        self.received = 0  # frames received (any id, error frames included)
+        self.error_frames = 0  # error frames received (counted; inputs stay in use while E2E passes)
+        self._error_id = 0  # the last error frame's id (its classes)
+        self._send_error = ""  # the last failed send's text
+        self._recv_error = ""  # the last failed receive's text
         self.gc_collections = 0  # young-generation collections run in the idle time of run()
         self.last: StepResult | None = None
         self.valid_steps = 0  # steps with status VALID: the driving time the learner saw
@@ -341,15 +359,20 @@ class Service:
             self._take(f)
 
     def _recv_failed(self, exc: Exception) -> None:
+        # said in the log once per fault by the bus check (lde.busfaults), not per call
         self.recv_errors += 1
-        if self.recv_errors == 1 or self.recv_errors % 1000 == 0:
-            log.warning("CAN receive failed (%d so far): %s", self.recv_errors, exc)
+        self._recv_error = str(exc)
 
     def _take(self, f: RxFrame) -> None:
         """One received frame (:mod:`lde.busio`'s five numbers) into the pending columns (and the
-        recording, and the locked grid); frames of other messages are dropped (counted in ``foreign``)."""
+        recording, and the locked grid); frames of other messages are dropped (counted in ``foreign``),
+        error frames counted (``error_frames``, the last one's class kept for the bus check)."""
         t_rx, can_id, ext, dlc, word = f
-        if can_id < 0:  # an error or remote frame
+        self.received += 1
+        if can_id < 0:
+            if can_id == ERROR_FRAME:
+                self.error_frames += 1
+                self._error_id = word
             return
         if ext or can_id not in self._input_ids:
             self.foreign += 1
@@ -558,11 +581,12 @@ class Service:
         try:
             self.io.send(tx, t_s)
         except (can.CanError, OSError) as exc:
-            # a full tx queue or a bus-off must not kill the loop: count and go on
+            # a full tx queue, a bus-off or the interface down must not kill the loop: count and go
+            # on (said in the log once per fault by the bus check, lde.busfaults)
             self.send_errors += 1
-            if self.send_errors == 1 or self.send_errors % 1000 == 0:
-                log.warning("CAN send failed (%d so far): %s", self.send_errors, exc)
+            self._send_error = str(exc)
             return
+        self.sent += 1
         if self.recorder is not None:  # only frames the bus took
             self.recorder.frame(seconds_to_ns(t_s), tx.can_id, tx.is_extended, tx.dlc, tx.word(), False)
 
@@ -574,6 +598,9 @@ class Service:
     def close(self) -> None:
         """Write the learned state a last time (with ``learned``; ConfigError when that fails).
         The bus and the recorder belong to the caller."""
+        if self._bus_counter is not None:
+            os.close(self._bus_counter)
+            self._bus_counter = None
         if self.learned is not None:
             keeper, self.learned = self.learned, None
             keeper.close(self.learned_snapshot())
@@ -666,6 +693,7 @@ class Service:
         if t_ns < self._watch_next:
             return
         self._watch_next = t_ns + _WATCH_PERIOD_NS
+        self.check_bus(t_ns)
         for level, text in self.watch.check(t_ns):
             (log.warning if level == "warning" else log.info)("%s", text)
             first = level == "warning" and self.watch.warnings == 1
@@ -675,6 +703,55 @@ class Service:
                     self._probe_until = t_ns + _PROBE_NS
                 except (can.CanError, OSError) as exc:
                     log.info("could not lift the input filters to look at the bus: %s", exc)
+
+    def check_bus(self, t_ns: int) -> None:
+        """Hand the counts since the previous check to the fault trackers (:mod:`lde.busfaults`) and
+        log what they say: a line when a fault starts, a reminder every 30 s, a line when it clears."""
+        bus_frames = _read_counter(self._bus_counter)
+        cur: tuple[int, ...] = (t_ns, self.send_errors, self.sent, self.recv_errors, self.received)
+        cur += (self.error_frames, self.foreign, bus_frames)
+        e2e = []
+        n_input = self._np
+        for name, st in self.engine.stats().items():
+            n_input += st.received
+            now = (st.wrong_sequence, st.wrong_crc, st.repeated, st.malformed, st.used)
+            was = self._e2e_prev.get(name, (0, 0, 0, 0, 0))
+            self._e2e_prev[name] = now
+            dd = [a - b for a, b in zip(now, was, strict=True)]
+            what = ", ".join(f"{k} {v}" for k, v in zip(_E2E_KINDS, dd[:4], strict=True) if v)
+            spec = self.profile.messages[name]
+            e2e.append((f"{name} (0x{spec.frame_id:X})", sum(dd[:4]), dd[4], what))
+        cur += (n_input,)
+        prev, self._window = self._window, cur
+        if prev is None:
+            return
+        d = [a - b for a, b in zip(cur, prev, strict=True)]
+        w = WindowCounts(
+            t_ns=t_ns,
+            span_ns=d[0],
+            send_errors=d[1],
+            sent=d[2],
+            recv_errors=d[3],
+            received=d[4],
+            error_frames=d[5],
+            error_id=self._error_id,
+            foreign=d[6],
+            bus_frames=d[7] if bus_frames >= 0 and prev[7] >= 0 else -1,
+            own_frames=d[8] + d[2],
+            e2e=tuple(e2e),
+            send_error=self._send_error,
+            recv_error=self._recv_error,
+        )
+        for level, text in self.faults.check(w):
+            (log.warning if level == "warning" else log.info)("%s", text)
+
+    def fault_summary(self) -> str:
+        """The bus fault counts over the run, for the last log line."""
+        eps = ", ".join(f"{t.name} {t.episodes}x" for t in self.faults.trackers() if t.episodes) or "none"
+        return (
+            f"bus faults: send errors {self.send_errors}, receive errors {self.recv_errors}, error frames"
+            f" {self.error_frames}, foreign frames that reached the service {self.foreign}; episodes: {eps}"
+        )
 
     def _idle(self) -> None:
         """After a step's send: a young-generation collection when due (gc is off in the loop)."""
@@ -821,6 +898,28 @@ def set_input_filters(bus: can.BusABC, profile: Profile) -> str:
         except OSError as exc:
             log.info("udp_multicast: no socket filter (%s); the service filters", exc)
     return "in the service"
+
+
+def _open_bus_counter(bus: can.BusABC) -> int | None:
+    """A SocketCAN interface's received-frame counter (``/sys/class/net/IF/statistics/rx_packets``),
+    opened once (read with one ``pread`` per check), or None elsewhere."""
+    ch = getattr(bus, "channel", None)
+    if type(bus).__name__ != "SocketcanBus" or not isinstance(ch, str) or not ch or "/" in ch:
+        return None
+    try:
+        return os.open(f"/sys/class/net/{ch}/statistics/rx_packets", os.O_RDONLY)
+    except OSError:
+        return None
+
+
+def _read_counter(fd: int | None) -> int:
+    """The counter's value, -1 when there is none or it cannot be read."""
+    if fd is None:
+        return -1
+    try:
+        return int(os.pread(fd, 32, 0))
+    except (OSError, ValueError):
+        return -1
 
 
 def open_bus(**kwargs: Any) -> can.BusABC:

@@ -115,6 +115,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "all CPUs; default 0: idle CPUs poll instead of halting, the step runs on warmer caches; "
         "-1 leaves it alone)",
     )
+    p.add_argument(
+        "--flood-rate",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="frames of other messages per second on the bus logged as a flood (default 2000; SocketCAN "
+        "counts them at the interface, elsewhere those that reach the service; raise it on a shared bus)",
+    )
     p.add_argument("--log-period", type=float, default=10.0, metavar="SEC", help="timing log line period")
     p.set_defaults(func=run)
 
@@ -145,6 +153,8 @@ def run(args: argparse.Namespace) -> int:
     from ..profiles import load_profile
     from ..units import STEP_NS
 
+    if args.flood_rate is not None and not (args.flood_rate > 0 and math.isfinite(args.flood_rate)):
+        raise ConfigError(f"--flood-rate {args.flood_rate}: need frames per second > 0")
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
     logging.getLogger("lde.service").setLevel(logging.INFO)
@@ -185,6 +195,7 @@ def run(args: argparse.Namespace) -> int:
             log_period_s=args.log_period,
             grid=args.grid,
             learned=args.learned,
+            **({} if args.flood_rate is None else {"flood_hz": args.flood_rate}),
         )
         if args.record:
             from ..recording import LEARNED_START_KEY, Recorder
@@ -225,6 +236,7 @@ def run(args: argparse.Namespace) -> int:
         )
         summary = service.run(stop_event=stop, on_step=on_step)
         log.info("%s", summary.log_line())
+        log.info("%s", service.fault_summary())
         if service.late_rx:
             log.info("frames that reached the service after the step of their timestamp: %d", service.late_rx)
     finally:
