@@ -13,7 +13,7 @@ def test_the_cli_names_every_part_and_only_those() -> None:
     assert PART_NAMES == lde.warmup.PARTS
 
 
-def test_default_warms_every_part(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+def test_default_warms_every_part(monkeypatch: pytest.MonkeyPatch) -> None:
     asked: list[list[str]] = []
 
     def fake(parts, jobs=1):  # the compiling itself is checked below on one part
