@@ -29,6 +29,7 @@ from .profiles import load_profile
 from .replay import (
     CsvWriter,
     RecordingWriter,
+    end_note,
     gaps_note,
     late_note,
     no_valid_note,
@@ -248,7 +249,7 @@ def _replay_outputs(
     rep.profile, rep.profile_origin, rep.backend = li.profile.name, li.profile_origin, res.backend
     rep.timings = {"open": li.read_s, **res.timings}
     rep.learned, rep.learned_origin = res.learned, res.learned_origin
-    notes = (no_valid_note(res), gaps_note(res), late_note(stats, job.reorder_window_ns))
+    notes = (end_note(li.stream), no_valid_note(res), gaps_note(res), late_note(stats, job.reorder_window_ns))
     rep.warnings = [w for w in notes if w]
 
 

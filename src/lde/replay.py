@@ -49,6 +49,7 @@ from .logio import (
     ReadStats,
     open_log,
 )
+from .logio.ending import FileEnd
 from .logio.stream import split
 from .logio.textfmt import Column, format_rows, time_column
 from .params import Vehicle
@@ -632,6 +633,56 @@ def late_note(stats: ReadStats, window_ns: int | None) -> str | None:
     return (
         f"{stats.late_frames} frames were out of time order{w} and were skipped: "
         "sort the log or give --reorder-window 0 (sorts the whole log in memory)"
+    )
+
+
+_NOT_CLOSED = {
+    "mcap": "no MCAP footer",
+    "asc": "no End TriggerBlock line",
+    "blf": "its header's file size was never written",
+}
+
+
+def end_note(stream: LogStream) -> str | None:
+    """A one-line warning when a log was not closed by its writer or is cut short, saying where
+    reading stopped (log time of the latest frame read, byte offset, line), else None. Call it
+    once the stream has been read."""
+    e = stream.end
+    if e is None or not e.lossy:
+        return None
+    return f"file {describe_end(e, stream.format)}; {_read_up_to(stream.last_t_ns)}; anything after is lost"
+
+
+def describe_end(e: FileEnd, fmt: str) -> str:
+    """What :class:`lde.logio.FileEnd` ``e`` of a ``fmt`` log says, and where (no time)."""
+    inner = fmt.removesuffix(".gz")
+    parts = []
+    de = " decompressed" if e.compressed else ""
+    if e.closed is False:
+        why = [_NOT_CLOSED[inner]] if inner in _NOT_CLOSED else []
+        if e.compressed and fmt.endswith(".gz") and e.cut:
+            why.append("the gzip stream has no end")
+        parts.append(
+            f"not closed by its writer ({'; '.join(why) or 'no closing record'}:"
+            " a crash, a kill, a full disk?)"
+        )
+    if e.cut and e.what == "line":
+        parts.append(
+            f"cut short inside line {e.line + 1} at byte {e.offset} of {e.size}{de} (the line is skipped)"
+        )
+    elif e.cut:
+        lost = "its frames are lost" if inner == "mcap" else "read as far as it goes"
+        parts.append(
+            f"cut short inside the {inner.upper()} {e.what} at byte {e.offset} of {e.size}{de} ({lost})"
+        )
+    else:
+        parts.append(f"its complete {e.what}s end at byte {e.offset} of {e.size}{de}")
+    return " and ".join(parts) if e.cut else ", ".join(parts)
+
+
+def _read_up_to(t_ns: int | None) -> str:
+    return (
+        "no frame was read" if t_ns is None else f"read up to log time {t_ns / 1e9:.6f} s (the latest frame)"
     )
 
 
