@@ -276,6 +276,9 @@ class ReplaySummary:
     learned_origin: str = ""  # where learning started: a --learned file, the recording, "" (vehicle)
     #: silences in the received frames longer than :data:`JUMP_NS`: (log time before [ns], length [ns])
     input_gaps: list[tuple[int, int]] = field(default_factory=list)
+    #: the replay was stopped (``stop``) before the end of the log; its rows so far went to the sinks
+    stopped: bool = False
+    last_step_ns: int | None = None  # the time of the last row [ns]
 
     def __len__(self) -> int:
         return self.steps
@@ -302,6 +305,7 @@ def run_replay(
     shadow_thread: bool = False,
     learned: str | Path | None = None,
     learned_start: str | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> ReplaySummary:
     """Stream frames through the data path; every piece's rows go to each sink as
     ``sink(piece, rows)``, the steps after the log's last frame with an empty piece.
@@ -314,8 +318,9 @@ def run_replay(
     ``learned``: a learned-state file (``--learned``), read first when it exists and written
     (atomically) at the end. ``learned_start``: the text of the learned state a live run started
     from (its recording's ``learned_start``): used by a learning backend when ``learned`` names no
-    existing file, so that the recording replays to the live estimates. Other arguments as
-    :func:`replay`.
+    existing file, so that the recording replays to the live estimates. ``stop``: asked after
+    every piece; True ends the replay there (SIGINT / SIGTERM: the sinks have every row so far
+    and can be closed; :attr:`ReplaySummary.stopped`). Other arguments as :func:`replay`.
     """
     name = DEFAULT_BACKEND if backend is None else backend
     t0 = time.perf_counter()
@@ -338,6 +343,7 @@ def run_replay(
     last_t: int | None = None
     t_sinks = t_read = 0.0
     first = True
+    stopped = False
     it = iter(pieces)
     while True:
         tr = time.perf_counter()
@@ -384,6 +390,9 @@ def run_replay(
         t_sinks += time.perf_counter() - ts
         if final:
             break
+        if stop is not None and stop():
+            stopped = True
+            break
     known_tx = tx_frames() if callable(tx_frames) else tx_frames
     counts = FrameCounts(
         total=n,
@@ -409,6 +418,8 @@ def run_replay(
         learned=engine.learn_summary,
         learned_origin=origin,
         input_gaps=input_gaps,
+        stopped=stopped,
+        last_step_ns=last_t,
     )
 
 
