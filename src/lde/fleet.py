@@ -22,7 +22,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from .errors import LdeError
+from .errors import LdeError, OutputError
 from .logio import REORDER_WINDOW_NS
 from .params import load_vehicle
 from .profiles import load_profile
@@ -241,6 +241,12 @@ def _replay_outputs(
         )
         for sink in sinks:
             sink.close()
+    except OutputError as exc:  # disk full: what was written stays, readable up to its last record
+        for sink in sinks:
+            sink.abort(keep=True)
+        kept = ", ".join(str(s.path) for s in sinks)
+        how = " (an MCAP file reads up to its last complete chunk)" if job.mcap is not None else ""
+        raise OutputError(f"{exc}; replay stopped, what was written is kept in {kept}{how}") from exc
     except BaseException:
         for sink in sinks:
             sink.abort()

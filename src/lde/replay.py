@@ -34,7 +34,7 @@ import numpy as np
 from .backends import DEFAULT_BACKEND, get_backend
 from .e2e import ReceiverStats
 from .engine import OUTPUT_MESSAGES, Engine, StepBlock
-from .errors import ConfigError, LogFormatError
+from .errors import ConfigError, LogFormatError, OutputError
 from .frames import FrameBatch
 from .grid import MAX_GAP_NS, InputGrid
 from .logio import (
@@ -897,7 +897,7 @@ class CsvWriter:
         try:
             self._fh.write(text.data)
         except OSError as exc:
-            raise LogFormatError(f"{self.path}: cannot write: {exc}") from exc
+            raise OutputError(f"{self.path}: cannot write: {exc}") from exc
 
     def __call__(self, _frames: FrameBatch, block: StepBlock) -> None:
         self.write(block)
@@ -906,13 +906,16 @@ class CsvWriter:
         try:
             self._fh.close()
         except OSError as exc:
-            raise LogFormatError(f"{self.path}: cannot write: {exc}") from exc
+            raise OutputError(f"{self.path}: cannot write: {exc}") from exc
 
-    def abort(self) -> None:
-        """The replay failed: close and remove the incomplete file."""
+    def abort(self, keep: bool = False) -> None:
+        """The replay failed: close and remove the incomplete file (``keep``: leave the rows
+        written so far, an output that could not be written further)."""
         with contextlib.suppress(OSError):
             self._fh.close()
-            self.path.unlink()
+        if not keep:
+            with contextlib.suppress(OSError):
+                self.path.unlink()
 
     def __enter__(self) -> CsvWriter:
         return self
@@ -971,9 +974,10 @@ class RecordingWriter:
     def close(self) -> None:
         self._w.close()
 
-    def abort(self) -> None:
-        """The replay failed: close and remove the incomplete recording."""
-        self._w.abort()
+    def abort(self, keep: bool = False) -> None:
+        """The replay failed: close and remove the incomplete recording (``keep``: leave it, without
+        its summary: it reads up to its last complete chunk)."""
+        self._w.abort(keep)
 
     def __enter__(self) -> RecordingWriter:
         return self
