@@ -20,6 +20,7 @@ Prints one line per run and the median / max, and writes them as JSON (``--out``
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -86,10 +87,8 @@ def one_run(tmp: Path, k: int, target: str, rng: random.Random) -> dict:
                 p.kill()
                 p.wait()
         if run.poll() is not None:
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.killpg(run.pid, signal.SIGKILL)  # a writer still alive
-            except ProcessLookupError:
-                pass
     r = read_recording(path)
     last_rx = int(r.rx.t_ns.max()) if len(r.rx) else 0
     last_step = int(r.step_times_ns[-1]) if len(r.step_times_ns) else 0
@@ -139,9 +138,9 @@ def main() -> int:
         "machine": f"{platform.machine()}, {os.cpu_count()} cpus, python {platform.python_version()}",
         "rows": rows,
     }
+    med, top = summary["lost_rx_s_median"], summary["lost_rx_s_max"]
     print(
-        f"{args.target}: lost frames median {summary['lost_rx_s_median']:.3f} s, max {summary['lost_rx_s_max']:.3f}"
-        f" s; steps median {summary['lost_steps_s_median']:.3f} s, max {summary['lost_steps_s_max']:.3f} s;"
+        f"{args.target}: lost frames median {med:.3f} s, max {top:.3f} s; steps median {summary['lost_steps_s_median']:.3f} s, max {summary['lost_steps_s_max']:.3f} s;"
         f" {summary['complete']}/{args.runs} files closed"
     )
     if args.out is not None:

@@ -276,7 +276,8 @@ def _replay_outputs(
 
 def stopped_note(rep: LogReport) -> str:
     """The warning of a replay stopped by a signal: where, and what its outputs hold."""
-    at = "before its first step" if rep.last_step_ns is None else f"at log time {rep.last_step_ns / 1e9:.6f} s"
+    t = rep.last_step_ns
+    at = "before its first step" if t is None else f"at log time {t / 1e9:.6f} s"
     return (
         f"stopped by a signal {at}: the outputs are closed and hold the {rep.steps} steps replayed so far;"
         " the rest of the log was not replayed"
