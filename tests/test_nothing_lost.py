@@ -200,7 +200,9 @@ def _long_log(tmp_path: Path, frames: FrameBatch, copies: int = 60) -> Path:
     """The sample drive repeated (``copies`` x 14 s): a replay that takes seconds."""
     span = int(frames.t_ns[-1] - frames.t_ns[0]) + 3_900_000
     parts = [
-        FrameBatch(frames.t_ns + k * span, frames.can_id, frames.is_extended, frames.dlc, frames.data, frames.is_rx)
+        FrameBatch(
+            frames.t_ns + k * span, frames.can_id, frames.is_extended, frames.dlc, frames.data, frames.is_rx
+        )
         for k in range(copies)
     ]
     path = tmp_path / "long.log"
@@ -213,7 +215,9 @@ def test_replay_stopped_by_a_signal_closes_its_outputs(tmp_path: Path, frames: F
     log = _long_log(tmp_path, frames)
     csv, mcap = tmp_path / "o.csv", tmp_path / "o.mcap"
     cmd = [sys.executable, "-m", "lde", "replay", str(log), "--csv", str(csv), "--mcap", str(mcap)]
-    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    proc = subprocess.Popen(
+        cmd, stderr=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONUNBUFFERED="1")
+    )
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and proc.poll() is None:
@@ -271,7 +275,9 @@ def _small_disk(tmp_path: Path, size: str = "2m") -> Iterator[tuple[Path, str]]:
     d.mkdir()
     mounted = False
     if os.geteuid() == 0 and shutil.which("mount"):
-        r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(d)], capture_output=True)
+        r = subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(d)], capture_output=True
+        )
         mounted = r.returncode == 0
     try:
         yield d, ("tmpfs" if mounted else "fsize")
