@@ -12,6 +12,7 @@ import io
 import locale
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import can
 import numpy as np
@@ -89,7 +90,7 @@ class _Head(io.RawIOBase):
     def readable(self) -> bool:
         return True
 
-    def readinto(self, b) -> int:  # type: ignore[no-untyped-def]
+    def readinto(self, b: Any) -> int:
         n = self._fh.readinto(memoryview(b)[: max(0, min(len(b), self._left))]) or 0
         self._left -= n
         return n
@@ -103,7 +104,7 @@ def _limited_reader(p: Path, limit: int) -> can.io.generic.MessageReader:
     """python-can's text reader for ``p`` over its first ``limit`` bytes (the encoding python-can
     uses for a path)."""
     player._update_reader_plugins()
-    cls = player.MESSAGE_READERS[p.suffix.lower()]
+    cls: Any = player.MESSAGE_READERS[p.suffix.lower()]  # a text reader: takes a text file too
     text = io.TextIOWrapper(io.BufferedReader(_Head(p.open("rb"), limit)), locale.getpreferredencoding(False))
     return cls(file=text)
 
