@@ -39,11 +39,14 @@ from lde.recording import read_recording
 
 
 def _wait_steps(path: Path, n: int, timeout: float) -> bool:
+    """Until the recording holds ``n`` steps and ``n`` received frames (under load the simulator
+    may start sending seconds after the service steps)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         time.sleep(0.2)
         try:
-            if len(read_recording(path).step_times_ns) >= n:
+            r = read_recording(path)
+            if len(r.step_times_ns) >= n and len(r.rx) >= n:
                 return True
         except (FileNotFoundError, LogFormatError):
             continue
@@ -69,7 +72,7 @@ def one_run(tmp: Path, k: int, target: str, rng: random.Random) -> dict:
     )
     try:
         if not _wait_steps(path, 200, 120.0):
-            raise RuntimeError("the recording got no steps within 120 s")
+            raise RuntimeError("the recording got no steps and frames within 120 s")
         time.sleep(rng.uniform(1.0, 3.0))
         t_kill = time.time_ns()
         if target == "group":
@@ -104,16 +107,8 @@ def one_run(tmp: Path, k: int, target: str, rng: random.Random) -> dict:
     }
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--runs", type=int, default=10)
-    ap.add_argument("--target", choices=("group", "service"), default="group")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=None)
-    args = ap.parse_args()
-    rng = random.Random(args.seed)
+def _runs(args: argparse.Namespace, rng: random.Random) -> list[dict]:
     rows = []
-    load0 = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="lde-sigkill-") as d:
         for k in range(args.runs):
             row = one_run(Path(d), k, args.target, rng)
@@ -123,11 +118,32 @@ def main() -> int:
                 f" frames, {row['lost_steps_s']:.3f} s of steps",
                 flush=True,
             )
+    return rows
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=10)
+    ap.add_argument("--target", choices=("group", "service"), default="group")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--busy", type=int, default=0, metavar="N", help="N busy-loop processes meanwhile (load)")
+    args = ap.parse_args()
+    rng = random.Random(args.seed)
+    load0 = os.getloadavg()
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)]
+    try:
+        rows = _runs(args, rng)
+    finally:
+        for h in hogs:
+            h.kill()
+            h.wait()
     lost = np.array([r["lost_rx_s"] for r in rows])
     lost_steps = np.array([r["lost_steps_s"] for r in rows])
     summary = {
         "command": " ".join(["python", *sys.argv]),
         "target": args.target,
+        "busy": args.busy,
         "runs": args.runs,
         "lost_rx_s_median": float(np.median(lost)),
         "lost_rx_s_max": float(lost.max()),
