@@ -8,7 +8,11 @@ frames, the recorder hand-off) from what a bus costs (python-can's ``udp_multica
 same step run back to back ("hot") and with a 3.5 ms pause before each step ("cold", as live, where
 the step runs once per 3.9 ms period and the caches are refilled by whatever ran in between).
 
-    python bench/bench_service_step.py [--steps 4000] [--backend fixed] [--realtime --cpu 1] [--json]
+    python bench/bench_service_step.py [--steps 4000] [--backend fixed] [--realtime --cpu 1]
+        [--cpu-latency-us 0] [--json]
+
+``--cpu-latency-us 0`` holds ``/dev/cpu_dma_latency`` at 0 as ``lde run --realtime`` does (idle CPUs
+poll instead of halting: the "cold" step then runs on warmer caches).
 
 Per phase (``--phases``; adds a few microseconds of timing overhead per call): the drain, the engine
 (receiver, grid, estimator, overlay, output frames), the ``LDE_Diag`` encoding, the three sends and
@@ -135,23 +139,41 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--backend", choices=("fixed", "float"), default="fixed")
     ap.add_argument("--realtime", action="store_true", help="SCHED_FIFO 80, mlockall")
     ap.add_argument("--cpu", type=int, action="append")
+    ap.add_argument(
+        "--cpu-latency-us", type=int, default=None, help="PM QoS bound (lde.clock.enable_realtime)"
+    )
     ap.add_argument("--phases", action="store_true", help="time each phase (small overhead)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     if args.realtime:
-        res = enable_realtime(80, cpus=args.cpu, lock_memory=True)
+        res = enable_realtime(80, cpus=args.cpu, lock_memory=True, cpu_latency_us=args.cpu_latency_us)
         if not res.ok:
             print("; ".join(res.warnings), file=sys.stderr)
-    elif args.cpu:
-        os.sched_setaffinity(0, set(args.cpu))
+    else:
+        if args.cpu:
+            os.sched_setaffinity(0, set(args.cpu))
+        if args.cpu_latency_us is not None:
+            from lde.clock import _hold_cpu_latency
+
+            warnings: list[str] = []
+            _hold_cpu_latency(args.cpu_latency_us, warnings)
+            for w in warnings:
+                print(w, file=sys.stderr)
     tmp = Path(tempfile.mkdtemp(prefix="lde-bench-step-"))
     load = os.getloadavg()
     results = [run(args.steps, args.backend, gap, args.phases, tmp) for gap in (0.0, 0.0035)]
-    summary = {"load_avg": [round(x, 2) for x in (*load, *os.getloadavg())], "backend": args.backend}
+    summary = {
+        "load_avg": [round(x, 2) for x in (*load, *os.getloadavg())],
+        "backend": args.backend,
+        "cpu_latency_us": args.cpu_latency_us,
+    }
     if args.json:
         print(json.dumps({**summary, "hot": results[0], "cold": results[1]}))
         return 0
-    print(f"Service.step_once without a bus, recorder on, backend {args.backend}; load {summary['load_avg']}")
+    print(
+        f"Service.step_once without a bus, recorder on, backend {args.backend}, cpu_dma_latency "
+        f"{args.cpu_latency_us}; load {summary['load_avg']}"
+    )
     for label, r in zip(("hot (back to back)", "cold (3.5 ms pause)"), results, strict=True):
         extra = ", ".join(
             f"{k[:-7]} {r[k]}/{r[k[:-7] + '_p99_us']}"

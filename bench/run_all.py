@@ -92,8 +92,18 @@ _WRAP = (
 )
 
 
+def child_env(**extra: str) -> dict[str, str]:
+    """The children's environment: this one with Python's bytecode cache on (an installed package
+    has its ``.pyc`` files; ``PYTHONDONTWRITEBYTECODE`` would make every start compile lde's sources
+    again, about 0.17 s here), plus ``extra``."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env.update(extra)
+    return env
+
+
 def run_child(argv: list[str], env: dict[str, str] | None = None) -> dict[str, Any]:
     """Wall, CPU (user + sys) and peak RSS [MiB] of one child process."""
+    env = child_env() if env is None else env
     out = subprocess.run([sys.executable, "-c", _WRAP, *argv], capture_output=True, text=True, env=env)
     rc, wall, cpu, rss_kib, err = json.loads(out.stdout)
     if rc != 0:
@@ -289,7 +299,9 @@ def naive_replay(frames: FrameBatch, profile, vehicle, out: Path) -> int:
 
 
 def bench_replay_inproc(log: Path, mcap: Path, vehicle, profile, repeat: int, tmp: Path) -> dict:
-    """In process (warm, no start-up): the hour through read -> engine -> CSV, CPU per stage."""
+    """In process (warm, no start-up): the hour through read -> engine -> CSV, CPU per stage (the
+    CSV written inline here, so that each stage's CPU is its own; ``lde replay`` writes it from a
+    thread beside the engine)."""
     out: dict[str, Any] = {}
     for label, path in (("candump", log), ("mcap", mcap)):
         for backend in ("fixed", "float"):
@@ -297,7 +309,7 @@ def bench_replay_inproc(log: Path, mcap: Path, vehicle, profile, repeat: int, tm
             for k in range(repeat + 1):
                 c0, w0 = time.process_time(), time.perf_counter()
                 li = read_inputs(path, None)
-                csvw = CsvWriter(tmp / "inproc.csv")
+                csvw = CsvWriter(tmp / "inproc.csv", background=False)  # its CPU counted apart
                 read_cpu = [0.0]
                 csv_cpu = [0.0]
 
@@ -348,14 +360,52 @@ def bench_replay_cli(paths: dict[str, Path], repeat: int, tmp: Path) -> dict:
     return out
 
 
+#: a warm start in phases (one child process): the imports of ``lde replay``, numba's first load of
+#: a cached kernel (numba's registries and, through numba's BLAS check, scipy.linalg), the rest of
+#: the command (the other kernels' loads, profile and vehicle, the replay of the sample log, the CSV)
+_PHASES = (
+    "import json, sys, time\n"
+    "t0 = time.perf_counter()\n"
+    "import lde.cli, lde.cli.replay, lde.fleet, lde.replay\n"
+    "t1 = time.perf_counter()\n"
+    "from lde.logio.candump import parse_candump_bytes\n"
+    "parse_candump_bytes(b'(1.000000) can0 2A0#0000000000000000\\n')\n"
+    "t2 = time.perf_counter()\n"
+    "rc = lde.cli.main(sys.argv[1:])\n"
+    "t3 = time.perf_counter()\n"
+    "print(json.dumps({'imports': t1 - t0, 'numba_first_load': t2 - t1, 'rest': t3 - t2, 'rc': rc}))\n"
+)
+
+
+def startup_phases(argv: list[str], repeat: int) -> dict[str, Any]:
+    """:data:`_PHASES` ``repeat`` times (after a warm-up), and the bare interpreter's start."""
+    runs = []
+    for k in range(repeat + 1):
+        out = subprocess.run(
+            [sys.executable, "-c", _PHASES, *argv], capture_output=True, text=True, env=child_env()
+        )
+        r = json.loads(out.stdout.strip().splitlines()[-1])
+        if r["rc"] != 0:
+            raise RuntimeError(f"start-up phases: {' '.join(argv)} failed: {out.stderr[-500:]}")
+        if k:
+            runs.append(r)
+    bare = [run_child([sys.executable, "-c", "pass"])["wall"] for _ in range(repeat)]
+    res = {k: stats([r[k] for r in runs]) for k in ("imports", "numba_first_load", "rest")}
+    res["python"] = stats(bare)
+    return res
+
+
 def bench_startup(repeat: int, cold: bool, tmp: Path) -> dict:
-    """Warm: the command on the 20-second sample log (start-up + a few ms of replay). Cold: the same
-    on an empty numba cache: when the notice came and how long until the CSV was written."""
-    argv = lde_cmd("replay", str(SAMPLE), "--csv", str(tmp / "s.csv"), "-q")
-    out: dict[str, Any] = {"warm": child_stats(argv, repeat)}
+    """Warm: the command on the 20-second sample log (start-up + a few ms of replay), and the same in
+    phases. Cold: the same on an empty numba cache: when the notice came and how long until the CSV
+    was written."""
+    args = ["replay", str(SAMPLE), "--csv", str(tmp / "s.csv"), "-q"]
+    argv = lde_cmd(*args)
+    out: dict[str, Any] = {"warm": child_stats(argv, repeat), "phases": startup_phases(args, repeat)}
     if cold:
         cache = tmp / "numba-cold"
-        env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), PYTHONDONTWRITEBYTECODE="1")
+        env = child_env(NUMBA_CACHE_DIR=str(cache), PYTHONDONTWRITEBYTECODE="1")
+        _children_cpu()  # the baseline: the CPU of the children before this one (reaped already)
         t0 = time.perf_counter()
         proc = subprocess.Popen(
             lde_cmd("replay", str(SAMPLE), "--csv", str(tmp / "c.csv")),
@@ -475,25 +525,32 @@ def table(r: dict) -> str:
         ratio = anchor["median"] / ours["median"] if ours["median"] else float("inf")
         lines.append(f"| {what} [{unit}] | {_us(ours)} | {_us(anchor)} | {name} | {ratio:.0f}x |")
 
-    k, c, d = r["kalman"], r["codec"], r["readers"]
     fp = "filterpy KalmanFilter predict+update"
-    row("float estimator step", k["float_us_per_step"], k["filterpy_us_per_step"], fp, "us/step")
-    row("fixed-point step", k["fixed_us_per_step"], k["filterpy_us_per_step"], fp, "us/step")
+    if "kalman" in r:
+        k = r["kalman"]
+        row("float estimator step", k["float_us_per_step"], k["filterpy_us_per_step"], fp, "us/step")
+        row("fixed-point step", k["fixed_us_per_step"], k["filterpy_us_per_step"], fp, "us/step")
     for what, ours, anchor, name in (
         ("receiver: E2E check + decode to SI", "lde_decode", "cantools_decode", "cantools decode_message"),
         ("output encoder (counter, CRC)", "lde_encode", "cantools_encode", "cantools encode_message"),
         ("Profile 1 CRC check", "lde_crc_check", "autosar_e2e_check", "autosar-e2e e2e_p01_check"),
     ):
-        row(what, c[f"{ours}_us_per_frame"], c[f"{anchor}_us_per_frame"], name, "us/frame")
+        if "codec" in r:
+            c = r["codec"]
+            row(what, c[f"{ours}_us_per_frame"], c[f"{anchor}_us_per_frame"], name, "us/frame")
     for what, ours, anchor, name in (
         ("candump reader", "lde_candump", "python_can_candump", "python-can CanutilsLogReader"),
         ("MCAP reader", "lde_mcap", "mcap_library", "mcap iter_messages"),
     ):
-        row(what, d[f"{ours}_us_per_frame"], d[f"{anchor}_us_per_frame"], name, "us/frame")
-    ip = r["inproc"]
-    naive = ip["naive_per_hour_cpu_s"]
+        if "readers" in r:
+            d = r["readers"]
+            row(what, d[f"{ours}_us_per_frame"], d[f"{anchor}_us_per_frame"], name, "us/frame")
     anchor = "cantools decode + numpy Kalman step per frame (2 min, scaled)"
     for key in ("candump_fixed", "mcap_fixed", "candump_float", "mcap_float"):
+        if "inproc" not in r:
+            break
+        ip = r["inproc"]
+        naive = ip["naive_per_hour_cpu_s"]
         s = ip[key]
         fmt, backend = key.split("_")
         parts = ", ".join(f"{n} {s[n]['median']:.2f}" for n in ("read", "engine", "csv"))
@@ -516,25 +573,39 @@ def table(r: dict) -> str:
             f"{s['rss_mib']['median']:.0f} | {target} |"
         )
 
-    for key, s in r["cli"].items():
+    for key, s in r.get("cli", {}).items():
         fmt, backend = key.split("_")
         cli_row(f"{h} {fmt}, {backend} backend", s, targets.get(fmt, ""))
     for key, s in r.get("rss", {}).items():
         cli_row(f"{key.replace('_', ' ')} (fixed backend)", s, "RSS flat: 10 h within 10 % of 1 h")
-    cli_row("warm start: the command on a 20 s log", r["startup"]["warm"], "< 2 s to the first step")
-    if "cold" in r["startup"]:
-        cs = r["startup"]["cold"]
+    st = r.get("startup", {})
+    if "warm" in st:
+        cli_row("warm start: the command on a 20 s log", st["warm"], "< 2 s to the first step")
+    if "cold" in st:
+        cs = st["cold"]
         lines.append(
             f"| cold start (empty numba cache): notice after {cs['notice_s']:.2f} s, CSV after | "
             f"{cs['result_s']:.1f} | {cs['cpu_s']:.1f} | | notice < 1 s, result < 15 s |"
         )
-    sz = r["sizes"]
-    lines += [
-        "",
-        f"MCAP size / candump text of the same {h} ({sz['candump_bytes'] / 1e6:.0f} MB): compact zstd "
-        f"{sz['compact_zstd_ratio']:.1%}, compact lz4 {sz['compact_lz4_ratio']:.1%}, indexed zstd "
-        f"{sz['indexed_zstd_ratio']:.1%} (target <= 40 %).",
-    ]
+    if "phases" in st:
+        ph = st["phases"]
+        lines += [
+            "",
+            "Warm start in phases (wall, medians with min-max, one child process each): interpreter "
+            f"{_ms(ph['python'])} ms, imports of `lde replay` {_ms(ph['imports'])} ms, numba's first "
+            f"load of a cached kernel (its registries; scipy.linalg through numba's BLAS check) "
+            f"{_ms(ph['numba_first_load'])} ms, the rest of the command (other kernels' loads, profile, "
+            f"vehicle, the 20 s replay, CSV) {_ms(ph['rest'])} ms. Children run with Python's bytecode "
+            "cache on, as an installed package.",
+        ]
+    if "sizes" in r:
+        sz = r["sizes"]
+        lines += [
+            "",
+            f"MCAP size / candump text of the same {h} ({sz['candump_bytes'] / 1e6:.0f} MB): compact zstd "
+            f"{sz['compact_zstd_ratio']:.1%}, compact lz4 {sz['compact_lz4_ratio']:.1%}, indexed zstd "
+            f"{sz['indexed_zstd_ratio']:.1%} (target <= 40 %).",
+        ]
     if "fleet" in r:
         f = r["fleet"]
         lines.append(
@@ -564,6 +635,13 @@ def main() -> int:
     ap.add_argument("--cold", action="store_true", help="a first run on an empty numba cache too")
     ap.add_argument("--fleet", type=int, default=0, metavar="N", help="N logs: sequential vs --jobs 2")
     ap.add_argument("--fleet-minutes", type=float, default=10.0)
+    ap.add_argument(
+        "--only",
+        default=None,
+        metavar="PARTS",
+        help="comma-separated subset while iterating: kalman, codec, readers, inproc, cli, startup, "
+        "sizes (and rss / fleet with their options); not for the README",
+    )
     args = ap.parse_args()
     r: dict[str, Any] = {
         "command": " ".join(["python", "bench/run_all.py", *sys.argv[1:]]),
@@ -603,6 +681,14 @@ def main() -> int:
                     lambda: bench_fleet(args.fleet, args.fleet_minutes, args.data, max(1, rep // 3)),
                 )
             )
+        if args.only:
+            want = set(args.only.split(","))
+            unknown = want - {name for name, _ in steps}
+            if unknown:
+                raise SystemExit(f"--only: unknown part(s) {', '.join(sorted(unknown))}")
+            if args.readme is not None:
+                raise SystemExit("--only with --readme: the README table is written from a full run")
+            steps = [(name, fn) for name, fn in steps if name in want]
         for name, fn in steps:
             t0 = time.perf_counter()
             r[name] = fn()

@@ -135,6 +135,28 @@ def test_enable_realtime_falls_back_with_warnings(monkeypatch):
     assert any("mlockall" in w and "ulimit -l" in w for w in res.warnings)
 
 
+def test_cpu_latency_bound_is_written_and_held_open(monkeypatch, tmp_path):
+    """``cpu_latency_us``: the 32-bit value goes to the PM QoS file, whose descriptor stays open (the
+    kernel drops the request when it is closed); a file that cannot be opened is a warning."""
+    qos = tmp_path / "cpu_dma_latency"
+    qos.write_bytes(b"")
+    monkeypatch.setattr(clock_mod, "_QOS_PATH", str(qos))
+    monkeypatch.setattr(clock_mod, "_qos_fd", None)
+    monkeypatch.setattr(clock_mod, "_set_fifo", lambda prio, warnings: True)
+    res = enable_realtime(priority=10, lock_memory=False, cpu_latency_us=0)
+    assert res.ok and res.cpu_latency_us == 0
+    assert qos.read_bytes() == (0).to_bytes(4, sys.byteorder, signed=True)
+    fd = clock_mod._qos_fd
+    assert fd is not None and os.fstat(fd).st_ino == qos.stat().st_ino  # still open
+    os.close(fd)
+    monkeypatch.setattr(clock_mod, "_qos_fd", None)
+    monkeypatch.setattr(clock_mod, "_QOS_PATH", str(tmp_path / "missing" / "cpu_dma_latency"))
+    res = enable_realtime(priority=10, lock_memory=False, cpu_latency_us=0)
+    assert res.cpu_latency_us is None and any("latency bound not set" in w for w in res.warnings)
+    with pytest.raises(ConfigError, match="latency"):
+        enable_realtime(priority=10, lock_memory=False, cpu_latency_us=-5)
+
+
 @pytest.mark.skipif(not hasattr(os, "sched_getaffinity"), reason="Linux scheduling API needed")
 def test_enable_realtime_unavailable_cpu_is_a_warning(monkeypatch):
     monkeypatch.setattr(clock_mod.os, "sched_setaffinity", lambda pid, cpus: None)

@@ -176,6 +176,39 @@ def test_csv_contract(sample_replay, tmp_path: Path):
     assert cols["Fw"] is res.fw and cols["T_overlay"] is res.t_overlay and len(cols["t_ns"]) == len(res)
 
 
+def test_csv_writer_thread_writes_the_same_bytes_in_order(sample_replay, tmp_path: Path):
+    """The CSV writer's thread (the engine's core stays free) writes what the inline writer does,
+    block after block in order, and a write error surfaces as one LogFormatError."""
+    from lde.errors import LogFormatError
+    from lde.replay import CsvWriter
+
+    _, res = sample_replay
+    block = res.block
+    cuts = np.linspace(0, len(block), 7).astype(int)
+    fields = vars(block)
+    parts = [
+        type(block)(**{k: v[a:b] for k, v in fields.items()})
+        for a, b in zip(cuts[:-1], cuts[1:], strict=True)
+    ]
+    outs = {}
+    for background in (True, False):
+        out = tmp_path / f"bg{background}.csv"
+        w = CsvWriter(out, background=background)
+        for p in parts:
+            w.write(p)
+        w.close()
+        outs[background] = out.read_bytes()
+    assert outs[True] == outs[False]
+    assert outs[True].count(b"\n") == len(block) + 1
+
+    if not Path("/dev/full").exists():
+        return
+    w = CsvWriter("/dev/full")  # every write fails (ENOSPC): in the writer's thread
+    w.write(block)
+    with pytest.raises(LogFormatError, match="cannot write"):
+        w.close()
+
+
 def test_cli_end_to_end(tmp_path: Path, capsys):
     out = tmp_path / "o.csv"
     rec = tmp_path / "o.mcap"

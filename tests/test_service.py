@@ -217,6 +217,8 @@ def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path, lde_bench: Bench) 
                 "0.5",
                 "--backend",
                 "float",
+                "--grid",
+                "fixed",
                 "--record",
                 str(path),
             ]
@@ -231,8 +233,8 @@ def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path, lde_bench: Bench) 
     n = len(rec.step_times_ns)
     steps = rec.step_times_ns
     assert steps[-1] - steps[0] >= 0.5e9 - STEP_NS  # --duration (plus the ramp-out)
-    # the default fixed grid: every step on the 3.9 ms grid (the MDPS-locked grid's rule is checked
-    # deterministically, on a simulated clock, in test_run_on_the_mdps_grid_...)
+    # the fixed grid: every step on the 3.9 ms grid (the MDPS-locked grid, lde run's default, is checked
+    # deterministically on a simulated clock in test_run_on_the_mdps_grid_...; the other lde run tests use it)
     np.testing.assert_array_equal(np.diff(steps) % STEP_NS, 0)
     assert len(rec.rx) > 100 and len(rec.tx) == 4 * n  # LDE_Estimate, _Overlay, _Disturbance, _Diag
     assert rec.metadata["backend"] == "float"
@@ -555,3 +557,40 @@ def test_a_blind_service_says_which_input_is_missing_and_what_arrived(caplog) ->
     finally:
         feed_bus.shutdown()
         svc_bus.shutdown()
+
+
+def test_the_mdps_grid_skips_the_windows_it_fell_behind_by_and_counts_them() -> None:
+    """No MDPS frame and a loop held up for 10.2 periods (a slow CPU, user-mode Linux): the locked
+    grid skips the windows that ended before the last one (counted as skipped deadline misses), keeps
+    its phase, and steps on time again, instead of running every missed window late one after the
+    other."""
+    ch = f"lde-test-service-{next(_channels)}"
+    bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    clock = SimulatedClock(T0)
+    svc = Service(
+        bus,
+        load_profile("lde"),
+        load_vehicle("reference"),
+        clock,
+        backend="float",
+        log_period_s=0,
+        grid="mdps",
+    )
+    seen: list[tuple[int, int]] = []
+
+    def on_step(res) -> None:
+        seen.append((res.t_ns, res.timing.period_error_ns))
+        if len(seen) == 20:
+            clock.advance(10 * STEP_NS + STEP_NS // 5)  # the loop stood still for 10.2 periods
+
+    try:
+        summary = svc.run(max_steps=30, on_step=on_step, t0_ns=T0 + STEP_NS)
+    finally:
+        bus.shutdown()
+    t = np.array([s[0] for s in seen])
+    pe = np.array([s[1] for s in seen])
+    assert np.all(np.diff(t[:20]) == STEP_NS) and np.all(pe[:20] <= 1)  # timeout steps: 1 period apart
+    assert svc.stats.skipped == 9 and summary.deadline_misses == 9  # the late step: 0.78 ms late
+    assert t[20] - t[19] == 10 * STEP_NS  # the phase is kept: whole periods skipped
+    assert 0 < pe[20] < STEP_NS  # the one late step: the latest window that ended
+    assert np.all(np.diff(t[20:]) == STEP_NS) and np.all(pe[21:] <= 1)  # on time again

@@ -29,9 +29,7 @@ import sys
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import NamedTuple, Protocol, runtime_checkable
-
-import can
+from typing import Generic, NamedTuple, Protocol, TypeVar, runtime_checkable
 
 from .errors import ConfigError
 
@@ -45,6 +43,17 @@ __all__ = [
     "enable_realtime",
     "DEFAULT_SPIN_NS",
 ]
+
+_F = TypeVar("_F", covariant=True)
+_T = TypeVar("_T")
+
+
+class Receiver(Protocol, Generic[_F]):
+    """What :meth:`MonotonicClock.recv_until` reads from: a ``can.BusABC``, or the service's frame I/O
+    (:mod:`lde.busio`), whose ``recv(timeout)`` returns a frame or None."""
+
+    def recv(self, timeout: float | None = ...) -> _F | None: ...
+
 
 #: the last stretch before a deadline that MonotonicClock busy-waits instead of sleeping [ns]
 DEFAULT_SPIN_NS = 200_000
@@ -86,7 +95,7 @@ class MonotonicClock:
         while now() < t_ns:  # the last spin_ns: spin, the scheduler's wake-up is too coarse
             pass
 
-    def recv_until(self, bus: can.BusABC, t_ns: int, expect_ns: int | None = None) -> can.Message | None:
+    def recv_until(self, bus: Receiver[_T], t_ns: int, expect_ns: int | None = None) -> _T | None:
         """The next frame from ``bus``, waiting at most until ``t_ns``; None when none came.
 
         Blocked in the kernel, except around ``expect_ns`` (when a frame is expected, and ``spin_ns``
@@ -131,7 +140,7 @@ class SimulatedClock:
         if t_ns > self._t:
             self._t = int(t_ns)
 
-    def recv_until(self, bus: can.BusABC, t_ns: int, expect_ns: int | None = None) -> can.Message | None:
+    def recv_until(self, bus: Receiver[_T], t_ns: int, expect_ns: int | None = None) -> _T | None:
         """A frame already on ``bus``; if there is none, jump to ``t_ns`` and return None."""
         msg = bus.recv(0.0)
         if msg is None:
@@ -217,12 +226,15 @@ class RealtimeResult:
         fifo: SCHED_FIFO is in effect at ``priority``.
         memory_locked: ``mlockall(MCL_CURRENT | MCL_FUTURE)`` succeeded.
         cpus: the CPU set in effect after pinning (None: not requested or not supported).
+        cpu_latency_us: the CPU wake-up latency held through ``/dev/cpu_dma_latency`` [us] (None:
+            not requested or refused).
         warnings: one line per part that the system refused, with the reason and the fix.
     """
 
     fifo: bool = False
     memory_locked: bool = False
     cpus: tuple[int, ...] | None = None
+    cpu_latency_us: int | None = None
     warnings: list[str] = field(default_factory=list)
 
     @property
@@ -296,9 +308,16 @@ def _pin(cpus: Iterable[int], warnings: list[str]) -> tuple[int, ...] | None:
 
 
 def enable_realtime(
-    priority: int = 80, cpus: Iterable[int] | None = None, lock_memory: bool = True
+    priority: int = 80,
+    cpus: Iterable[int] | None = None,
+    lock_memory: bool = True,
+    cpu_latency_us: int | None = None,
 ) -> RealtimeResult:
-    """Ask for SCHED_FIFO at ``priority`` (1..99), ``mlockall`` and pinning to ``cpus``.
+    """Ask for SCHED_FIFO at ``priority`` (1..99), ``mlockall``, pinning to ``cpus`` and, with
+    ``cpu_latency_us``, a bound on the CPUs' wake-up latency [us] (PM QoS: ``/dev/cpu_dma_latency``,
+    held until the process ends, as ``cyclictest`` does; 0 keeps idle CPUs polling instead of
+    halting, which on this project's VM cuts a step's cost after an idle period by about 2.5x:
+    docs/service.md, "The hot path"; it applies to all CPUs and costs their idle power).
 
     Applies to the calling thread's process (SCHED_FIFO and affinity are per thread on Linux:
     call it from the loop's thread before starting other threads, which inherit it). What the
@@ -311,4 +330,36 @@ def enable_realtime(
     pinned = _pin(cpus, warnings) if cpus is not None else None
     locked = _lock_memory(warnings) if lock_memory else False
     fifo = _set_fifo(priority, warnings)
-    return RealtimeResult(fifo=fifo, memory_locked=locked, cpus=pinned, warnings=warnings)
+    latency = _hold_cpu_latency(cpu_latency_us, warnings) if cpu_latency_us is not None else None
+    return RealtimeResult(
+        fifo=fifo, memory_locked=locked, cpus=pinned, cpu_latency_us=latency, warnings=warnings
+    )
+
+
+_QOS_PATH = "/dev/cpu_dma_latency"
+_qos_fd: int | None = None  # held open: the kernel drops the request when it is closed
+
+
+def _hold_cpu_latency(us: int, warnings: list[str]) -> int | None:
+    global _qos_fd
+    if isinstance(us, bool) or not isinstance(us, int) or us < 0:
+        raise ConfigError(f"CPU latency bound must be an integer >= 0 us, got {us!r}")
+    try:
+        fd = os.open(_QOS_PATH, os.O_WRONLY)
+    except OSError as exc:
+        warnings.append(
+            f"CPU wake-up latency bound not set ({_QOS_PATH}: {exc.strerror}); idle CPUs may halt"
+        )
+        return None
+    try:
+        os.write(fd, int(us).to_bytes(4, sys.byteorder, signed=True))
+    except OSError as exc:
+        os.close(fd)
+        warnings.append(
+            f"CPU wake-up latency bound not set ({_QOS_PATH}: {exc.strerror}); idle CPUs may halt"
+        )
+        return None
+    if _qos_fd is not None:
+        os.close(_qos_fd)
+    _qos_fd = fd
+    return int(us)

@@ -239,8 +239,10 @@ def _replay_outputs(
             learned_start=li.learned_start,
             stop=stop,
         )
+        tc = time.perf_counter()
         for sink in sinks:
-            sink.close()
+            sink.close()  # waits for a writer thread's last blocks
+        res.timings["outputs"] += time.perf_counter() - tc
     except OutputError as exc:  # disk full: what was written stays, readable up to its last record
         for sink in sinks:
             sink.abort(keep=True)

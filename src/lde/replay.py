@@ -24,7 +24,9 @@ from __future__ import annotations
 
 import contextlib
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -839,6 +841,12 @@ def _mcap_data(m: McapLog | None, frames: FrameBatch) -> McapData | None:
 
 
 # ----------------------------------------------------------------------------- outputs
+#: rows a :class:`CsvWriter` hands its thread at once (a copy of their CSV columns, 1 MB), and how
+#: many such parts may wait: the memory the thread adds stays a few MB, whatever the engine's block
+CSV_ROWS = 8192
+CSV_PENDING = 2
+
+
 def _csv_columns(b: StepBlock) -> list[Column]:
     data: dict[str, np.ndarray] = {
         "Fw": b.fw,
@@ -873,9 +881,18 @@ class CsvWriter:
     """The replay CSV (:data:`CSV_COLUMNS`, then with ``smooth`` the smoother's
     :data:`lde.smoother.SMOOTHED`; NaN as ``nan``) written block by block: a sink of
     :func:`run_replay`. ``t`` is the step time in seconds in the log's own time base, printed exactly
-    from the integer ns (6 decimals when every step time of a block is a whole microsecond, else 9)."""
+    from the integer ns (6 decimals when every step time of a block is a whole microsecond, else 9).
 
-    def __init__(self, path: str | Path, smooth: SmoothTrack | None = None) -> None:
+    Blocks are formatted and written by one writer thread (the formatter and the file write release
+    the GIL), so that the CSV does not take the engine's core: rows go in parts of :data:`CSV_ROWS`, at
+    most :data:`CSV_PENDING` waiting (memory stays bounded), in order. The smoothed rows are read in
+    the caller (``smooth.rows_for`` follows the causal replay's blocks in order, shared with the MCAP
+    sink). A write error surfaces, as :class:`lde.errors.OutputError`, at the next :meth:`write` or at
+    :meth:`close`; ``background=False`` formats and writes in the caller."""
+
+    def __init__(
+        self, path: str | Path, smooth: SmoothTrack | None = None, *, background: bool = True
+    ) -> None:
         self.path = Path(path)
         self._smooth = smooth
         names = [name for name, _, _ in CSV_COLUMNS]
@@ -886,31 +903,60 @@ class CsvWriter:
             self._fh.write((",".join(names) + "\n").encode())
         except OSError as exc:
             raise LogFormatError(f"{path}: cannot write: {exc}") from exc
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="lde-csv") if background else None
+        self._pending: deque[Future[None]] = deque()
 
-    def write(self, block: StepBlock) -> None:
-        if len(block) == 0:
-            return
-        cols = _csv_columns(block)
-        if self._smooth is not None:
-            cols += smoothed_columns(self._smooth.rows_for(block))
+    def _write_now(self, cols: list[Column]) -> None:
         text, _ = format_rows(cols, [""] + [","] * (len(cols) - 1), "\n")
         try:
             self._fh.write(text.data)
         except OSError as exc:
             raise OutputError(f"{self.path}: cannot write: {exc}") from exc
 
+    def write(self, block: StepBlock) -> None:
+        """Write ``block``'s rows (queued: a copy of its CSV columns, so that the block itself is
+        not held)."""
+        if len(block) == 0:
+            return
+        cols = _csv_columns(block)
+        if self._smooth is not None:
+            cols += smoothed_columns(self._smooth.rows_for(block))
+        if self._pool is None:
+            self._write_now(cols)
+            return
+        for a in range(0, len(block), CSV_ROWS):
+            part = [
+                Column(c.name, np.array(c.values[a : a + CSV_ROWS]), c.decimals, c.prescaled) for c in cols
+            ]
+            while len(self._pending) >= CSV_PENDING:
+                self._pending.popleft().result()
+            self._pending.append(self._pool.submit(self._write_now, part))
+
     def __call__(self, _frames: FrameBatch, block: StepBlock) -> None:
         self.write(block)
 
+    def _drain(self) -> None:
+        try:
+            while self._pending:
+                self._pending.popleft().result()
+        finally:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True, cancel_futures=True)
+
     def close(self) -> None:
         try:
-            self._fh.close()
-        except OSError as exc:
-            raise OutputError(f"{self.path}: cannot write: {exc}") from exc
+            self._drain()
+        finally:
+            try:
+                self._fh.close()
+            except OSError as exc:
+                raise OutputError(f"{self.path}: cannot write: {exc}") from exc
 
     def abort(self, keep: bool = False) -> None:
         """The replay failed: close and remove the incomplete file (``keep``: leave the rows
         written so far, an output that could not be written further)."""
+        with contextlib.suppress(Exception):
+            self._drain()
         with contextlib.suppress(OSError):
             self._fh.close()
         if not keep:

@@ -53,6 +53,7 @@ from __future__ import annotations
 import ctypes
 import gc
 import logging
+import os
 import socket
 import struct
 import threading
@@ -66,6 +67,8 @@ from typing import Any
 import can
 import numpy as np
 
+from .busfaults import FLOOD_FOREIGN_HZ, BusFaults, WindowCounts
+from .busio import ERROR_FRAME, RxFrame, TxFrame, bus_io
 from .clock import SimulatedClock
 from .codec import MessageCodec, encode_word
 from .diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummary, diag_values
@@ -105,6 +108,8 @@ _GC_YOUNG = 700
 
 _WATCH_PERIOD_NS = 250_000_000  # how often the input watch looks (its warnings repeat every 30 s)
 _PROBE_NS = 1_000_000_000  # SocketCAN filters lifted this long to name the ids on the bus
+#: E2E rejection kinds, as the bus check names them (the wrong sequence of a counter that jumped)
+_E2E_KINDS = ("wrong sequence (counter jumped)", "wrong CRC", "repeated counter", "malformed")
 
 
 @dataclass(frozen=True)
@@ -158,10 +163,14 @@ class Service:
             frames, :mod:`lde.grid`'s locked grid) for :meth:`run`.
         input_filters: pass only the profile's input messages up from the bus
             (:func:`set_input_filters`).
+        fast_io: frame I/O on the bus's socket where lde knows the bus type (``udp_multicast``,
+            SocketCAN: :mod:`lde.busio`); False, or any other bus: python-can's ``recv``/``send``.
         learned: a learned-state file (``--learned``): read now when it exists (checked against the
             vehicle and profile), written every ``learned_period_s`` of step time and at
             :meth:`close`. Needs a backend that learns (ConfigError otherwise).
         learned_period_s: period of the learned-state writes [s] (SPEC: 60 s).
+        flood_hz: frames of other messages on the bus above this rate [1/s] are logged as a flood
+            (:mod:`lde.busfaults`).
     """
 
     def __init__(
@@ -178,8 +187,10 @@ class Service:
         log_period_s: float = 10.0,
         grid: str = "fixed",
         input_filters: bool = True,
+        fast_io: bool = True,
         learned: str | Path | None = None,
         learned_period_s: float = 60.0,
+        flood_hz: float = FLOOD_FOREIGN_HZ,
     ) -> None:
         if grid not in GRIDS:
             raise ConfigError(f"unknown grid {grid!r}: {' or '.join(GRIDS)}")
@@ -202,23 +213,30 @@ class Service:
         self._tk = np.zeros(1, np.int64)
         self._enable = np.ones(1, np.bool_)
         self._extra = np.zeros(1, np.uint8)
-        # the output messages, built once and refilled in place: (message, numpy view of its data)
-        self._out_msgs = [
-            can.Message(arbitration_id=int(fid), is_extended_id=False, dlc=int(n), data=bytearray(int(n)))
+        # frame I/O: raw on the socket for the buses lde knows, python-can's recv/send otherwise
+        self.io = bus_io(bus, fast=fast_io)
+        # the output frames, built once and refilled in place (numpy views of their data bytes)
+        self._tx = [
+            self.io.tx(
+                can.Message(arbitration_id=int(fid), is_extended_id=False, dlc=int(n), data=bytes(int(n)))
+            )
             for fid, n in zip(self.engine.outputs.frame_id, self.engine.outputs.length, strict=True)
         ]
-        self._out_views = [np.frombuffer(m.data, np.uint8) for m in self._out_msgs]
+        self._out_views = [tx.view for tx in self._tx]
         dc = MessageCodec(self.profile, "LDE_Diag")
-        self._diag_msg = can.Message(
-            arbitration_id=dc.frame_id, is_extended_id=False, dlc=dc.length, data=bytearray(dc.length)
+        self._diag_tx = self.io.tx(
+            can.Message(
+                arbitration_id=dc.frame_id, is_extended_id=False, dlc=dc.length, data=bytes(dc.length)
+            )
         )
-        self._diag_view = np.frombuffer(self._diag_msg.data, np.uint8)
+        self._diag_view = self._diag_tx.view
         self._diag_args = dc.layout.kernel_args()
         self._diag_vals = np.zeros(len(dc.order), np.float64)
         self._diag_slots = tuple(
             dc.index[n] for n in ("PeriodError", "StepTime", "Latency", "DeadlineMisses", "E2ERejects")
         )
         self._diag_word = np.zeros(1, np.uint64)
+        self._encode_word = _resolved(encode_word, self._diag_vals, *self._diag_args, 0)
         self._diag_bytes = self._diag_word.view(np.uint8)
         self._diag_ctr = (0, dc.scheme.modulus, dc.scheme.invalid_counter)
         # the frames received and not fed yet, in preallocated columns (the engine reads slices)
@@ -237,7 +255,13 @@ class Service:
         self.watch = InputWatch(self.profile, where)
         self._watch_next = 0  # bus time of the next check [ns]
         self._probe_until: int | None = None  # SocketCAN filters lifted to see what arrives, until
+        #: live bus faults said once (lde.busfaults): failed sends/receives, error frames, E2E, floods
+        self.faults = BusFaults(where, flood_hz=flood_hz)
+        self._bus_counter = _open_bus_counter(bus)  # SocketCAN: the interface's rx_packets, or None
+        self._window: tuple[int, ...] | None = None  # the counts at the previous bus check
+        self._e2e_prev: dict[str, tuple[int, ...]] = {}  # message -> E2E counts at that check
         self._warm_up()
+        self._run_engine_empty()  # resolves the pinned overload now (28 ms of numba typing), not at step 1
         self.stats = TimingStats()
         self._newest_input_ns = -1  # receive time of the newest frame fed so far
         self._restamp: bool | None = None  # stamp frames on receipt (decided at the first frame)
@@ -248,6 +272,12 @@ class Service:
         self.steps = 0
         self.send_errors = 0  # frames the bus refused (full tx queue, bus-off), counted, not raised
         self.recv_errors = 0  # failed receive calls, counted, not raised
+        self.sent = 0  # frames the bus took
+        self.received = 0  # frames received (any id, error frames included)
+        self.error_frames = 0  # error frames received (counted; inputs stay in use while E2E passes)
+        self._error_id = 0  # the last error frame's id (its classes)
+        self._send_error = ""  # the last failed send's text
+        self._recv_error = ""  # the last failed receive's text
         self.gc_collections = 0  # young-generation collections run in the idle time of run()
         self.last: StepResult | None = None
         self.valid_steps = 0  # steps with status VALID: the driving time the learner saw
@@ -287,6 +317,7 @@ class Service:
         self._pcols = new
         self._pt, self._pid, self._pext, self._pdlc, self._pword = new
         self._prx = np.ones(cap, np.bool_)
+        self._heads: dict[int, tuple[np.ndarray, ...]] = {}  # n -> the columns' first n rows (views)
 
     def pending_times(self) -> list[int]:
         """Receive times of the frames received and not fed to a step yet [ns] (time order)."""
@@ -298,6 +329,11 @@ class Service:
         (numba loads or compiles a kernel at its first call)."""
         e = Engine(self.profile, self.vehicle, self.backend, explicit=True)
         e.feed(FrameBatch.empty(), step_times=np.arange(3, dtype=np.int64) * STEP_NS, final=True)
+        # the locked grid's kernels too (loading them at the first MDPS frame made that step late)
+        lock = new_lock(0)
+        lock_deadline(lock)
+        lock_timeout(lock, 2 * STEP_NS)
+        lock_anchor(lock, 3 * STEP_NS)
 
     @property
     def receiver(self) -> Receiver:
@@ -311,38 +347,42 @@ class Service:
 
     def _drain(self) -> None:
         """Move every frame waiting in the bus into the pending buffer (and the recording)."""
-        recv = self.bus.recv
+        recv = self.io.recv
         while True:
             try:
-                msg = recv(0.0)
+                f = recv(0.0)
             except (can.CanError, OSError) as exc:  # interface down, driver error: count, keep stepping
                 self._recv_failed(exc)
                 return
-            if msg is None:
+            if f is None:
                 return
-            self._take(msg)
+            self._take(f)
 
     def _recv_failed(self, exc: Exception) -> None:
+        # said in the log once per fault by the bus check (lde.busfaults), not per call
         self.recv_errors += 1
-        if self.recv_errors == 1 or self.recv_errors % 1000 == 0:
-            log.warning("CAN receive failed (%d so far): %s", self.recv_errors, exc)
+        self._recv_error = str(exc)
 
-    def _take(self, msg: can.Message) -> None:
-        """One received frame into the pending columns (and the recording, and the locked grid);
-        frames of other messages are dropped (counted in ``foreign``)."""
-        if msg.is_error_frame or msg.is_remote_frame:
+    def _take(self, f: RxFrame) -> None:
+        """One received frame (:mod:`lde.busio`'s five numbers) into the pending columns (and the
+        recording, and the locked grid); frames of other messages are dropped (counted in ``foreign``),
+        error frames counted (``error_frames``, the last one's class kept for the bus check)."""
+        t_rx, can_id, ext, dlc, word = f
+        self.received += 1
+        if can_id < 0:
+            if can_id == ERROR_FRAME:
+                self.error_frames += 1
+                self._error_id = word
             return
-        if msg.is_extended_id or msg.arbitration_id not in self._input_ids:
+        if ext or can_id not in self._input_ids:
             self.foreign += 1
-            self.watch.saw(msg.arbitration_id, 0)  # counted, for the blind warning's list of ids
+            self.watch.saw(can_id, 0)  # counted, for the blind warning's list of ids
             return
-        t_rx = seconds_to_ns(msg.timestamp)
         if self._restamp is None:
             self._decide_restamp(t_rx)
         if self._restamp:
             t_rx = seconds_to_ns(self.now_ns() / 1e9)
-        self.watch.saw(msg.arbitration_id, t_rx)
-        can_id, ext, dlc = msg.arbitration_id, msg.is_extended_id, msg.dlc
+        self.watch.saw(can_id, t_rx)
         anchor = can_id == self._anchor[0] and ext == self._anchor[1]
         last = self._last_t_k
         if anchor and self._last_due is not None and (last is None or self._last_due > last):
@@ -360,8 +400,6 @@ class Service:
             self._alloc_pending(2 * n)
         elif n and t_rx < self._pt[n - 1]:
             self._unsorted = True
-        data = msg.data
-        word = int.from_bytes(data if len(data) <= 8 else data[:8], "little")
         self._pt[n] = t_rx
         self._pid[n] = can_id
         self._pext[n] = ext
@@ -416,10 +454,24 @@ class Service:
         self._tk[0] = t_k
         self._enable[0] = enable
         self._extra[0] = DEADLINE_MISS if miss else 0
+        cols = self._heads.get(n)
+        if cols is None:  # made once per count: a step sees 0 to a few frames
+            cols = self._heads[n] = (*(a[:n] for a in self._pcols), self._prx[:n])
+        pt, pid, pext, pdlc, pword, prx = cols
         fed, steps = self.engine.run_arrays(
-            self._pt[:n], self._pid[:n], self._pext[:n], self._pdlc[:n], self._pword[:n], self._prx[:n],
-            self._block, step_times=self._tk, enable=self._enable, extra_status=self._extra, final=True,
-        )  # fmt: skip
+            pt,
+            pid,
+            pext,
+            pdlc,
+            pword,
+            prx,
+            self._block,
+            step_times=self._tk,
+            enable=self._enable,
+            extra_status=self._extra,
+            final=True,
+            pinned=True,
+        )
         if steps != 1:  # the engine runs every given step when final: a broken invariant
             raise RuntimeError(f"the engine ran {steps} steps for one step time")
         if fed:
@@ -430,6 +482,27 @@ class Service:
                     a[:rest] = a[fed:n].copy()
             self._np = rest
         return fed
+
+    def _run_engine_empty(self) -> None:
+        """The live call with no frame and no step time: nothing runs, nothing changes, but the
+        compiled overload for the live argument types is resolved (``Engine.run_arrays(pinned=True)``)."""
+        pt, pid, pext, pdlc, pword = (a[:0] for a in self._pcols)
+        fed, steps = self.engine.run_arrays(
+            pt,
+            pid,
+            pext,
+            pdlc,
+            pword,
+            self._prx[:0],
+            self._block,
+            step_times=self._tk[:0],
+            enable=self._enable[:0],
+            extra_status=self._extra[:0],
+            final=True,
+            pinned=True,
+        )
+        if fed or steps:
+            raise RuntimeError(f"the engine ran {steps} steps on no step time")
 
     def step_once(self, t_k: int, t_start: int | None = None) -> StepResult:
         """Run one step at step time ``t_k`` [ns, bus time base] and send its outputs.
@@ -447,9 +520,9 @@ class Service:
         if self._last_t_k is None or t_k > self._last_t_k:
             self._last_t_k = t_k
         b = self._block
-        for msg, view, j in zip(self._out_msgs, self._out_views, range(len(self._out_msgs)), strict=True):
-            view[:] = b.frames[0, j, : msg.dlc]
-            self._send(msg)
+        for tx, view, j in zip(self._tx, self._out_views, range(len(self._tx)), strict=True):
+            view[:] = b.frames[0, j, : tx.dlc]
+            self._send(tx)
         t_sent = self.now_ns()
         latency = t_sent - self._newest_input_ns if self._newest_input_ns >= 0 else -1
         timing = self.stats.record(period_error, t_sent - t_start, latency)
@@ -491,39 +564,31 @@ class Service:
             )
         return res
 
-    def _encode_diag(self, timing: StepTiming, rejects: int) -> can.Message:
+    def _encode_diag(self, timing: StepTiming, rejects: int) -> TxFrame:
         """``LDE_Diag`` of this step into its prebuilt message (compiled encoder, counter, CRC)."""
         vals = self._diag_vals
         for slot, v in zip(self._diag_slots, diag_values(timing, rejects), strict=True):
             vals[slot] = v
         ctr, mod, inv = self._diag_ctr
-        self._diag_word[0] = encode_word(vals, *self._diag_args, ctr)  # type: ignore[call-arg]
-        self._diag_ctr = (int(advance_counter(ctr, mod, inv)), mod, inv)
+        self._diag_word[0] = self._encode_word(vals, *self._diag_args, ctr)
+        self._diag_ctr = (advance_counter.py_func(ctr, mod, inv), mod, inv)  # plain Python: no dispatch
         view = self._diag_view
         view[:] = self._diag_bytes[: view.shape[0]]
-        return self._diag_msg
+        return self._diag_tx
 
-    def _send(self, msg: can.Message) -> None:
-        t = self.now_ns()
-        msg.timestamp = t / 1e9
+    def _send(self, tx: TxFrame) -> None:
+        t_s = self.now_ns() / 1e9
         try:
-            self.bus.send(msg)
+            self.io.send(tx, t_s)
         except (can.CanError, OSError) as exc:
-            # a full tx queue or a bus-off must not kill the loop: count and go on
+            # a full tx queue, a bus-off or the interface down must not kill the loop: count and go
+            # on (said in the log once per fault by the bus check, lde.busfaults)
             self.send_errors += 1
-            if self.send_errors == 1 or self.send_errors % 1000 == 0:
-                log.warning("CAN send failed (%d so far): %s", self.send_errors, exc)
+            self._send_error = str(exc)
             return
+        self.sent += 1
         if self.recorder is not None:  # only frames the bus took
-            d = msg.data
-            self.recorder.frame(
-                seconds_to_ns(msg.timestamp),
-                msg.arbitration_id,
-                False,
-                msg.dlc,
-                int.from_bytes(d, "little"),
-                False,
-            )
+            self.recorder.frame(seconds_to_ns(t_s), tx.can_id, tx.is_extended, tx.dlc, tx.word(), False)
 
     # ------------------------------------------------------------------ learned state
     def learned_snapshot(self) -> LearnedSnapshot:
@@ -533,6 +598,9 @@ class Service:
     def close(self) -> None:
         """Write the learned state a last time (with ``learned``; ConfigError when that fails).
         The bus and the recorder belong to the caller."""
+        if self._bus_counter is not None:
+            os.close(self._bus_counter)
+            self._bus_counter = None
         if self.learned is not None:
             keeper, self.learned = self.learned, None
             keeper.close(self.learned_snapshot())
@@ -625,6 +693,7 @@ class Service:
         if t_ns < self._watch_next:
             return
         self._watch_next = t_ns + _WATCH_PERIOD_NS
+        self.check_bus(t_ns)
         for level, text in self.watch.check(t_ns):
             (log.warning if level == "warning" else log.info)("%s", text)
             first = level == "warning" and self.watch.warnings == 1
@@ -634,6 +703,55 @@ class Service:
                     self._probe_until = t_ns + _PROBE_NS
                 except (can.CanError, OSError) as exc:
                     log.info("could not lift the input filters to look at the bus: %s", exc)
+
+    def check_bus(self, t_ns: int) -> None:
+        """Hand the counts since the previous check to the fault trackers (:mod:`lde.busfaults`) and
+        log what they say: a line when a fault starts, a reminder every 30 s, a line when it clears."""
+        bus_frames = _read_counter(self._bus_counter)
+        cur: tuple[int, ...] = (t_ns, self.send_errors, self.sent, self.recv_errors, self.received)
+        cur += (self.error_frames, self.foreign, bus_frames)
+        e2e = []
+        n_input = self._np
+        for name, st in self.engine.stats().items():
+            n_input += st.received
+            now = (st.wrong_sequence, st.wrong_crc, st.repeated, st.malformed, st.used)
+            was = self._e2e_prev.get(name, (0, 0, 0, 0, 0))
+            self._e2e_prev[name] = now
+            dd = [a - b for a, b in zip(now, was, strict=True)]
+            what = ", ".join(f"{k} {v}" for k, v in zip(_E2E_KINDS, dd[:4], strict=True) if v)
+            spec = self.profile.messages[name]
+            e2e.append((f"{name} (0x{spec.frame_id:X})", sum(dd[:4]), dd[4], what))
+        cur += (n_input,)
+        prev, self._window = self._window, cur
+        if prev is None:
+            return
+        d = [a - b for a, b in zip(cur, prev, strict=True)]
+        w = WindowCounts(
+            t_ns=t_ns,
+            span_ns=d[0],
+            send_errors=d[1],
+            sent=d[2],
+            recv_errors=d[3],
+            received=d[4],
+            error_frames=d[5],
+            error_id=self._error_id,
+            foreign=d[6],
+            bus_frames=d[7] if bus_frames >= 0 and prev[7] >= 0 else -1,
+            own_frames=d[8] + d[2],
+            e2e=tuple(e2e),
+            send_error=self._send_error,
+            recv_error=self._recv_error,
+        )
+        for level, text in self.faults.check(w):
+            (log.warning if level == "warning" else log.info)("%s", text)
+
+    def fault_summary(self) -> str:
+        """The bus fault counts over the run, for the last log line."""
+        eps = ", ".join(f"{t.name} {t.episodes}x" for t in self.faults.trackers() if t.episodes) or "none"
+        return (
+            f"bus faults: send errors {self.send_errors}, receive errors {self.recv_errors}, error frames"
+            f" {self.error_frames}, foreign frames that reached the service {self.foreign}; episodes: {eps}"
+        )
 
     def _idle(self) -> None:
         """After a step's send: a young-generation collection when due (gc is off in the loop)."""
@@ -674,13 +792,19 @@ class Service:
                 if now > end:  # every frame up to now is in: the window ended without an MDPS frame
                     self._drain()
                     if not due:
+                        # behind by more than a period (no MDPS frame, a slow CPU): the windows that
+                        # ended before the last one are skipped and counted, the phase is kept
+                        n = (now - end - 1) // STEP_NS
+                        if n > 0:
+                            lock[L_REF] += n * STEP_NS
+                            self.stats.record_skipped(int(n))
                         self._make_due(int(lock_timeout(lock, now)))
                     break
                 try:
                     if recv_until is not None:  # the MDPS frame is expected one period after t_ref
-                        msg = recv_until(self.bus, end + 1 - off, int(lock[L_REF]) + STEP_NS - off)
+                        msg = recv_until(self.io, end + 1 - off, int(lock[L_REF]) + STEP_NS - off)
                     else:  # a clock without it: poll, then sleep to the window's end
-                        msg = self.bus.recv(0.0)
+                        msg = self.io.recv(0.0)
                         if msg is None:
                             clock.sleep_until(end + 1 - off)
                 except (can.CanError, OSError) as exc:
@@ -697,6 +821,18 @@ class Service:
                 self.stats.record_skipped(1)
                 continue
             return t_k, now
+
+
+def _resolved(fn: Any, *args: Any) -> Any:
+    """numba's compiled overload of ``fn`` for the types of ``args`` (compiled or loaded now), to be
+    called directly with arguments of exactly these types: no type dispatch per call (a few us on a
+    cold cache). ``fn`` itself when it is not a numba dispatcher."""
+    overloads = getattr(fn, "overloads", None)
+    if overloads is None:
+        return fn
+    fn(*args)
+    sig = tuple(fn.typeof_pyval(a) for a in args)
+    return overloads[sig].entry_point if sig in overloads else fn
 
 
 # a classic BPF program for python-can's udp_multicast bus (SO_ATTACH_FILTER, linux/filter.h)
@@ -762,6 +898,28 @@ def set_input_filters(bus: can.BusABC, profile: Profile) -> str:
         except OSError as exc:
             log.info("udp_multicast: no socket filter (%s); the service filters", exc)
     return "in the service"
+
+
+def _open_bus_counter(bus: can.BusABC) -> int | None:
+    """A SocketCAN interface's received-frame counter (``/sys/class/net/IF/statistics/rx_packets``),
+    opened once (read with one ``pread`` per check), or None elsewhere."""
+    ch = getattr(bus, "channel", None)
+    if type(bus).__name__ != "SocketcanBus" or not isinstance(ch, str) or not ch or "/" in ch:
+        return None
+    try:
+        return os.open(f"/sys/class/net/{ch}/statistics/rx_packets", os.O_RDONLY)
+    except OSError:
+        return None
+
+
+def _read_counter(fd: int | None) -> int:
+    """The counter's value, -1 when there is none or it cannot be read."""
+    if fd is None:
+        return -1
+    try:
+        return int(os.pread(fd, 32, 0))
+    except (OSError, ValueError):
+        return -1
 
 
 def open_bus(**kwargs: Any) -> can.BusABC:

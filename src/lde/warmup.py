@@ -11,6 +11,7 @@ cache (:mod:`lde.jitcache`); parts can run in parallel processes (one core each)
 ``paper``    the paper's filter in float
 ``logio``    candump parser and writer, MCAP writer and reader, CSV / JSON row formatting
 ``sim``      the vehicle simulator (``lde demo``, ``lde sim``) and the batch decoder and grid
+``smooth``   ``lde replay --smooth``: the traced float lateral step and the RTS backward pass
 ===========  ======================================================================================
 """
 
@@ -36,10 +37,11 @@ from .params import load_vehicle
 from .profiles import load_profile
 from .replay import CsvWriter, RecordingWriter, run_replay
 from .signals import decode_batch
+from .smoother import smooth_run
 
 __all__ = ["PARTS", "warm_up"]
 
-PARTS = ("fixed", "float", "paper-fixed", "paper", "logio", "sim")
+PARTS = ("fixed", "float", "paper-fixed", "paper", "logio", "sim", "smooth")
 
 
 def _frames() -> FrameBatch:
@@ -83,6 +85,12 @@ def _sim() -> None:
     build_grid(decode_batch(profile, frames), profile)
 
 
+def _smooth() -> None:
+    profile, vehicle = load_profile("lde"), load_vehicle("reference")
+    with smooth_run([_frames()], profile, vehicle) as track:
+        track.read_all()
+
+
 _RUN: dict[str, Callable[[], None]] = {
     "fixed": lambda: _engine("fixed"),
     "float": lambda: _engine("float"),
@@ -90,6 +98,7 @@ _RUN: dict[str, Callable[[], None]] = {
     "paper": lambda: _engine("paper"),
     "logio": _logio,
     "sim": _sim,
+    "smooth": _smooth,
 }
 
 

@@ -92,10 +92,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--grid",
         choices=("mdps", "fixed"),
-        default="fixed",
-        help="fixed (default): absolute 3.9 ms deadlines on the clock; mdps: each step runs right after the "
-        "MDPS frame it consumes (the MDPS-locked grid; a step at 1.5 periods when a frame is missing; "
-        "not the default yet: on a slow single CPU without MDPS frames it fell behind without bound)",
+        default="mdps",
+        help="mdps (default): each step runs right after the MDPS frame it consumes (the MDPS-locked grid; "
+        "a step at 1.5 periods when a frame is missing; windows it fell behind by are skipped and counted); "
+        "fixed: absolute 3.9 ms deadlines on the clock (input-to-output latency up to a period)",
     )
     p.add_argument(
         "--spin-us",
@@ -105,6 +105,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="poll the bus from this long before to this long after the expected MDPS frame (mdps grid), "
         "busy-wait this long before each deadline (fixed grid) [us] (default 200; 0 blocks/sleeps only: "
         "on a CPU shared with the simulator, user-mode Linux say, the spin takes time the others need)",
+    )
+    p.add_argument(
+        "--cpu-latency-us",
+        type=int,
+        default=0,
+        metavar="US",
+        help="with --realtime: hold the CPUs' wake-up latency at most US (PM QoS, /dev/cpu_dma_latency, "
+        "all CPUs; default 0: idle CPUs poll instead of halting, the step runs on warmer caches; "
+        "-1 leaves it alone)",
+    )
+    p.add_argument(
+        "--flood-rate",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="frames of other messages per second on the bus logged as a flood (default 2000; SocketCAN "
+        "counts them at the interface, elsewhere those that reach the service; raise it on a shared bus)",
     )
     p.add_argument("--log-period", type=float, default=10.0, metavar="SEC", help="timing log line period")
     p.set_defaults(func=run)
@@ -117,7 +134,8 @@ def _realtime(args: argparse.Namespace) -> None:
     if enable is None:
         log.warning("--realtime: lde.clock.enable_realtime is not available; normal scheduling")
         return
-    result = enable(priority=args.priority, cpus=args.cpu, lock_memory=True)
+    latency = None if args.cpu_latency_us < 0 else args.cpu_latency_us
+    result = enable(priority=args.priority, cpus=args.cpu, lock_memory=True, cpu_latency_us=latency)
     for w in getattr(result, "warnings", ()) or ():
         log.warning("--realtime: %s", w)
 
@@ -135,6 +153,8 @@ def run(args: argparse.Namespace) -> int:
     from ..profiles import load_profile
     from ..units import STEP_NS
 
+    if args.flood_rate is not None and not (args.flood_rate > 0 and math.isfinite(args.flood_rate)):
+        raise ConfigError(f"--flood-rate {args.flood_rate}: need frames per second > 0")
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
     logging.getLogger("lde.service").setLevel(logging.INFO)
@@ -175,6 +195,7 @@ def run(args: argparse.Namespace) -> int:
             log_period_s=args.log_period,
             grid=args.grid,
             learned=args.learned,
+            **({} if args.flood_rate is None else {"flood_hz": args.flood_rate}),
         )
         if args.record:
             from ..recording import LEARNED_START_KEY, Recorder
@@ -215,6 +236,7 @@ def run(args: argparse.Namespace) -> int:
         )
         summary = service.run(stop_event=stop, on_step=on_step)
         log.info("%s", summary.log_line())
+        log.info("%s", service.fault_summary())
         if service.late_rx:
             log.info("frames that reached the service after the step of their timestamp: %d", service.late_rx)
     finally:

@@ -1,4 +1,4 @@
-"""``lde warmup [--parts fixed,float,lateral,logio,sim] [--jobs N]``: compile lde's numba kernels now.
+"""``lde warmup [--parts fixed,float,...] [--jobs N]``: compile lde's numba kernels now.
 
 A first run after an install or an upgrade compiles them (20-40 s of CPU per backend); after
 ``lde warmup`` the first ``lde replay``, ``lde run`` or ``lde demo`` starts warm. Run it once
@@ -13,6 +13,10 @@ import time
 
 from ..errors import ConfigError
 
+#: the parts of :data:`lde.warmup.PARTS` (named here so that ``lde --help`` imports no kernel; a test
+#: checks they agree)
+PART_NAMES = ("fixed", "float", "paper-fixed", "paper", "logio", "sim", "smooth")
+
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
@@ -22,8 +26,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--parts",
-        default="fixed,float,lateral,logio,sim",
-        help="comma-separated: fixed, float, lateral (the data path per backend), logio, sim (default: all)",
+        default=None,
+        help=f"comma-separated, of: {', '.join(PART_NAMES)} (the data path per backend, the log readers and "
+        "writers, the simulator, the smoother; default: all)",
     )
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="compile in N processes")
     p.set_defaults(func=run)
@@ -37,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     warm = is_warm()
     from ..warmup import PARTS, warm_up
 
-    parts = [p.strip() for p in args.parts.split(",") if p.strip()]
+    parts = list(PARTS) if args.parts is None else [p.strip() for p in args.parts.split(",") if p.strip()]
     bad = [p for p in parts if p not in PARTS]
     if bad or not parts:
         raise ConfigError(f"--parts {args.parts}: choose from {', '.join(PARTS)}")
