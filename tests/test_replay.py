@@ -178,8 +178,9 @@ def test_csv_contract(sample_replay, tmp_path: Path):
 
 def test_csv_writer_thread_writes_the_same_bytes_in_order(sample_replay, tmp_path: Path):
     """The CSV writer's thread (the engine's core stays free) writes what the inline writer does,
-    block after block in order, and a write error surfaces as one LogFormatError."""
-    from lde.errors import LogFormatError
+    block after block in order, and a write error surfaces as one OutputError (an OSError naming
+    the file: lde replay keeps what was written, issue 13)."""
+    from lde.errors import OutputError
     from lde.replay import CsvWriter
 
     _, res = sample_replay
@@ -205,7 +206,7 @@ def test_csv_writer_thread_writes_the_same_bytes_in_order(sample_replay, tmp_pat
         return
     w = CsvWriter("/dev/full")  # every write fails (ENOSPC): in the writer's thread
     w.write(block)
-    with pytest.raises(LogFormatError, match="cannot write"):
+    with pytest.raises(OutputError, match="cannot write"):
         w.close()
 
 

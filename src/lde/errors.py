@@ -19,5 +19,10 @@ class LogFormatError(LdeError, ValueError):
     """A log file cannot be read: unknown format, corrupt, or not CAN frames."""
 
 
+class OutputError(LdeError, OSError):
+    """An output file cannot be written (disk full, file size limit, I/O error): what was written
+    before stays in the file."""
+
+
 class BusError(LdeError, OSError):
     """A CAN bus could not be opened or used."""

@@ -22,13 +22,14 @@ from typing import Any
 
 from tqdm import tqdm
 
-from .errors import LdeError
+from .errors import LdeError, OutputError
 from .logio import REORDER_WINDOW_NS
 from .params import load_vehicle
 from .profiles import load_profile
 from .replay import (
     CsvWriter,
     RecordingWriter,
+    end_note,
     gaps_note,
     late_note,
     no_valid_note,
@@ -94,6 +95,8 @@ class LogReport:
     host: str = ""
     learned: str = ""  # what the learner holds at the end (empty without a learner)
     learned_origin: str = ""  # where learning started: a --learned file, the recording, "" (vehicle)
+    stopped: bool = False  # stopped by a signal before the end of the log (outputs closed, partial)
+    last_step_ns: int | None = None  # the time of the last step [ns]
 
     @property
     def ok(self) -> bool:
@@ -121,13 +124,15 @@ _SKIPPED = (
 )
 
 
-def replay_job(job: ReplayJob) -> LogReport:
+def replay_job(job: ReplayJob, stop: Callable[[], bool] | None = None) -> LogReport:
     """Replay one log into its outputs (removed again if the replay fails). A user's mistake or
-    a bad log is reported in :attr:`LogReport.error`, never raised."""
+    a bad log is reported in :attr:`LogReport.error`, never raised. ``stop`` (in process: a
+    signal): asked between pieces; True ends the replay there with its outputs closed
+    (:attr:`LogReport.stopped`)."""
     t0 = time.perf_counter()
     rep = LogReport(job.log, host=socket.gethostname())
     try:
-        _replay(job, rep)
+        _replay(job, rep, stop)
     except LdeError as exc:
         rep.error = str(exc)
     rep.seconds = time.perf_counter() - t0
@@ -139,7 +144,7 @@ _PROFILES: dict[str, Any] = {}
 _VEHICLES: dict[str, Any] = {}
 
 
-def _replay(job: ReplayJob, rep: LogReport) -> None:
+def _replay(job: ReplayJob, rep: LogReport, stop: Callable[[], bool] | None = None) -> None:
     profile = None
     if job.profile is not None:
         if job.profile not in _PROFILES:
@@ -151,7 +156,7 @@ def _replay(job: ReplayJob, rep: LogReport) -> None:
     backend, _fn, _note = resolve_backend(job.backend)
     track = _smoothed(job, profile, vehicle, backend) if job.smooth else None
     try:
-        _replay_outputs(job, rep, profile, vehicle, backend, track)
+        _replay_outputs(job, rep, profile, vehicle, backend, track, stop)
     finally:
         if track is not None:
             track.close()
@@ -189,7 +194,13 @@ def _smoothed(job: ReplayJob, profile: Any, vehicle: Any, backend: str) -> Smoot
 
 
 def _replay_outputs(
-    job: ReplayJob, rep: LogReport, profile: Any, vehicle: Any, backend: str, track: SmoothTrack | None
+    job: ReplayJob,
+    rep: LogReport,
+    profile: Any,
+    vehicle: Any,
+    backend: str,
+    track: SmoothTrack | None,
+    stop: Callable[[], bool] | None = None,
 ) -> None:
     li = read_inputs(
         job.log,
@@ -226,11 +237,18 @@ def _replay_outputs(
             shadow_thread=job.shadow_thread,
             learned=job.learned,
             learned_start=li.learned_start,
+            stop=stop,
         )
         tc = time.perf_counter()
         for sink in sinks:
             sink.close()  # waits for a writer thread's last blocks
         res.timings["outputs"] += time.perf_counter() - tc
+    except OutputError as exc:  # disk full: what was written stays, readable up to its last record
+        for sink in sinks:
+            sink.abort(keep=True)
+        kept = ", ".join(str(s.path) for s in sinks)
+        how = " (an MCAP file reads up to its last complete chunk)" if job.mcap is not None else ""
+        raise OutputError(f"{exc}; replay stopped, what was written is kept in {kept}{how}") from exc
     except BaseException:
         for sink in sinks:
             sink.abort()
@@ -250,8 +268,22 @@ def _replay_outputs(
     rep.profile, rep.profile_origin, rep.backend = li.profile.name, li.profile_origin, res.backend
     rep.timings = {"open": li.read_s, **res.timings}
     rep.learned, rep.learned_origin = res.learned, res.learned_origin
-    notes = (no_valid_note(res), gaps_note(res), late_note(stats, job.reorder_window_ns))
+    rep.stopped, rep.last_step_ns = res.stopped, res.last_step_ns
+    if res.stopped:  # the end of the file was not read: nothing to say about it
+        rep.warnings = [stopped_note(rep)]
+        return
+    notes = (end_note(li.stream), no_valid_note(res), gaps_note(res), late_note(stats, job.reorder_window_ns))
     rep.warnings = [w for w in notes if w]
+
+
+def stopped_note(rep: LogReport) -> str:
+    """The warning of a replay stopped by a signal: where, and what its outputs hold."""
+    t = rep.last_step_ns
+    at = "before its first step" if t is None else f"at log time {t / 1e9:.6f} s"
+    return (
+        f"stopped by a signal {at}: the outputs are closed and hold the {rep.steps} steps replayed so far;"
+        " the rest of the log was not replayed"
+    )
 
 
 def run_jobs(
@@ -259,15 +291,19 @@ def run_jobs(
     *,
     progress: bool = True,
     on_report: Callable[[LogReport], None] | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> list[LogReport]:
     """Every job in this process, one after the other (:func:`lde.fleet_dask.run_jobs_on_dask`
     maps them on a cluster); reports in the order of ``jobs``. ``on_report`` sees each report as
-    it ends."""
+    it ends. ``stop`` (a signal): the running replay ends with its outputs closed, the logs after
+    it are not replayed (no report)."""
     bar = progress_bar(progress, len(jobs))
     try:
         out = []
         for job in jobs:
-            rep = replay_job(job)
+            if stop is not None and stop():
+                break
+            rep = replay_job(job, stop)
             out.append(rep)
             job_done(bar, rep, on_report)
         return out

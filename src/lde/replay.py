@@ -36,7 +36,7 @@ import numpy as np
 from .backends import DEFAULT_BACKEND, get_backend
 from .e2e import ReceiverStats
 from .engine import OUTPUT_MESSAGES, Engine, StepBlock
-from .errors import ConfigError, LogFormatError
+from .errors import ConfigError, LogFormatError, OutputError
 from .frames import FrameBatch
 from .grid import MAX_GAP_NS, InputGrid
 from .logio import (
@@ -51,6 +51,7 @@ from .logio import (
     ReadStats,
     open_log,
 )
+from .logio.ending import FileEnd
 from .logio.stream import split
 from .logio.textfmt import Column, format_rows, time_column
 from .params import Vehicle
@@ -277,6 +278,9 @@ class ReplaySummary:
     learned_origin: str = ""  # where learning started: a --learned file, the recording, "" (vehicle)
     #: silences in the received frames longer than :data:`JUMP_NS`: (log time before [ns], length [ns])
     input_gaps: list[tuple[int, int]] = field(default_factory=list)
+    #: the replay was stopped (``stop``) before the end of the log; its rows so far went to the sinks
+    stopped: bool = False
+    last_step_ns: int | None = None  # the time of the last row [ns]
 
     def __len__(self) -> int:
         return self.steps
@@ -303,6 +307,7 @@ def run_replay(
     shadow_thread: bool = False,
     learned: str | Path | None = None,
     learned_start: str | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> ReplaySummary:
     """Stream frames through the data path; every piece's rows go to each sink as
     ``sink(piece, rows)``, the steps after the log's last frame with an empty piece.
@@ -315,8 +320,9 @@ def run_replay(
     ``learned``: a learned-state file (``--learned``), read first when it exists and written
     (atomically) at the end. ``learned_start``: the text of the learned state a live run started
     from (its recording's ``learned_start``): used by a learning backend when ``learned`` names no
-    existing file, so that the recording replays to the live estimates. Other arguments as
-    :func:`replay`.
+    existing file, so that the recording replays to the live estimates. ``stop``: asked after
+    every piece; True ends the replay there (SIGINT / SIGTERM: the sinks have every row so far
+    and can be closed; :attr:`ReplaySummary.stopped`). Other arguments as :func:`replay`.
     """
     name = DEFAULT_BACKEND if backend is None else backend
     t0 = time.perf_counter()
@@ -339,6 +345,7 @@ def run_replay(
     last_t: int | None = None
     t_sinks = t_read = 0.0
     first = True
+    stopped = False
     it = iter(pieces)
     while True:
         tr = time.perf_counter()
@@ -385,6 +392,9 @@ def run_replay(
         t_sinks += time.perf_counter() - ts
         if final:
             break
+        if stop is not None and stop():
+            stopped = True
+            break
     known_tx = tx_frames() if callable(tx_frames) else tx_frames
     counts = FrameCounts(
         total=n,
@@ -410,6 +420,8 @@ def run_replay(
         learned=engine.learn_summary,
         learned_origin=origin,
         input_gaps=input_gaps,
+        stopped=stopped,
+        last_step_ns=last_t,
     )
 
 
@@ -637,6 +649,56 @@ def late_note(stats: ReadStats, window_ns: int | None) -> str | None:
     )
 
 
+_NOT_CLOSED = {
+    "mcap": "no MCAP footer",
+    "asc": "no End TriggerBlock line",
+    "blf": "its header's file size was never written",
+}
+
+
+def end_note(stream: LogStream) -> str | None:
+    """A one-line warning when a log was not closed by its writer or is cut short, saying where
+    reading stopped (log time of the latest frame read, byte offset, line), else None. Call it
+    once the stream has been read."""
+    e = stream.end
+    if e is None or not e.lossy:
+        return None
+    return f"file {describe_end(e, stream.format)}; {_read_up_to(stream.last_t_ns)}; anything after is lost"
+
+
+def describe_end(e: FileEnd, fmt: str) -> str:
+    """What :class:`lde.logio.FileEnd` ``e`` of a ``fmt`` log says, and where (no time)."""
+    inner = fmt.removesuffix(".gz")
+    parts = []
+    de = " decompressed" if e.compressed else ""
+    if e.closed is False:
+        why = [_NOT_CLOSED[inner]] if inner in _NOT_CLOSED else []
+        if e.compressed and fmt.endswith(".gz") and e.cut:
+            why.append("the gzip stream has no end")
+        parts.append(
+            f"not closed by its writer ({'; '.join(why) or 'no closing record'}:"
+            " a crash, a kill, a full disk?)"
+        )
+    if e.cut and e.what == "line":
+        parts.append(
+            f"cut short inside line {e.line + 1} at byte {e.offset} of {e.size}{de} (the line is skipped)"
+        )
+    elif e.cut:
+        lost = "its frames are lost" if inner == "mcap" else "read as far as it goes"
+        parts.append(
+            f"cut short inside the {inner.upper()} {e.what} at byte {e.offset} of {e.size}{de} ({lost})"
+        )
+    else:
+        parts.append(f"its complete {e.what}s end at byte {e.offset} of {e.size}{de}")
+    return " and ".join(parts) if e.cut else ", ".join(parts)
+
+
+def _read_up_to(t_ns: int | None) -> str:
+    return (
+        "no frame was read" if t_ns is None else f"read up to log time {t_ns / 1e9:.6f} s (the latest frame)"
+    )
+
+
 @dataclass
 class LogInputs:
     """A log opened for a replay: its frame stream and what an lde recording adds (step times,
@@ -825,7 +887,7 @@ class CsvWriter:
     the GIL), so that the CSV does not take the engine's core: rows go in parts of :data:`CSV_ROWS`, at
     most :data:`CSV_PENDING` waiting (memory stays bounded), in order. The smoothed rows are read in
     the caller (``smooth.rows_for`` follows the causal replay's blocks in order, shared with the MCAP
-    sink). A write error surfaces, as :class:`LogFormatError`, at the next :meth:`write` or at
+    sink). A write error surfaces, as :class:`lde.errors.OutputError`, at the next :meth:`write` or at
     :meth:`close`; ``background=False`` formats and writes in the caller."""
 
     def __init__(
@@ -849,7 +911,7 @@ class CsvWriter:
         try:
             self._fh.write(text.data)
         except OSError as exc:
-            raise LogFormatError(f"{self.path}: cannot write: {exc}") from exc
+            raise OutputError(f"{self.path}: cannot write: {exc}") from exc
 
     def write(self, block: StepBlock) -> None:
         """Write ``block``'s rows (queued: a copy of its CSV columns, so that the block itself is
@@ -888,15 +950,18 @@ class CsvWriter:
             try:
                 self._fh.close()
             except OSError as exc:
-                raise LogFormatError(f"{self.path}: cannot write: {exc}") from exc
+                raise OutputError(f"{self.path}: cannot write: {exc}") from exc
 
-    def abort(self) -> None:
-        """The replay failed: close and remove the incomplete file."""
+    def abort(self, keep: bool = False) -> None:
+        """The replay failed: close and remove the incomplete file (``keep``: leave the rows
+        written so far, an output that could not be written further)."""
         with contextlib.suppress(Exception):
             self._drain()
         with contextlib.suppress(OSError):
             self._fh.close()
-            self.path.unlink()
+        if not keep:
+            with contextlib.suppress(OSError):
+                self.path.unlink()
 
     def __enter__(self) -> CsvWriter:
         return self
@@ -955,9 +1020,10 @@ class RecordingWriter:
     def close(self) -> None:
         self._w.close()
 
-    def abort(self) -> None:
-        """The replay failed: close and remove the incomplete recording."""
-        self._w.abort()
+    def abort(self, keep: bool = False) -> None:
+        """The replay failed: close and remove the incomplete recording (``keep``: leave it, without
+        its summary: it reads up to its last complete chunk)."""
+        self._w.abort(keep)
 
     def __enter__(self) -> RecordingWriter:
         return self

@@ -14,8 +14,13 @@ overwrites an input).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+import threading
+from collections.abc import Iterator
 from pathlib import Path
+from types import FrameType
 
 from ..errors import ConfigError, LdeError
 from . import BACKEND_CHOICES, BACKEND_HELP
@@ -192,6 +197,29 @@ def _summary(rep) -> str:
     return "\n".join(lines)
 
 
+@contextlib.contextmanager
+def _signals_stop() -> Iterator[list[signal.Signals]]:
+    """SIGINT and SIGTERM stop a replay in process after the piece it is on: its outputs are
+    closed (complete, readable files of the steps so far), the logs after it are not replayed; the
+    list yielded names the signal. A second signal interrupts at once (KeyboardInterrupt: the
+    outputs of the running replay are then removed). The previous handlers are restored."""
+    stopped: list[signal.Signals] = []
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        if stopped:
+            raise KeyboardInterrupt
+        stopped.append(signal.Signals(signum))
+
+    old = {}
+    if threading.current_thread() is threading.main_thread():
+        old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stopped
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.learned is not None and (args.jobs is not None or args.scheduler is not None):
         # one file read at the start and written at the end of each log: parallel jobs would race
@@ -318,7 +346,13 @@ def run(args: argparse.Namespace) -> int:
             cfg = ClusterConfig(scheduler=args.scheduler, n_workers=args.jobs or 2)
             reports = run_jobs_on_dask(jobs, cfg, progress=show_bar, on_report=report)
         else:
-            reports = run_jobs(jobs, progress=show_bar, on_report=report)
+            with _signals_stop() as stopped:
+                reports = run_jobs(jobs, progress=show_bar, on_report=report, stop=lambda: bool(stopped))
+            if stopped:
+                left = len(jobs) - len(reports)
+                rest = f"; {left} log{'s' if left > 1 else ''} not replayed" if left else ""
+                print(f"lde replay: stopped by {stopped[0].name}{rest}", file=sys.stderr)
+                return 128 + int(stopped[0])
         if not many:
             if reports[0].error:
                 raise LdeError(reports[0].error)

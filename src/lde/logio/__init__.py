@@ -38,6 +38,7 @@ from .candump import (
     BLOCK_BYTES,
     C_ERROR,
     C_FIRST_BAD,
+    C_LINES,
     C_MALFORMED,
     C_REMOTE,
     CandumpBlocks,
@@ -46,6 +47,7 @@ from .candump import (
     parse_candump_bytes,
     write_candump,
 )
+from .ending import FileEnd, blf_end, text_end
 from .gz import GZ, GZIP_MAGIC, gunzip_head, gunzip_pieces
 from .mcap_cdr import CAN_SCHEMA_NAME, CAN_SCHEMA_TEXT, TOPIC_RX, TOPIC_TX, can_payload, can_payloads
 from .mcap_read import McapData, McapLog, TopicInfo, check_can_channel, json_wanted, read_mcap
@@ -54,6 +56,7 @@ from .pycan import PycanReader, pycan_suffixes
 from .stream import CHUNK_FRAMES, REORDER_WINDOW_NS, Reorder, split
 
 __all__ = [
+    "FileEnd",
     "LogData",
     "LogStream",
     "ReadStats",
@@ -79,6 +82,8 @@ __all__ = [
 ]
 
 CANDUMP_SUFFIXES = {".log", ".candump", ".txt"}
+#: python-can formats that are text, line by line (a cut last line is left out and reported)
+PYCAN_TEXT = {"asc", "trc", "csv"}
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
@@ -198,6 +203,7 @@ class LogStream:
         mcap: the open MCAP file (topics, metadata, :meth:`McapLog.times`, :meth:`McapLog.json`)
             for MCAP logs, else None.
         frames_read: frames yielded so far.
+        last_t_ns: log time of the latest frame yielded so far [ns] (None: none yet).
     """
 
     def __init__(
@@ -209,11 +215,14 @@ class LogStream:
         mcap: McapLog | None = None,
         cleanup: Callable[[], None] | None = None,
         skip_tx: bool = False,
+        end: Callable[[], FileEnd | None] | None = None,
     ) -> None:
         self.path = path
         self.format = fmt
         self.mcap = mcap
         self.frames_read = 0
+        self.last_t_ns: int | None = None
+        self._end = end
         self._pieces = pieces
         self._stats = stats
         self._cleanup = cleanup
@@ -223,12 +232,29 @@ class LogStream:
         for piece in self._pieces:
             if len(piece):
                 self.frames_read += len(piece)
+                t = int(piece.t_ns[-1])  # pieces are in time order
+                self.last_t_ns = t if self.last_t_ns is None else max(self.last_t_ns, t)
                 yield piece
-        _require_frames(self.path, self.format, self.frames_read, self.stats, self.mcap)
+        try:
+            _require_frames(self.path, self.format, self.frames_read, self.stats, self.mcap)
+        except LogFormatError as exc:
+            e = self.end
+            if e is None or not e.lossy:
+                raise
+            where = "cut short" if e.cut else "not closed by its writer"
+            raise LogFormatError(
+                f"{exc}; the file is {where} (complete records end at byte {e.offset} of {e.size})"
+            ) from exc
 
     @property
     def stats(self) -> ReadStats:
         return self._stats()
+
+    @property
+    def end(self) -> FileEnd | None:
+        """How the file ends (:class:`lde.logio.ending.FileEnd`; final once the iteration has
+        ended), None for a format that cannot tell."""
+        return self._end() if self._end is not None else None
 
     def close(self) -> None:
         if self.mcap is not None:
@@ -279,25 +305,58 @@ def open_log(
             return ReadStats(frames=0, bad_messages=m.bad_can_messages, truncated_last_line=int(m.truncated))
 
         it = m.iter_frames(tx=not skip_tx, chunk_frames=chunk_frames)
-        stream = LogStream(p, "mcap", it, mcap_stats, mcap=m, skip_tx=skip_tx)
+        stream = LogStream(p, "mcap", it, mcap_stats, mcap=m, skip_tx=skip_tx, end=lambda: _mcap_end(m))
         stream._stats = lambda: _with_frames(mcap_stats(), stream.frames_read)
         return stream
     reorder = Reorder(reorder_window_ns)
     if fmt == "candump":
         parser = CandumpBlocks()
         pieces = _candump_file_pieces(p, parser)
-        stream = LogStream(p, fmt, _ordered(pieces, reorder, chunk_frames), lambda: ReadStats(0))
+        size = p.stat().st_size
+        stream = LogStream(
+            p,
+            fmt,
+            _ordered(pieces, reorder, chunk_frames),
+            lambda: ReadStats(0),
+            end=lambda: _candump_end(parser, size),
+        )
         stream._stats = lambda: _candump_stats(parser, reorder, stream.frames_read)
         return stream
-    reader = PycanReader(p)
-    stream = LogStream(p, fmt, _ordered(iter(reader), reorder, chunk_frames), lambda: ReadStats(0))
+    end = _pycan_end(p, fmt)
+    reader = PycanReader(p, limit=end.offset if end is not None and end.cut and fmt in PYCAN_TEXT else None)
+    stream = LogStream(
+        p, fmt, _ordered(iter(reader), reorder, chunk_frames), lambda: ReadStats(0), end=lambda: end
+    )
     stream._stats = lambda: ReadStats(
         frames=stream.frames_read,
         error_frames=reader.error_frames,
         remote_frames=reader.remote_frames,
+        truncated_last_line=int(end is not None and end.cut),
         late_frames=reorder.late,
     )
     return stream
+
+
+def _mcap_end(m: McapLog) -> FileEnd:
+    return FileEnd(m.complete, m.truncated, m.end_offset, m.size, what="record")
+
+
+def _candump_end(parser: CandumpBlocks, size: int, compressed: bool = False) -> FileEnd:
+    cut = bool(parser.truncated_last_line)
+    lines = int(parser.counts[C_LINES]) - int(cut)
+    return FileEnd(None, cut, size - parser.cut_bytes, size, lines, "line", compressed)
+
+
+def _pycan_end(p: Path, fmt: str) -> FileEnd | None:
+    """How a python-can log ends (ASC, TRC, CSV: its last line; BLF: its objects), else None."""
+    try:
+        if fmt in PYCAN_TEXT:
+            return text_end(p, asc=fmt == "asc")
+        if fmt == "blf":
+            return blf_end(p)
+    except OSError as exc:
+        raise LogFormatError(f"{p}: cannot read: {exc}") from exc
+    return None
 
 
 def _with_frames(s: ReadStats, n: int) -> ReadStats:
@@ -329,12 +388,26 @@ def _candump_file_pieces(p: Path, parser: CandumpBlocks) -> Iterator[FrameBatch]
             raise LogFormatError(f"{p}: cannot read: {exc}") from exc
 
 
+class _GzState:
+    """What a gzip stream gave: decompressed bytes, whether it was cut short."""
+
+    def __init__(self) -> None:
+        self.out_bytes = 0
+        self.cut = False
+
+    def end(self, parser: CandumpBlocks) -> FileEnd:
+        e = _candump_end(parser, self.out_bytes, compressed=True)
+        return FileEnd(not self.cut, e.cut or self.cut, e.offset, e.size, e.line, e.what, True)
+
+
 def _candump_gz_pieces(
-    p: Path, parser: CandumpBlocks, block_bytes: int = BLOCK_BYTES
+    p: Path, parser: CandumpBlocks, gz: _GzState, block_bytes: int = BLOCK_BYTES
 ) -> Iterator[FrameBatch]:
     buf: list[bytes] = []
     k = 0
-    for piece, _cut in gunzip_pieces(p):  # a cut stream ends inside a line: counted by the parser
+    for piece, cut in gunzip_pieces(p):  # a cut stream ends inside a line: counted by the parser
+        gz.out_bytes += len(piece)
+        gz.cut = gz.cut or cut
         buf.append(piece)
         k += len(piece)
         if k >= block_bytes:
@@ -385,8 +458,11 @@ def _open_gzip(
     if inner == "candump":
         parser = CandumpBlocks()
         reorder = Reorder(window)
-        pieces = _candump_gz_pieces(p, parser)
-        stream = LogStream(p, fmt, _ordered(pieces, reorder, chunk_frames), lambda: ReadStats(0))
+        gz = _GzState()
+        pieces = _candump_gz_pieces(p, parser, gz)
+        stream = LogStream(
+            p, fmt, _ordered(pieces, reorder, chunk_frames), lambda: ReadStats(0), end=lambda: gz.end(parser)
+        )
         stream._stats = lambda: _candump_stats(parser, reorder, stream.frames_read)
         return stream
     tmp = tempfile.mkdtemp(prefix="lde-gz-")
@@ -431,7 +507,16 @@ def _open_gzip(
         inner_stream.close()
         shutil.rmtree(tmp, ignore_errors=True)
 
-    stream = LogStream(p, fmt, pieces_of(), stats, mcap=None, cleanup=cleanup, skip_tx=skip_tx)
+    out_bytes = plain.stat().st_size
+
+    def end() -> FileEnd:
+        e = inner_stream.end
+        if e is None:
+            return FileEnd(not cut, cut, out_bytes, out_bytes, compressed=True)
+        closed = e.closed if not cut else False
+        return FileEnd(closed, e.cut or cut, e.offset, e.size, e.line, e.what, True)
+
+    stream = LogStream(p, fmt, pieces_of(), stats, mcap=None, cleanup=cleanup, skip_tx=skip_tx, end=end)
     stream.mcap = inner_stream.mcap
     return stream
 

@@ -274,6 +274,7 @@ class CandumpBlocks:
     def __init__(self) -> None:
         self.counts = np.zeros(5, np.int64)
         self.truncated_last_line = 0
+        self.cut_bytes = 0  # bytes of the cut last line (not parsed)
         self._carry = b""
 
     def feed(self, piece: bytes | bytearray | memoryview) -> FrameBatch:
@@ -320,6 +321,7 @@ class CandumpBlocks:
             self.counts[C_LINES] += 1
             if rest.strip(b" \t\r"):
                 self.truncated_last_line = 1
+                self.cut_bytes = len(rest)
         return FrameBatch.empty()
 
     def result(self, frames: FrameBatch) -> CandumpParse:

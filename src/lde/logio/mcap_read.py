@@ -177,6 +177,7 @@ class _Layout:
     truncated: bool
     counts: dict[int, int] | None  # per channel, from the statistics
     walked: bool = True  # found by walking the records (else from the summary)
+    end_offset: int = 0  # where the walk stopped: the end of the last complete record [bytes]
 
 
 def _walk_top_level(raw) -> _Layout | None:
@@ -239,7 +240,7 @@ def _walk_top_level(raw) -> _Layout | None:
         raise LogFormatError(f"truncated MCAP file: cut {where}; no complete chunk of frames")
     if not channels:
         return None
-    return _Layout(library, ended, schemas, channels, chunks, meta, truncated, None)
+    return _Layout(library, ended, schemas, channels, chunks, meta, truncated, None, end_offset=pos)
 
 
 def _layout_of_summary(summary, library: str) -> _Layout:
@@ -337,6 +338,8 @@ class McapLog:
         truncated: the file has no summary and ends inside a record: read up to its last complete
             chunk.
         complete: the file has its data end or footer (it was closed cleanly).
+        size, end_offset: the file's size and where its complete records end [bytes] (a file
+            without summary: what was recovered; else the size).
         lanes: written by lde (header library ``lde ...``): every chunk holds one channel's
             messages, and a JSON channel's chunks are followed by their message indexes.
         fast_path: False when the ``mcap`` library's per-message reader is used.
@@ -394,6 +397,8 @@ class McapLog:
                 layout.counts = _stats_counts(summary)
         self.lanes = False
         self.complete = summary is not None
+        self.size = size
+        self.end_offset = size
         if layout is None:
             fh.seek(0)
             self._library = _read_library(fh)
@@ -405,6 +410,8 @@ class McapLog:
             self.fast_path = True
             self.truncated = layout.truncated
             self.complete = self.complete or layout.ended
+            if layout.walked:
+                self.end_offset = layout.end_offset
             self.lanes = layout.library.startswith("lde ")
             schemas, channels, counts = layout.schemas, layout.channels, layout.counts
             self._chunks = sorted(layout.chunks, key=lambda c: c.offset)

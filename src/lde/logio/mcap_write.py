@@ -39,7 +39,7 @@ import numpy as np
 import zstandard
 
 from .. import __version__ as lde_version
-from ..errors import LogFormatError
+from ..errors import LogFormatError, OutputError
 from ..frames import FrameBatch
 from .mcap_cdr import (
     CAN_PAYLOAD_SIZE,
@@ -200,7 +200,10 @@ class McapWriter:
     def _write(self, b: bytes, crc: bool = True) -> None:
         if crc:
             self._crc = zlib.crc32(b, self._crc)
-        self._f.write(b)
+        try:
+            self._f.write(b)
+        except OSError as exc:  # disk full, file size limit: the chunks before stay readable
+            raise OutputError(f"{self.path}: cannot write: {exc}") from exc
 
     def _add_schema(self, name: str, encoding: str, data: bytes) -> int:
         sid = len(self._schemas) + 1
@@ -357,9 +360,12 @@ class McapWriter:
         """:meth:`flush`, then push the file's buffer to the OS (a killed process loses nothing
         written so far; ``fsync`` also survives a power loss, at a cost)."""
         self.flush()
-        self._f.flush()
-        if fsync:
-            os.fsync(self._f.fileno())
+        try:
+            self._f.flush()
+            if fsync:
+                os.fsync(self._f.fileno())
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot write: {exc}") from exc
 
     def _write_lane(self, order, chan, seq, t, pay, off, length) -> None:
         """Message records of ``order`` (time-sorted) as chunks of about ``chunk_size`` bytes."""
@@ -420,20 +426,27 @@ class McapWriter:
         summary = b"".join(parts) + b"".join(offsets)
         footer_head = struct.pack("<BQQQ", OP_FOOTER, 20, summary_start, summary_offset_start)
         crc = zlib.crc32(footer_head, zlib.crc32(summary))
-        self._f.write(summary)
-        self._f.write(footer_head + struct.pack("<I", crc))
-        self._f.write(MAGIC)
-        self._f.close()
+        self._write(summary, crc=False)
+        self._write(footer_head + struct.pack("<I", crc), crc=False)
+        self._write(MAGIC, crc=False)
+        try:
+            self._f.close()
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot write: {exc}") from exc
         self._closed = True
 
-    def abort(self) -> None:
-        """Close without the summary and remove the file (a writer whose input failed)."""
+    def abort(self, keep: bool = False) -> None:
+        """Close without the summary and remove the file (a writer whose input failed); ``keep``:
+        leave what was written (an output that could not be written further: it reads up to its
+        last complete chunk)."""
         if self._closed:
             return
         self._closed = True
         with contextlib.suppress(OSError):
             self._f.close()
-            self.path.unlink()
+        if not keep:
+            with contextlib.suppress(OSError):
+                self.path.unlink()
 
     def __enter__(self) -> McapWriter:
         return self

@@ -8,8 +8,11 @@ with a count. Any exception of the format's reader becomes a :class:`LogFormatEr
 
 from __future__ import annotations
 
+import io
+import locale
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import can
 import numpy as np
@@ -39,16 +42,17 @@ class PycanReader:
             iterating).
     """
 
-    def __init__(self, path: str | Path, batch: int = BATCH) -> None:
+    def __init__(self, path: str | Path, batch: int = BATCH, limit: int | None = None) -> None:
         self.path = Path(path)
         self.batch = batch
+        self.limit = limit  # a text log read only up to this byte (its cut last line left out)
         self.error_frames = 0
         self.remote_frames = 0
 
     def __iter__(self) -> Iterator[FrameBatch]:
         p = self.path
         try:
-            reader = can.LogReader(str(p))
+            reader = can.LogReader(str(p)) if self.limit is None else _limited_reader(p, self.limit)
         except ValueError as exc:
             raise LogFormatError(f"{p}: no reader for this file type ({exc})") from exc
         except Exception as exc:  # noqa: BLE001 - format readers raise anything on bad input
@@ -74,6 +78,35 @@ class PycanReader:
             raise LogFormatError(f"{p}: corrupt {p.suffix} log ({type(exc).__name__}: {exc})") from exc
         if cols.n:
             yield cols.take()
+
+
+class _Head(io.RawIOBase):
+    """The first ``limit`` bytes of a binary file."""
+
+    def __init__(self, fh: io.BufferedReader, limit: int) -> None:
+        self._fh = fh
+        self._left = limit
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b: Any) -> int:
+        n = self._fh.readinto(memoryview(b)[: max(0, min(len(b), self._left))]) or 0
+        self._left -= n
+        return n
+
+    def close(self) -> None:
+        self._fh.close()
+        super().close()
+
+
+def _limited_reader(p: Path, limit: int) -> can.io.generic.MessageReader:
+    """python-can's text reader for ``p`` over its first ``limit`` bytes (the encoding python-can
+    uses for a path)."""
+    player._update_reader_plugins()
+    cls: Any = player.MESSAGE_READERS[p.suffix.lower()]  # a text reader: takes a text file too
+    text = io.TextIOWrapper(io.BufferedReader(_Head(p.open("rb"), limit)), locale.getpreferredencoding(False))
+    return cls(file=text)
 
 
 class _Columns:
