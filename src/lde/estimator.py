@@ -190,6 +190,24 @@ def _outputs(p, x, fs, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
+def propagation_coefficients(m, iz, lf, lr, cf, cr, vx):  # pragma: no cover - compiled
+    """The 2-DOF model's continuous-time coefficients at speed ``vx`` [m/s] (eqs. 7-8; per-axle
+    stiffnesses ``2 cf``, ``2 cr`` [N/rad], mass ``m`` [kg], yaw inertia ``iz`` [kg m^2], CG to axles
+    ``lf``, ``lr`` [m]): (a00, a01, a0f, a10, a11, a13, b0, b1) of
+    ``d beta/dt = a00 beta + a01 r + a0f F + b0 delta``, ``d r/dt = a10 beta + a11 r + a13 M + b1 delta``.
+    One definition for the causal step and the smoother's traced step (:mod:`lde.smoother`)."""
+    a00 = -2.0 * (cf + cr) / (m * vx)
+    a01 = -1.0 - 2.0 * (lf * cf - lr * cr) / (m * vx * vx)
+    a0f = 1.0 / (m * vx)
+    a10 = -2.0 * (lf * cf - lr * cr) / iz
+    a11 = -2.0 * (lf * lf * cf + lr * lr * cr) / (iz * vx)
+    a13 = 1.0 / iz
+    b0 = 2.0 * cf / (m * vx)
+    b1 = 2.0 * lf * cf / iz
+    return a00, a01, a0f, a10, a11, a13, b0, b1
+
+
+@njit(cache=True, inline="always")
 def step_kernel(p, x, P, fs, ints, h, ph, t_ns, vx, angle, yaw, tcol, tast, ay,
                 fresh_r, fresh_t, fresh_a, mdps_ok, esc_ok, out):  # fmt: skip  # pragma: no cover - compiled
     """One step (module docstring): update with the fresh measurements at vx, output the
@@ -254,14 +272,7 @@ def step_kernel(p, x, P, fs, ints, h, ph, t_ns, vx, angle, yaw, tcol, tast, ay,
     _outputs(p, x, fs, out)
 
     # --- propagate the a-posteriori estimate: x = Phi x + E delta,  P = Phi P Phi' + W dt
-    a00 = -2.0 * (cf + cr) / (m * vx)
-    a01 = -1.0 - 2.0 * (lf * cf - lr * cr) / (m * vx * vx)
-    a0f = 1.0 / (m * vx)
-    a10 = -2.0 * (lf * cf - lr * cr) / iz
-    a11 = -2.0 * (lf * lf * cf + lr * lr * cr) / (iz * vx)
-    a13 = 1.0 / iz
-    b0 = 2.0 * cf / (m * vx)
-    b1 = 2.0 * lf * cf / iz
+    a00, a01, a0f, a10, a11, a13, b0, b1 = propagation_coefficients(m, iz, lf, lr, cf, cr, vx)
     # Phi rows 0, 1 (rows 2-4 are the identity): F_wind and F_bank both act through (7)
     f00, f01, f02, f04 = 1.0 + a00 * dt, a01 * dt, a0f * dt, a0f * dt
     f10, f11, f13 = a10 * dt, 1.0 + a11 * dt, a13 * dt

@@ -169,17 +169,23 @@ def _replay(job: ReplayJob, rep: LogReport, stop: Callable[[], bool] | None = No
             )
 
 
-def _smoothed(job: ReplayJob, profile: Any, vehicle: Any, backend: str) -> SmoothTrack:
-    """The smoother's forward and backward passes over the job's log (opened on its own: the causal
-    replay reads it again, on the same step grid)."""
-    check_backend(backend)
-    li = read_inputs(
+def _inputs(job: ReplayJob, profile: Any) -> Any:
+    """The job's log opened for the data path (its own stream each call: the smoother and the
+    causal replay each read it once)."""
+    return read_inputs(
         job.log,
         profile,
         use_recorded_steps=job.use_recorded_steps,
         profiles=_PROFILES,
         reorder_window_ns=job.reorder_window_ns,
     )
+
+
+def _smoothed(job: ReplayJob, profile: Any, vehicle: Any, backend: str) -> SmoothTrack:
+    """The smoother's forward and backward passes over the job's log (opened on its own: the causal
+    replay reads it again, on the same step grid)."""
+    check_backend(backend)
+    li = _inputs(job, profile)
     with li.stream as stream:
         return smooth_run(
             stream,
@@ -202,13 +208,7 @@ def _replay_outputs(
     track: SmoothTrack | None,
     stop: Callable[[], bool] | None = None,
 ) -> None:
-    li = read_inputs(
-        job.log,
-        profile,
-        use_recorded_steps=job.use_recorded_steps,
-        profiles=_PROFILES,
-        reorder_window_ns=job.reorder_window_ns,
-    )
+    li = _inputs(job, profile)
     sinks: list[Any] = []
     try:
         if job.csv is not None:

@@ -140,15 +140,7 @@ def traced_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no c
     prop = ints[E.I_HELD] == 0  # a held step returns before the propagation with HELD set
     row[T_PROP] = 1.0 if prop else 0.0
     if prop:
-        # the same expressions as lde.estimator.step_kernel's propagation
-        a00 = -2.0 * (cf + cr) / (m * vx)
-        a01 = -1.0 - 2.0 * (lf * cf - lr * cr) / (m * vx * vx)
-        a0f = 1.0 / (m * vx)
-        a10 = -2.0 * (lf * cf - lr * cr) / iz
-        a11 = -2.0 * (lf * lf * cf + lr * lr * cr) / (iz * vx)
-        a13 = 1.0 / iz
-        b0 = 2.0 * cf / (m * vx)
-        b1 = 2.0 * lf * cf / iz
+        a00, a01, a0f, a10, a11, a13, b0, b1 = E.propagation_coefficients(m, iz, lf, lr, cf, cr, vx)
         delta = fs[E.F_DELTA]
         row[T_F + 0] = 1.0 + a00 * dt
         row[T_F + 1] = a01 * dt
