@@ -92,7 +92,15 @@ def test_a_cut_file_says_where_it_stopped(tmp_path: Path, frames: FrameBatch, na
     whole = _write(tmp_path / name, frames)
     raw = whole.read_bytes()
     cut = tmp_path / f"cut_{name}"
-    cut.write_bytes(raw[: int(len(raw) * keep)])
+    k = int(len(raw) * keep)
+    if name.endswith((".log", ".asc")):
+        # inside a line: a cut at a line's end leaves whole lines (a file not closed, but not cut), and
+        # python-can's ASC header carries today's date, so where a fixed share of the file falls moves
+        # from day to day (CI hit a line end)
+        while raw[k - 1 : k] in (b"\n", b"\r"):
+            k -= 1
+        k -= 1
+    cut.write_bytes(raw[:k])
     got, s = _read(cut)
     e = s.end
     assert e is not None and e.cut, e
