@@ -321,6 +321,18 @@ def _spd_inverse(A, L, inv):  # pragma: no cover - compiled
     return True
 
 
+@njit(cache=True, inline="always")
+def _matmul(A, B, out):  # pragma: no cover - compiled
+    """``out = A B`` for the square state matrices (no allocation; ``out`` is neither input)."""
+    n = A.shape[0]
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for m in range(n):
+                s += A[i, m] * B[m, j]
+            out[i, j] = s
+
+
 @njit(cache=True)
 def rts_backward(tr, xs, Ps, have, out_x, out_p, out_f):  # pragma: no cover - compiled
     """The RTS backward pass over trace rows ``tr`` (n, NT), newest (row n-1) first.
@@ -387,12 +399,7 @@ def rts_backward(tr, xs, Ps, have, out_x, out_p, out_f):  # pragma: no cover - c
                 T[i, 1] = t1
                 for j in range(2, NX):
                     T[i, j] = Pf[i, j]
-            for i in range(NX):
-                for j in range(NX):
-                    s = 0.0
-                    for m in range(NX):
-                        s += T[i, m] * Pi[m, j]
-                    C[i, j] = s
+            _matmul(T, Pi, C)
             # x = xf + C (xs - xp);  P = Pf + C (Ps - Pp) C^T
             for i in range(NX):
                 v[i] = xs[i] - xp[i]
@@ -404,12 +411,7 @@ def rts_backward(tr, xs, Ps, have, out_x, out_p, out_f):  # pragma: no cover - c
             for i in range(NX):
                 for j in range(NX):
                     D[i, j] = Ps[i, j] - Pp[i, j]
-            for i in range(NX):
-                for j in range(NX):
-                    s = 0.0
-                    for m in range(NX):
-                        s += C[i, m] * D[m, j]
-                    T[i, j] = s
+            _matmul(C, D, T)
             for i in range(NX):
                 for j in range(i, NX):
                     s = Pf[i, j]
