@@ -187,8 +187,13 @@ def _open(path: str | Path) -> IO[bytes]:
 class Streamer:
     """Writes what a running :class:`Simulation` produces to its :class:`SimOutputs`.
 
-    :meth:`poll` (cheap: a clock read) flushes when ``interval_s`` of wall time has passed since the
-    last flush; :meth:`flush` writes what the simulation produced since and syncs the files.
+    Live, :meth:`poll` runs after every step. Every ``write_every`` steps it formats the new frames
+    and truth rows into the writers' buffers (about 0.3 ms for 8 steps here, in the time the pump
+    would sleep), and every ``interval_s`` of wall time it pushes them to the OS
+    (:meth:`SimOutputs.sync`: the MCAP chunks are built and compressed then, about 1.3 ms). All at
+    once, 0.25 s of truth took 8 ms to format, two MDPS periods: frames would go out late; step by
+    step, the per-column overhead of the JSON and CSV formatting took 0.25 ms of every 3.9 ms step.
+    :meth:`flush` writes and syncs everything new at once (the offline pieces, the end).
     """
 
     def __init__(
@@ -197,23 +202,34 @@ class Streamer:
         outputs: SimOutputs,
         interval_s: float = FLUSH_INTERVAL_S,
         clock: Callable[[], float] = time.monotonic,
+        write_every: int = 8,
     ) -> None:
         self.sim = sim
         self.outputs = outputs
         self.interval_s = float(interval_s)
+        self.write_every = max(1, int(write_every))
         self._clock = clock
         self._due = clock() + self.interval_s
-        self.flushes = 0
+        self._polls = 0
+        self.syncs = 0
 
     def poll(self) -> None:
+        """After a step: write the new steps every ``write_every`` calls; sync (after writing them)
+        when ``interval_s`` has passed since the last sync."""
+        self._polls += 1
         if self._clock() >= self._due:
             self.flush()
+        elif self._polls % self.write_every == 0:
+            self.outputs.write(*self.sim.drain_new())
 
     def flush(self) -> None:
-        frames, truth, t_ns = self.sim.drain_new()
-        self.outputs.write(frames, truth, t_ns)
+        """Write everything new and sync now."""
+        self.outputs.write(*self.sim.drain_new())
+        self._sync()
+
+    def _sync(self) -> None:
         self.outputs.sync()
-        self.flushes += 1
+        self.syncs += 1
         self._due = self._clock() + self.interval_s
 
 

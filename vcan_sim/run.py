@@ -248,9 +248,13 @@ class Simulation:
         pieces drained one after the other join into :meth:`frames` and :meth:`truth`."""
         f0, t0 = self._drained
         self._drained = (len(self._frames), len(self._truth))
-        frames = FrameBatch.concat(self._frames[f0:] or [FrameBatch.empty()], sort=True)
-        t = np.concatenate(self._truth_t[t0:]) if self._truth_t[t0:] else np.zeros(0, np.int64)
-        return frames, concat_truth(self._truth[t0:]), t
+        new_frames, new_truth, new_t = self._frames[f0:], self._truth[t0:], self._truth_t[t0:]
+        if len(new_frames) == 1 and len(new_truth) <= 1:  # one step's worth (live): no copies
+            truth = new_truth[0] if new_truth else concat_truth([])
+            return new_frames[0], truth, new_t[0] if new_t else np.zeros(0, np.int64)
+        frames = FrameBatch.concat(new_frames or [FrameBatch.empty()], sort=True)
+        t = np.concatenate(new_t) if new_t else np.zeros(0, np.int64)
+        return frames, concat_truth(new_truth), t
 
     # ---------------------------------------------------------------- results
     def frames(self) -> FrameBatch:
