@@ -215,16 +215,22 @@ def _sim_runs(args: argparse.Namespace, rng: random.Random) -> list[dict]:
             row = one_sim_run(Path(d), k, rng)
             rows.append(row)
             print(
-                f"run {k}: lost {row['lost_log_s']:.3f} s of the log, {row['lost_mcap_s']:.3f} s of the MCAP, "
-                f"{row['lost_truth_s']:.3f} s of the truth ({row['log_frames']} frames, {row['truth_rows']} rows"
-                f", replay says not closed: {row['replay_says_not_closed']}, CSV cut: {row['truth_cut']})",
+                f"run {k}: lost {row['lost_log_s']:.3f} s of the log, {row['lost_mcap_s']:.3f} s of the "
+                f"MCAP, {row['lost_truth_s']:.3f} s of the truth ({row['log_frames']} frames, "
+                f"{row['truth_rows']} rows, replay says not closed: {row['replay_says_not_closed']}, "
+                f"CSV cut: {row['truth_cut']})",
                 flush=True,
             )
     return rows
 
 
 def _sim_summary(args: argparse.Namespace, rows: list[dict], load0: tuple[float, ...]) -> dict:
-    out: dict = {"command": " ".join(["python", *sys.argv]), "target": "sim", "busy": args.busy, "runs": args.runs}
+    out: dict = {
+        "command": " ".join(["python", *sys.argv]),
+        "target": "sim",
+        "busy": args.busy,
+        "runs": args.runs,
+    }
     for key in ("lost_log_s", "lost_mcap_s", "lost_truth_s"):
         v = np.array([r[key] for r in rows])
         out[f"{key}_median"], out[f"{key}_max"] = float(np.median(v)), float(v.max())

@@ -311,7 +311,10 @@ def test_a_killed_live_sim_leaves_its_files_readable_up_to_about_the_kill(tmp_pa
 
     from vcan_sim.truth import read_truth_csv
 
-    kw = {"interface": "udp_multicast", "channel": f"239.75.{random.randint(1, 254)}.{random.randint(1, 254)}"}
+    kw = {
+        "interface": "udp_multicast",
+        "channel": f"239.75.{random.randint(1, 254)}.{random.randint(1, 254)}",
+    }
     kw["port"] = random.randint(40000, 60000)
     try:
         heard = _Heard(kw)
@@ -350,7 +353,9 @@ def test_a_killed_live_sim_leaves_its_files_readable_up_to_about_the_kill(tmp_pa
     # the truth runs with the frames: its last row within a second of simulated time of theirs
     assert abs(truth.columns["t"][-1] - frames.t_ns[-1] * 1e-9) < 1.0
     rep = replay_job(ReplayJob(mcap, profile="lde", use_recorded_steps=False))
-    assert rep.ok and any("not closed" in w and "read up to log time" in w for w in rep.warnings), rep.warnings
+    assert rep.ok and any("not closed" in w and "read up to log time" in w for w in rep.warnings), (
+        rep.warnings
+    )
 
 
 def test_a_cut_truth_csv_reads_up_to_its_last_whole_line(tmp_path: Path) -> None:

@@ -36,11 +36,19 @@ TRUTH_TOPIC = "/truth"
 FLUSH_INTERVAL_S = 0.25
 #: MCAP chunk bound of a streamed run [bytes, uncompressed]: the recorder's
 STREAM_CHUNK_SIZE = 64 * 1024
+#: MCAP chunk bound of a run written at once (McapWriter's default: the files of before, byte for byte)
+_DEFAULT_CHUNK = 4 << 20
 
 
 def sim_metadata(scenario: str, seed: int, profile: str, t0_ns: int) -> dict[str, str]:
     """The MCAP ``lde`` metadata record of a simulated run."""
-    return {"scenario": scenario, "seed": str(seed), "profile": profile, "source": "vcan_sim", "t0_ns": str(t0_ns)}
+    return {
+        "scenario": scenario,
+        "seed": str(seed),
+        "profile": profile,
+        "source": "vcan_sim",
+        "t0_ns": str(t0_ns),
+    }
 
 
 class SimOutputs:
@@ -87,12 +95,18 @@ class SimOutputs:
             if truth:
                 self._csv = _open(truth)
                 # the header now: a file killed before its first row still says what it is
-                self._truth_names = truth_csv_names(dict.fromkeys(TRUTH_COLUMNS))
+                self._truth_names = truth_csv_names({name: np.zeros(0) for name in TRUTH_COLUMNS})
                 self._put(self._csv, truth, (",".join(self._truth_names) + "\n").encode())
             if mcap:
-                kw = {} if chunk_size is None else {"chunk_size": int(chunk_size)}
-                self._mcap = McapWriter(mcap, profile=profile, metadata=metadata, **kw)
-                props = {name: {"type": "number", "description": unit} for name, (_, unit) in TRUTH_COLUMNS.items()}
+                self._mcap = McapWriter(
+                    mcap,
+                    profile=profile,
+                    metadata=metadata,
+                    chunk_size=_DEFAULT_CHUNK if chunk_size is None else int(chunk_size),
+                )
+                props = {
+                    name: {"type": "number", "description": unit} for name, (_, unit) in TRUTH_COLUMNS.items()
+                }
                 self._truth_cid = self._mcap.add_json_channel(TRUTH_TOPIC, props, title="vcan_sim_truth")
         except BaseException:
             self.abort()
@@ -114,7 +128,9 @@ class SimOutputs:
                 self._decimals = candump_decimals(frames)
             elif self._decimals == 6 and candump_decimals(frames) == 9:
                 self._decimals = 9  # a timestamp off the microsecond grid: 9 decimals from here on
-            self._put(self._log, self._log_path or "", format_candump_bytes(frames, self.channel, self._decimals))
+            self._put(
+                self._log, self._log_path or "", format_candump_bytes(frames, self.channel, self._decimals)
+            )
         if self._csv is not None and n_truth:
             self._put(self._csv, self._csv_path or "", format_truth_rows(truth, truth_t_ns).encode())
         if self._mcap is not None:
