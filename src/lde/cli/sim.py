@@ -12,7 +12,8 @@ Files: ``--log`` a candump ``-L`` text log, ``--truth`` the ground-truth CSV (``
 time base, ``Fw``, ``Mw``, ``Mw_ref``, ... see docs/simulator.md), ``--mcap`` an MCAP recording with
 the frames on ``/can/rx`` and the truth as JSON on ``/truth``. On a live bus the same files may be
 written too (the frames that were sent). The files stream while the simulation runs
-(:class:`vcan_sim.output.Streamer`): a SIGKILL loses at most about the last 0.25 s. The bus opens the python-can way: the options given, else
+(:class:`vcan_sim.output.Streamer`): a SIGKILL loses at most about the last 0.25 s. The bus opens
+the python-can way: the options given, else
 python-can's environment variables or config file.
 """
 
