@@ -265,6 +265,7 @@ def pump(
     receiver=None,
     keep_frames: bool = False,
     stop: Callable[[], bool] | None = None,
+    after_step: Callable[[], None] | None = None,
 ) -> PumpStats:
     """Run ``sim`` (a :class:`vcan_sim.run.Simulation`) to its end, sending its frames on ``bus``.
 
@@ -280,7 +281,9 @@ def pump(
     last request (counted: ``stale_overlay_steps``). Sends do not wait either (``timeout=0``: a full
     queue is a counted send error). Behind schedule it sends at once; more than :data:`MAX_LAG_S`
     behind (after a stall) it moves the rest of its schedule later (``slips``) instead of sending a
-    burst of stale frames.
+    burst of stale frames. ``stop`` is asked before each step (True ends the run); ``after_step`` is
+    called once a step's frames are sent, before the wait for the next one (the streaming writer's
+    flush goes there: into the time the pump would sleep).
     """
     st = PumpStats()
     # what exists now (modules, DBC objects, the schedules) leaves the collector's view: a full
@@ -341,6 +344,8 @@ def pump(
                 st.send_errors += 1
                 if st.send_errors == 1 or st.send_errors % 1000 == 0:
                     log.warning("send failed (%d so far): %s", st.send_errors, exc)
+        if after_step is not None:
+            after_step()
         if realtime and wall0 is not None and len(frames) == 0:  # a silent step (faults): keep the pace
             wait = wall0 + (sim.t_ns - sim0) * 1e-9 - time.monotonic()
             if wait > 0:

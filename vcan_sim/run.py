@@ -162,6 +162,7 @@ class Simulation:
         self._truth: list[dict[str, np.ndarray]] = []
         self._truth_t: list[np.ndarray] = []
         self._frames: list[FrameBatch] = []
+        self._drained = (0, 0)  # (frame pieces, truth pieces) handed out by drain_new
 
     # ---------------------------------------------------------------- inputs
     def _drive_matrix(self, d: DisturbanceProfile, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -234,7 +235,26 @@ class Simulation:
     def run(self) -> None:
         """Open loop to the end, in large jitted chunks."""
         while not self.done:
-            self._frames.append(self._advance(SUBSTEPS * _CHUNK_STEPS, None))
+            self.run_steps(_CHUNK_STEPS)
+
+    def run_steps(self, n_steps: int) -> None:
+        """Open loop for ``n_steps`` estimator periods (fewer at the end) in one jitted call: the
+        same frames and truth however a run is cut into such pieces."""
+        self._frames.append(self._advance(SUBSTEPS * max(1, int(n_steps)), None))
+
+    def drain_new(self) -> tuple[FrameBatch, dict[str, np.ndarray], np.ndarray]:
+        """(frames, truth columns, truth times [ns]) produced since the previous call (from the
+        start at the first): what a streaming writer has not written yet. Frames sorted by time;
+        pieces drained one after the other join into :meth:`frames` and :meth:`truth`."""
+        f0, t0 = self._drained
+        self._drained = (len(self._frames), len(self._truth))
+        new_frames, new_truth, new_t = self._frames[f0:], self._truth[t0:], self._truth_t[t0:]
+        if len(new_frames) == 1 and len(new_truth) <= 1:  # one step's worth (live): no copies
+            truth = new_truth[0] if new_truth else concat_truth([])
+            return new_frames[0], truth, new_t[0] if new_t else np.zeros(0, np.int64)
+        frames = FrameBatch.concat(new_frames or [FrameBatch.empty()], sort=True)
+        t = np.concatenate(new_t) if new_t else np.zeros(0, np.int64)
+        return frames, concat_truth(new_truth), t
 
     # ---------------------------------------------------------------- results
     def frames(self) -> FrameBatch:

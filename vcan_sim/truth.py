@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -81,11 +82,21 @@ def concat_truth(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
-def write_truth_csv(
-    path: str | Path, truth: Mapping[str, np.ndarray], t_ns: np.ndarray | None = None, digits: int = 12
-) -> None:
-    """CSV with a header. ``t`` is printed exactly from ``t_ns`` when given (9 decimals, the log's
-    time base), the other columns with ``digits`` significant digits."""
+def truth_csv_names(truth: Mapping[str, np.ndarray], exact_t: bool = True) -> list[str]:
+    """The CSV's column names in order: ``t`` first when it is printed from ``t_ns`` (``exact_t``)."""
+    names = list(truth)
+    if exact_t and "t" in names:
+        return ["t"] + [k for k in names if k != "t"]
+    return names
+
+
+def format_truth_rows(
+    truth: Mapping[str, np.ndarray], t_ns: np.ndarray | None = None, digits: int = 12
+) -> str:
+    """The CSV lines of ``truth``'s rows (each ending in a newline; no header), columns in the
+    order of :func:`truth_csv_names`. ``t`` is printed exactly from ``t_ns`` when given (9 decimals,
+    the log's time base), the other columns with ``digits`` significant digits. Rows are formatted
+    one by one, so the lines of a run written in pieces are those of the run written at once."""
     names = list(truth)
     other = [k for k in names if k != "t" or t_ns is None]
     body = io.StringIO()
@@ -100,11 +111,61 @@ def write_truth_csv(
     if t_ns is not None and "t" in names:
         t_txt = [f"{v // 1_000_000_000}.{v % 1_000_000_000:09d}" for v in np.asarray(t_ns, np.int64).tolist()]
         rows = [f"{a},{b}" for a, b in zip(t_txt, rows, strict=True)] if other else t_txt
-        names = ["t"] + other
+    return "".join(r + "\n" for r in rows)
+
+
+def write_truth_csv(
+    path: str | Path, truth: Mapping[str, np.ndarray], t_ns: np.ndarray | None = None, digits: int = 12
+) -> None:
+    """CSV with a header, the rows of :func:`format_truth_rows`."""
     try:
         with open(path, "w", newline="") as fh:
-            fh.write(",".join(names) + "\n")
-            if rows:
-                fh.write("\n".join(rows) + "\n")
+            fh.write(",".join(truth_csv_names(truth, t_ns is not None)) + "\n")
+            fh.write(format_truth_rows(truth, t_ns, digits))
     except OSError as exc:
         raise ConfigError(f"cannot write truth CSV {path}: {exc}") from exc
+
+
+@dataclass(frozen=True)
+class TruthCsv:
+    """A truth CSV read back (:func:`read_truth_csv`).
+
+    Attributes:
+        columns: name -> values (float64; ``t`` in s).
+        cut: the file ended inside a line (a writer killed while writing it): that line is skipped.
+        offset: byte offset where the whole lines end; size: the file's size [bytes].
+    """
+
+    columns: dict[str, np.ndarray]
+    cut: bool
+    offset: int
+    size: int
+
+    def __len__(self) -> int:
+        return len(next(iter(self.columns.values()))) if self.columns else 0
+
+
+def read_truth_csv(path: str | Path) -> TruthCsv:
+    """Read a truth CSV up to its last whole line (a cut last line, from a killed ``lde sim``, is
+    skipped and reported in :attr:`TruthCsv.cut`).
+
+    Raises:
+        ConfigError: no header line, or a whole line that is not numbers in the header's columns.
+    """
+    raw = Path(path).read_bytes()
+    end = raw.rfind(b"\n") + 1
+    head_end = raw.find(b"\n")
+    if head_end < 0:
+        raise ConfigError(f"{path}: not a truth CSV (no complete header line)")
+    names = raw[:head_end].decode("ascii", "replace").strip().split(",")
+    body = raw[head_end + 1 : end]
+    try:
+        data = np.loadtxt(io.BytesIO(body), delimiter=",", ndmin=2) if body.strip() else None
+    except ValueError as exc:
+        raise ConfigError(f"{path}: not a truth CSV: {exc}") from exc
+    if data is None:
+        data = np.zeros((0, len(names)))
+    if data.shape[1] != len(names):
+        raise ConfigError(f"{path}: {data.shape[1]} columns per row, {len(names)} in the header")
+    cols = {n: data[:, i] for i, n in enumerate(names)}
+    return TruthCsv(cols, cut=end < len(raw), offset=end, size=len(raw))

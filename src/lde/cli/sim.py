@@ -11,7 +11,9 @@ Three ways to run (SPEC section 4)::
 Files: ``--log`` a candump ``-L`` text log, ``--truth`` the ground-truth CSV (``t`` in the log's own
 time base, ``Fw``, ``Mw``, ``Mw_ref``, ... see docs/simulator.md), ``--mcap`` an MCAP recording with
 the frames on ``/can/rx`` and the truth as JSON on ``/truth``. On a live bus the same files may be
-written too (the frames that were sent). The bus opens the python-can way: the options given, else
+written too (the frames that were sent). The files stream while the simulation runs
+(:class:`vcan_sim.output.Streamer`): a SIGKILL loses at most about the last 0.25 s. The bus opens
+the python-can way: the options given, else
 python-can's environment variables or config file.
 """
 
@@ -168,26 +170,38 @@ def _sched_fifo(priority: int) -> None:
 
 
 class _Stopped(BaseException):
-    """SIGTERM (or SIGINT) while simulating: end the run, then write what was simulated."""
+    """A second SIGINT or SIGTERM: leave the simulation at once."""
+
+
+#: offline (as fast as possible) the files are flushed after every piece of this many steps (1 s
+#: simulated, about 25 ms of wall time here): deterministic files, and little lost to a SIGKILL
+OFFLINE_PIECE_STEPS = 256
 
 
 @contextlib.contextmanager
 def _signals_stop() -> Iterator[list[str]]:
-    """SIGINT and SIGTERM end the simulation as a normal stop: the body is left, the list yielded
-    names the signal, and the outputs are written after it (SIGTERM's default would kill the process
-    and lose them). The previous handlers are restored."""
+    """SIGINT and SIGTERM end the simulation as a normal stop: the first one is noted in the list
+    yielded (the simulation loop asks it before each step or piece, so that a stop never falls into
+    the middle of a write), and the files are then closed with what was simulated (SIGTERM's default
+    would kill the process: its files would end at their last flush, without the MCAP footer). A
+    second signal leaves the body at once. The previous handlers are restored."""
     stopped: list[str] = []
 
-    def _raise(signum: int, frame: FrameType | None) -> None:
-        raise _Stopped(signal.Signals(signum).name)
+    def _note(signum: int, frame: FrameType | None) -> None:
+        name = signal.Signals(signum).name
+        if stopped:
+            raise _Stopped(name)
+        stopped.append(name)
 
     old = {}
     if threading.current_thread() is threading.main_thread():
-        old = {s: signal.signal(s, _raise) for s in (signal.SIGINT, signal.SIGTERM)}
+        old = {s: signal.signal(s, _note) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield stopped
-    except (_Stopped, KeyboardInterrupt) as exc:
-        stopped.append(str(exc) or "SIGINT")
+    except KeyboardInterrupt:  # not the main thread: Ctrl-C as python-can's default
+        stopped.append("SIGINT")
+    except _Stopped:
+        pass
     finally:
         for s, h in old.items():
             signal.signal(s, h)
@@ -218,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
             # service counts the steps it could not make meanwhile.
             _sched_fifo(args.rt_priority)
     from vcan_sim.faults import parse_fault
-    from vcan_sim.output import write_outputs
+    from vcan_sim.output import Streamer, open_outputs, warm_up
     from vcan_sim.run import Simulation
     from vcan_sim.scenarios import get_scenario
 
@@ -236,64 +250,85 @@ def run(args: argparse.Namespace) -> int:
         speed_kmh=args.speed,
     )
     wall = time.monotonic()
-    if live:
-        from lde.service import open_bus
-        from vcan_sim.closed_loop import OverlayReceiver
-        from vcan_sim.emitter import LATE_S, MAX_LAG_S, PumpStats, pump
-
-        receiver = None if args.open_loop else OverlayReceiver(sim.profile)
-        kw = bus_kwargs(args)
-        # the kernel (SocketCAN) hands the simulator only the frames it reads: LDE_Overlay. Without
-        # the filter every LDE_Estimate/LDE_Diag frame wakes it up too (3 wake-ups per service step
-        # instead of 1), which on a slow single CPU (user-mode Linux) starves its own sending.
-        kw.setdefault("can_filters", _overlay_filter(sim.profile))
-        bus = open_bus(**kw)
-        st: PumpStats | None = None
-        print(
-            f"lde sim: {args.scenario} on {getattr(bus, 'channel_info', 'the bus')} "
-            f"({'real time' if realtime else 'fast'}, {sim.duration:.0f} s); SIGINT/SIGTERM stop it",
-            file=sys.stderr,
-            flush=True,
-        )
-        try:
+    # the files stream while the simulation runs (lde run --record's flush policy): a SIGKILL loses
+    # at most the last flush interval, not the whole run
+    outputs = open_outputs(sim, log=args.log, truth=args.truth, mcap=args.mcap, channel=args.log_channel)
+    streamer = Streamer(sim, outputs)
+    try:
+        if live:
+            warm_up()  # the writers' compiled kernels loaded now, not at the first flush
+            _run_live(args, sim, realtime, streamer)
+        else:
             with _signals_stop() as stopped:
-                st = pump(sim, bus, realtime=realtime, closed_loop=not args.open_loop, receiver=receiver)
-        finally:
-            bus.shutdown()
-        if stopped:
-            st = None
-            print(f"lde sim: stopped by {stopped[0]}; writing what was simulated", file=sys.stderr)
-        if st is not None:
-            used = receiver.stats.used if receiver else 0
-            # closed loop: the steps that found no new overlay frame ran on the last request
-            stale = (
-                f", steps on the last overlay request {st.stale_overlay_steps} of {st.steps}"
-                if receiver
-                else ""
-            )
-            print(
-                f"lde sim: {args.scenario}: sent {st.sent} frames over {st.sim_s:.2f} s simulated in "
-                f"{st.wall_s:.2f} s wall ({'real time' if realtime else 'fast'}, CPU {st.cpu_s:.2f} s); "
-                f"overlay frames used {used}{stale}, send errors {st.send_errors}, "
-                f"max lateness {st.max_late_s * 1e3:.2f} ms, "
-                f"frames late > {LATE_S * 1e3:.0f} ms {st.late_frames}, "
-                f"schedule slipped {st.slips}x by {st.slipped_s * 1e3:.0f} ms "
-                f"(> {MAX_LAG_S * 1e3:.1f} ms behind)",
-                file=sys.stderr,
-            )
-    else:
-        with _signals_stop() as stopped:
-            sim.run()
-        if stopped:
-            print(f"lde sim: stopped by {stopped[0]}; writing what was simulated", file=sys.stderr)
-    res = sim.result()
-    written = write_outputs(res, log=args.log, truth=args.truth, mcap=args.mcap, channel=args.log_channel)
+                while not sim.done and not stopped:
+                    sim.run_steps(OFFLINE_PIECE_STEPS)
+                    streamer.flush()
+            if stopped:
+                print(f"lde sim: stopped by {stopped[0]}; closing what was simulated", file=sys.stderr)
+        streamer.flush()
+        outputs.close()
+    finally:
+        outputs.abort()  # after an error: the files keep what was flushed (a no-op once closed)
     if not live:
-        dest = f" -> {', '.join(map(str, written))}" if written else ""
+        dest = f" -> {', '.join(map(str, outputs.paths))}" if outputs.paths else ""
         print(
-            f"lde sim: {args.scenario} (seed {args.seed}, profile {res.profile}): {len(res.frames)} frames, "
-            f"{len(res.truth_t_ns)} truth rows, {sim.duration:.2f} s simulated in "
+            f"lde sim: {args.scenario} (seed {args.seed}, profile {sim.profile.name}): {outputs.frames} "
+            f"frames, {outputs.truth_rows} truth rows, {sim.duration:.2f} s simulated in "
             f"{time.monotonic() - wall:.2f} s{dest}",
             file=sys.stderr,
         )
     return 0
+
+
+def _run_live(args: argparse.Namespace, sim, realtime: bool, streamer) -> None:
+    """Pump ``sim`` onto the bus until its end or a signal; ``streamer`` writes the files as it goes."""
+    from lde.service import open_bus
+    from vcan_sim.closed_loop import OverlayReceiver
+    from vcan_sim.emitter import LATE_S, MAX_LAG_S, PumpStats, pump
+
+    receiver = None if args.open_loop else OverlayReceiver(sim.profile)
+    kw = bus_kwargs(args)
+    # the kernel (SocketCAN) hands the simulator only the frames it reads: LDE_Overlay. Without
+    # the filter every LDE_Estimate/LDE_Diag frame wakes it up too (3 wake-ups per service step
+    # instead of 1), which on a slow single CPU (user-mode Linux) starves its own sending.
+    kw.setdefault("can_filters", _overlay_filter(sim.profile))
+    bus = open_bus(**kw)
+    st: PumpStats | None = None
+    print(
+        f"lde sim: {args.scenario} on {getattr(bus, 'channel_info', 'the bus')} "
+        f"({'real time' if realtime else 'fast'}, {sim.duration:.0f} s); SIGINT/SIGTERM stop it",
+        file=sys.stderr,
+        flush=True,
+    )
+    try:
+        with _signals_stop() as stopped:
+            st = pump(
+                sim,
+                bus,
+                realtime=realtime,
+                closed_loop=not args.open_loop,
+                receiver=receiver,
+                stop=lambda: bool(stopped),
+                after_step=streamer.poll,
+            )
+    finally:
+        bus.shutdown()
+    if stopped:
+        print(f"lde sim: stopped by {stopped[0]}; closing what was simulated", file=sys.stderr)
+        return
+    if st is not None:
+        used = receiver.stats.used if receiver else 0
+        # closed loop: the steps that found no new overlay frame ran on the last request
+        stale = (
+            f", steps on the last overlay request {st.stale_overlay_steps} of {st.steps}" if receiver else ""
+        )
+        print(
+            f"lde sim: {args.scenario}: sent {st.sent} frames over {st.sim_s:.2f} s simulated in "
+            f"{st.wall_s:.2f} s wall ({'real time' if realtime else 'fast'}, CPU {st.cpu_s:.2f} s); "
+            f"overlay frames used {used}{stale}, send errors {st.send_errors}, "
+            f"max lateness {st.max_late_s * 1e3:.2f} ms, "
+            f"frames late > {LATE_S * 1e3:.0f} ms {st.late_frames}, "
+            f"schedule slipped {st.slips}x by {st.slipped_s * 1e3:.0f} ms "
+            f"(> {MAX_LAG_S * 1e3:.1f} ms behind)",
+            file=sys.stderr,
+        )

@@ -39,6 +39,7 @@ __all__ = [
     "write_candump",
     "format_candump",
     "format_candump_bytes",
+    "candump_decimals",
 ]
 
 # per-line status codes of the kernel
@@ -421,13 +422,20 @@ def _format_lines(t, ndec, chan, ids, ext, dlc, data, rx, hexd, out):  # pragma:
     return o
 
 
-def format_candump_bytes(frames: FrameBatch, channel: str = "vcan0") -> bytes:
+def candump_decimals(frames: FrameBatch) -> int:
+    """Fraction digits of the timestamps: 6 when every one is a whole microsecond, else 9."""
+    return 6 if np.all(np.asarray(frames.t_ns, dtype=np.int64) % 1000 == 0) else 9
+
+
+def format_candump_bytes(frames: FrameBatch, channel: str = "vcan0", decimals: int | None = None) -> bytes:
     """The candump ``-L`` text of ``frames`` as bytes (rx frames plain; frames sent by lde get a
-    `` T`` flag). Timestamps with 6 fraction digits when every one is a whole microsecond, else 9.
-    Frames with ``dlc > 8`` are written as CAN FD (``##0``) holding only their stored first 8 bytes.
+    `` T`` flag). Timestamps with ``decimals`` fraction digits (6 or 9; default
+    :func:`candump_decimals`: 6 when every one is a whole microsecond, else 9). Frames with
+    ``dlc > 8`` are written as CAN FD (``##0``) holding only their stored first 8 bytes.
 
     Raises:
         LogFormatError: a negative timestamp.
+        ValueError: ``decimals`` not 6 or 9, or 6 for a timestamp that is not a whole microsecond.
     """
     n = len(frames)
     if n == 0:
@@ -435,7 +443,9 @@ def format_candump_bytes(frames: FrameBatch, channel: str = "vcan0") -> bytes:
     t = np.asarray(frames.t_ns, dtype=np.int64)
     if np.any(t < 0):
         raise LogFormatError("candump logs cannot hold negative timestamps")
-    ndec = 6 if np.all(t % 1000 == 0) else 9
+    ndec = candump_decimals(frames) if decimals is None else decimals
+    if ndec not in (6, 9) or (ndec == 6 and np.any(t % 1000 != 0)):
+        raise ValueError(f"candump timestamps with {decimals} decimals: need 9, or 6 for whole microseconds")
     chan = np.frombuffer(channel.encode("ascii"), np.uint8)
     width = 2 + 20 + 1 + ndec + 2 + chan.size + 1 + 8 + 3 + 16 + 2 + 1
     out = np.empty(n * width, np.uint8)
