@@ -253,6 +253,44 @@ def test_replay_stopped_by_a_signal_closes_its_outputs(tmp_path: Path, frames: F
     assert f"hold the {len(rows)} steps" in err
 
 
+@pytest.mark.slow
+def test_a_replay_on_dask_stopped_by_a_signal_closes_its_outputs(tmp_path: Path, frames: FrameBatch) -> None:
+    """``--jobs``: SIGTERM reaches the workers through a Dask event; the running replay closes its
+    CSV (whole lines), the logs not yet started are not replayed, the exit is 143."""
+    log = _long_log(tmp_path, frames)
+    logs = [log]
+    for k in range(1, 4):
+        copy = tmp_path / f"long{k}.log"
+        shutil.copyfile(log, copy)
+        logs.append(copy)
+    out = tmp_path / "csv"
+    cmd = [sys.executable, "-m", "lde", "replay", *map(str, logs), "--csv", str(out), "--jobs", "1"]
+    proc = subprocess.Popen(
+        cmd, stderr=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONUNBUFFERED="1")
+    )
+    try:
+        deadline = time.monotonic() + 180
+        while time.monotonic() < deadline and proc.poll() is None:
+            if out.is_dir() and any(p.stat().st_size > 200_000 for p in out.glob("*.csv")):
+                break  # a replay on the worker is under way
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(120)
+        err = proc.stderr.read() if proc.stderr else ""
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    if rc == 0:
+        pytest.skip("the replays ended before the signal (a fast machine): nothing to stop")
+    assert rc == 143, err
+    assert "stopped by SIGTERM" in err and "not replayed" in err and "Traceback" not in err, err
+    csvs = sorted(out.glob("*.csv"))
+    assert 1 <= len(csvs) < len(logs), csvs  # one worker: the last logs never started
+    for c in csvs:
+        assert c.read_bytes().endswith(b"\n")
+        assert len(np.genfromtxt(c, delimiter=",", names=True)) > 0
+
+
 def test_lde_run_sigint_closes_its_recording(tmp_path: Path) -> None:
     """As the SIGTERM test in test_service.py: Ctrl-C ends ``lde run`` with its recording closed."""
     path = tmp_path / "int.mcap"

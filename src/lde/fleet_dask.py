@@ -4,16 +4,23 @@
 ``n_workers`` processes (one thread each: a replay's loop holds one core) or on an existing
 scheduler by address, and feeds the progress bar from ``distributed.as_completed``. A worker that
 dies or cannot import lde gives a failed :class:`lde.fleet.LogReport`; the other logs go on.
+
+A ``stop`` (the CLI's SIGINT/SIGTERM) sets a ``distributed.Event`` that every job polls between
+its pieces: running replays end with their outputs closed (:attr:`LogReport.stopped`), jobs not yet
+started return without a report and write nothing, as in process.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import time
+import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from distributed import Client, LocalCluster, as_completed
+from distributed import Client, Event, LocalCluster, as_completed, wait
 
 from .errors import LdeError
 from .fleet import LogReport, ReplayJob, job_done, progress_bar, replay_job
@@ -28,6 +35,26 @@ class ClusterConfig:
     scheduler: str | None = None
     n_workers: int = 2
     connect_timeout: float = 10.0  # s, to reach an existing scheduler
+    poll_s: float = 0.2  # s, how often the client and the jobs look at the stop flag
+
+
+def _stoppable_job(job: ReplayJob, event_name: str, poll_s: float) -> LogReport | None:
+    """:func:`replay_job` on a worker, stopped by the client's event (None: stopped before start).
+
+    The event is asked at most every ``poll_s`` (a round trip to the scheduler), between pieces.
+    """
+    event = Event(event_name)
+    if event.is_set():
+        return None
+    last = [time.monotonic(), False]
+
+    def stop() -> bool:
+        now = time.monotonic()
+        if not last[1] and now - last[0] >= poll_s:
+            last[0], last[1] = now, event.is_set()
+        return bool(last[1])
+
+    return replay_job(job, stop)
 
 
 def run_jobs_on_dask(
@@ -36,9 +63,11 @@ def run_jobs_on_dask(
     *,
     progress: bool = True,
     on_report: Callable[[LogReport], None] | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> list[LogReport]:
     """Every job on the cluster; reports in the order of ``jobs`` (``on_report`` sees each one as
-    it arrives).
+    it arrives). After ``stop()`` turns True the running jobs end with their outputs closed and
+    the others are not replayed (no report: fewer reports than jobs).
 
     Raises:
         LdeError: the scheduler cannot be reached.
@@ -47,7 +76,7 @@ def run_jobs_on_dask(
         return []
     bar = progress_bar(progress, len(jobs))
     try:
-        return _run(jobs, cfg, bar, on_report)
+        return _run(jobs, cfg, bar, on_report, stop)
     finally:
         if bar is not None:
             bar.close()
@@ -58,6 +87,7 @@ def _run(
     cfg: ClusterConfig,
     bar: Any,
     on_report: Callable[[LogReport], None] | None,
+    stop: Callable[[], bool] | None,
 ) -> list[LogReport]:
     # the scheduler's and nannies' INFO lines would drown the progress bar (-v shows them)
     if logging.getLogger().getEffectiveLevel() >= logging.WARNING:
@@ -66,7 +96,11 @@ def _run(
     try:
         if cfg.scheduler is None:
             local = LocalCluster(
-                n_workers=cfg.n_workers, threads_per_worker=1, processes=True, dashboard_address=None
+                n_workers=cfg.n_workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=":0",  # a free port: 8787 may be taken by another cluster
+                worker_dashboard_address=None,
             )
             client = Client(local)
         else:
@@ -76,17 +110,32 @@ def _run(
             local.close()
         raise LdeError(f"cannot reach the Dask scheduler {cfg.scheduler!r}: {exc}") from exc
     try:
-        futures = client.map(replay_job, list(jobs), pure=False)
+        event_name = f"lde-replay-stop-{uuid.uuid4().hex}"
+        event = Event(event_name, client=client)
+        futures = client.map(_stoppable_job, list(jobs), event_name=event_name, poll_s=cfg.poll_s, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
         out: list[LogReport | None] = [None] * len(jobs)
-        for fut in as_completed(futures):
-            i = index[fut.key]
-            try:
-                rep = fut.result()
-            except Exception as exc:  # noqa: BLE001 - a worker died or could not import lde: report it
-                rep = LogReport(jobs[i].log, error=f"worker: {type(exc).__name__}: {exc}")
-            out[i] = rep
-            job_done(bar, rep, on_report)
+        pending = set(futures)
+        stopping = False
+        ac = as_completed(futures)
+        while pending:
+            if stop is not None and not stopping and stop():
+                stopping = True
+                event.set()
+            # nothing finished in this poll: look at the stop flag again
+            with contextlib.suppress(TimeoutError):
+                wait(list(pending), timeout=cfg.poll_s, return_when="FIRST_COMPLETED")
+            for fut in ac.next_batch(block=False) if ac.has_ready() else []:
+                pending.discard(fut)
+                i = index[fut.key]
+                try:
+                    rep = fut.result()
+                except Exception as exc:  # noqa: BLE001 - a worker died or could not import lde: report it
+                    rep = LogReport(jobs[i].log, error=f"worker: {type(exc).__name__}: {exc}")
+                if rep is None:  # stopped before it started
+                    continue
+                out[i] = rep
+                job_done(bar, rep, on_report)
         return [r for r in out if r is not None]
     finally:
         client.close()

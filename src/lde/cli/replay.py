@@ -340,19 +340,21 @@ def run(args: argparse.Namespace) -> int:
                 else:
                     print(text, file=sys.stderr)
 
-        if on_dask:  # distributed is imported only here: ~0.5 s of start-up
-            from ..fleet_dask import ClusterConfig, run_jobs_on_dask
+        with _signals_stop() as stopped:
+            if on_dask:  # distributed is imported only here: ~0.5 s of start-up
+                from ..fleet_dask import ClusterConfig, run_jobs_on_dask
 
-            cfg = ClusterConfig(scheduler=args.scheduler, n_workers=args.jobs or 2)
-            reports = run_jobs_on_dask(jobs, cfg, progress=show_bar, on_report=report)
-        else:
-            with _signals_stop() as stopped:
+                cfg = ClusterConfig(scheduler=args.scheduler, n_workers=args.jobs or 2)
+                reports = run_jobs_on_dask(
+                    jobs, cfg, progress=show_bar, on_report=report, stop=lambda: bool(stopped)
+                )
+            else:
                 reports = run_jobs(jobs, progress=show_bar, on_report=report, stop=lambda: bool(stopped))
-            if stopped:
-                left = len(jobs) - len(reports)
-                rest = f"; {left} log{'s' if left > 1 else ''} not replayed" if left else ""
-                print(f"lde replay: stopped by {stopped[0].name}{rest}", file=sys.stderr)
-                return 128 + int(stopped[0])
+        if stopped:
+            left = len(jobs) - len(reports)
+            rest = f"; {left} log{'s' if left > 1 else ''} not replayed" if left else ""
+            print(f"lde replay: stopped by {stopped[0].name}{rest}", file=sys.stderr)
+            return 128 + int(stopped[0])
         if not many:
             if reports[0].error:
                 raise LdeError(reports[0].error)
