@@ -356,10 +356,12 @@ def learner_step(
         ls[LS_P3 + N3 * N3 - 1] += lp[L_QI3] * tdec
         linear = abs(ay_f) < lp[L_AYMAX] and abs(a_f) < lp[L_DSWMAX]
         excited = ls[LS_EXC] > lp[L_EXC_SW] ** 2 and ls[LS_BP + 4] > lp[L_EXC_F] ** 2
-        windreg = lp[L_WINDREG] > 0.0
+        windreg = lp[L_WINDREG] == 1.0
+        r3free = lp[L_WINDREG] == 2.0
         quiet = ls[LS_BP + 5] < (lp[L_QUIET] ** 2) * ls[LS_BP + 4]
         # R4 models the wind (its moment about the rear axle): no quiet gate (docs/estimator.md)
-        excited = excited and (quiet or windreg)
+        quiet = quiet or windreg
+        excited = excited and (quiet or r3free)
         xr = ws[0]
         ph = ws[1]
         sliding = abs(a_d) > lp[L_SLIDE]
@@ -383,7 +385,7 @@ def learner_step(
             T_true = T_f - n * tfric * z_f - p[E.P_T0]
             xr[0] = T_true
             xr[1] = 1.0
-            if ls[LS_N + 1] > cascade and not windreg:
+            if ls[LS_N + 1] > cascade and not windreg and quiet:
                 _rls(ls, LS_T1, LS_P1, N1, xr, iz * r_d + lr * m * ay_f / s, slow * lp[L_SIG1] ** 2, ph)
                 ls[LS_N + 2] += 1.0
             # R2: (lf T_true/t - Iz r_dot)/lr = 2 Cr alpha_r - 2 Cr sigma D'/vx + c2
@@ -396,7 +398,7 @@ def learner_step(
             xr[0] = T_true / (2.0 * p[E.P_K]) - D
             xr[1] = (dfl_d - L * r_d / v_f) / v_f
             xr[2] = 1.0
-            if ls[LS_N + 2] > cascade and not windreg:
+            if ls[LS_N + 2] > cascade and not windreg and quiet:
                 _rls(
                     ls, LS_T2, LS_P2, N2, xr, (lf * T_true / t_tr - iz * r_d) / lr, slow * lp[L_SIG2] ** 2, ph
                 )
@@ -483,7 +485,9 @@ def push(lp, ls, p):  # pragma: no cover - compiled
     # R1: t = L / theta1[0];  R2: Cr = theta2[0] / 2
     t = L / ls[LS_T1 + 0] if ls[LS_T1 + 0] > 0 else p[E.P_K] / p[E.P_CF]
     cr = 0.5 * ls[LS_T2 + 0]
-    if lp[L_WINDREG] > 0.0:
+    # R1 has not started (its samples need a quiet drive): Cf stays, the trail follows K from R3
+    cf_keep = lp[L_WINDREG] == 2.0 and ls[LS_N + 2] < 0.15 * lp[L_MIN_SAMPLES]
+    if lp[L_WINDREG] == 1.0:
         # R4: t = (lf - s x) / theta0, Cr = -theta1 / (2 (lr + s x))
         sx = ls[LS_T3 + 0] * ls[LS_T4 + 2]
         a1 = ls[LS_T4 + 0]
@@ -499,10 +503,11 @@ def push(lp, ls, p):  # pragma: no cover - compiled
         tfric = p[E.P_TFRIC]
     p[E.P_S] = min(max(s, 0.95), 1.25)
     p[E.P_K] = _lim(k, p[E.P_K], rate, 2000.0, 20000.0)
-    t_old = p[E.P_K] / p[E.P_CF]
-    t_new = min(max(t, t_old * (1.0 - rate)), t_old * (1.0 + rate))
-    t_new = min(max(t_new, 0.04), 0.25)
-    p[E.P_CF] = min(max(p[E.P_K] / t_new, 20000.0), 200000.0)
+    if not cf_keep:
+        t_old = p[E.P_K] / p[E.P_CF]
+        t_new = min(max(t, t_old * (1.0 - rate)), t_old * (1.0 + rate))
+        t_new = min(max(t_new, 0.04), 0.25)
+        p[E.P_CF] = min(max(p[E.P_K] / t_new, 20000.0), 200000.0)
     p[E.P_CR] = _lim(cr, p[E.P_CR], rate, 20000.0, 200000.0)
     p[E.P_TFRIC] = min(max(tfric, 0.0), 2.0)
     p[E.P_CTB] = min(max(ctb, 0.0), 2.0 * DEG)
