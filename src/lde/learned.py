@@ -277,7 +277,6 @@ def between_drives(ls: np.ndarray) -> np.ndarray:
         (Ln.LS_T1, Ln.LS_P1, Ln.N1, 2000.0**2),
         (Ln.LS_T2, Ln.LS_P2, Ln.N2, 3000.0**2),
         (Ln.LS_T3, Ln.LS_P3, Ln.N3, 1.0),
-        (Ln.LS_T4, Ln.LS_P4, Ln.N4, 2000.0**2),
     )
     for toff, poff, n, var in blocks:
         i = n - 1  # the intercept is each regression's last coefficient

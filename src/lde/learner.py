@@ -83,8 +83,8 @@ N_SIG = 7
  L_EXC_TAU, L_EXC_RDOT, L_SIG1, L_SIG2, L_SIG3, L_QI1, L_QI2, L_QI3, L_QPHYS,
  L_TORSION, L_B_TAU, L_B_GATE, L_D_TAU, L_D_GATE_F, L_D_GATE_M, L_RATE,
  L_LEARNED_REL, L_MIN_SAMPLES, L_SIG_B, L_ENABLE, L_RELAX, L_EXC_SW, L_SLIDE, L_SLOW,
- L_QUIET, L_EXC_F, L_SIG_CTB, L_WINDREG, L_QCP) = range(36)  # fmt: skip
-N_LP = 36
+ L_QUIET, L_EXC_F, L_SIG_CTB) = range(34)  # fmt: skip
+N_LP = 34
 
 # --- learner state (ls, float) -----------------------------------------------------------------------
 # svf: 3 * N_SIG (value, derivative, second derivative); then regression blocks
@@ -114,10 +114,7 @@ LS_RLP = LS_BP + 6  # 2 s low-pass of the yaw rate minus the bias (the anchor te
 LS_HI = LS_RLP + 1  # heading integral since the last anchor, int (r - b) dt [rad]
 LS_HT = LS_HI + 1  # time since the last anchor [s]
 LS_AC = LS_HT + 1  # how long the anchor condition has held [s]
-N4 = 5
-LS_T4 = LS_AC + 1  # R4 theta: (lf - s x)/t, -(lr + s x) 2 Cr, x (wind centre of pressure), relaxation, c4
-LS_P4 = LS_T4 + N4
-N_LS = LS_P4 + N4 * N4
+N_LS = LS_AC + 1
 
 ST_NOT, ST_LEARNING, ST_LEARNED = 0, 1, 2
 
@@ -165,8 +162,6 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     lp[L_EXC_F] = 150.0  # ... and m a_y varies by more than this [N RMS, 0.2-3 Hz]
     lp[L_SLOW] = 1000.0  # once learned, the regressions' noise variance is this much larger (slower)
     lp[L_SIG_CTB] = 0.3 * DEG  # prior std of the torsion twist in the angle [rad/Nm]
-    lp[L_WINDREG] = 1.0  # 1: R4 (the wind's moment in the regression, no quiet gate); 0: R1 + R2
-    lp[L_QCP] = 0.05**2  # R4: random walk of the wind's centre of pressure [m^2/s]
     return lp
 
 
@@ -206,15 +201,6 @@ def init_state(p: np.ndarray, lp: np.ndarray, friction_prior: float = 0.3) -> np
     )
     ls[LS_B + 1] = lp[L_SIG_B] ** 2
     ls[LS_D + 1] = (1.0 * DEG) ** 2
-    # R4: Iz r_dot = (lf - s x)/t T + (-(lr + s x) 2 Cr) alpha_r + x m a_y + relaxation + c4
-    s0 = p[E.P_S]
-    a1 = (lf - s0 * x0) / t0
-    a2 = -(p[E.P_LR] + s0 * x0) * c2
-    ls[LS_T4 + 0] = a1
-    ls[LS_T4 + 1] = a2
-    ls[LS_T4 + 2] = x0
-    ls[LS_T4 + 3] = -a2 * 0.4
-    _diag(ls, LS_P4, N4, ((0.3 * a1) ** 2, (0.3 * a2) ** 2, 0.5**2, (rx * 0.4 * a2) ** 2, 2000.0**2))
     return ls
 
 
@@ -346,22 +332,13 @@ def learner_step(
         ls[LS_P1 + N1 * N1 - 1] += lp[L_QI1] * tdec
         ls[LS_P3 + 0] += qrel
         ls[LS_P3 + N3 + 1] += qrel * ls[LS_T3 + 1] ** 2
-        ls[LS_P4 + 0] += qrel * ls[LS_T4 + 0] ** 2
-        ls[LS_P4 + N4 + 1] += qrel * ls[LS_T4 + 1] ** 2
-        ls[LS_P4 + 2 * N4 + 2] += lp[L_QCP] * tdec
-        ls[LS_P4 + 3 * N4 + 3] += qrel * ls[LS_T4 + 3] ** 2
-        ls[LS_P4 + N4 * N4 - 1] += lp[L_QI1] * tdec
         # R3's intercept carries the bank (and the gyro bias): a random walk
         s = p[E.P_S]
         ls[LS_P3 + N3 * N3 - 1] += lp[L_QI3] * tdec
         linear = abs(ay_f) < lp[L_AYMAX] and abs(a_f) < lp[L_DSWMAX]
         excited = ls[LS_EXC] > lp[L_EXC_SW] ** 2 and ls[LS_BP + 4] > lp[L_EXC_F] ** 2
-        windreg = lp[L_WINDREG] == 1.0
-        r3free = lp[L_WINDREG] == 2.0
         quiet = ls[LS_BP + 5] < (lp[L_QUIET] ** 2) * ls[LS_BP + 4]
-        # R4 models the wind (its moment about the rear axle): no quiet gate (docs/estimator.md)
-        quiet = quiet or windreg
-        excited = excited and (quiet or r3free)
+        excited = excited and quiet
         xr = ws[0]
         ph = ws[1]
         sliding = abs(a_d) > lp[L_SLIDE]
@@ -385,7 +362,7 @@ def learner_step(
             T_true = T_f - n * tfric * z_f - p[E.P_T0]
             xr[0] = T_true
             xr[1] = 1.0
-            if ls[LS_N + 1] > cascade and not windreg and quiet:
+            if ls[LS_N + 1] > cascade:
                 _rls(ls, LS_T1, LS_P1, N1, xr, iz * r_d + lr * m * ay_f / s, slow * lp[L_SIG1] ** 2, ph)
                 ls[LS_N + 2] += 1.0
             # R2: (lf T_true/t - Iz r_dot)/lr = 2 Cr alpha_r - 2 Cr sigma D'/vx + c2
@@ -398,21 +375,10 @@ def learner_step(
             xr[0] = T_true / (2.0 * p[E.P_K]) - D
             xr[1] = (dfl_d - L * r_d / v_f) / v_f
             xr[2] = 1.0
-            if ls[LS_N + 2] > cascade and not windreg and quiet:
+            if ls[LS_N + 2] > cascade:
                 _rls(
                     ls, LS_T2, LS_P2, N2, xr, (lf * T_true / t_tr - iz * r_d) / lr, slow * lp[L_SIG2] ** 2, ph
                 )
-            if windreg and ls[LS_N + 1] > cascade:
-                # R4 (module docstring): the yaw balance with the wind's moment x F_wind and
-                # F_wind = m a_y - s (F_f + F_r): a wind of any speed or shape is in the model
-                rlx = xr[1]
-                xr[0] = T_true
-                xr[1] = T_true / (2.0 * p[E.P_K]) - D
-                xr[2] = m * ay_f
-                xr[3] = rlx
-                xr[4] = 1.0
-                _rls(ls, LS_T4, LS_P4, N4, xr, iz * r_d, slow * lp[L_SIG1] ** 2, ph)
-                ls[LS_N + 2] += 1.0
             ls[LS_N] += 1.0
         # gyro bias: a straight road returns to its heading. Anchors are instants of straight steady
         # driving (2 s mean yaw rate within 0.3 deg/s of the bias, steering still); between two anchors
@@ -485,15 +451,6 @@ def push(lp, ls, p):  # pragma: no cover - compiled
     # R1: t = L / theta1[0];  R2: Cr = theta2[0] / 2
     t = L / ls[LS_T1 + 0] if ls[LS_T1 + 0] > 0 else p[E.P_K] / p[E.P_CF]
     cr = 0.5 * ls[LS_T2 + 0]
-    # R1 has not started (its samples need a quiet drive): Cf stays, the trail follows K from R3
-    cf_keep = lp[L_WINDREG] == 2.0 and ls[LS_N + 2] < 0.15 * lp[L_MIN_SAMPLES]
-    if lp[L_WINDREG] == 1.0:
-        # R4: t = (lf - s x) / theta0, Cr = -theta1 / (2 (lr + s x))
-        sx = ls[LS_T3 + 0] * ls[LS_T4 + 2]
-        a1 = ls[LS_T4 + 0]
-        t = (p[E.P_LF] - sx) / a1 if a1 > 0 and p[E.P_LF] - sx > 0 else p[E.P_K] / p[E.P_CF]
-        den = p[E.P_LR] + sx
-        cr = -0.5 * ls[LS_T4 + 1] / den if den > 0 else p[E.P_CR]
     if ls[LS_N] < 0.15 * lp[L_MIN_SAMPLES]:
         # too few excited samples: the derived values are not yet meaningful; keep the prior tires
         k = p[E.P_K]
@@ -503,11 +460,10 @@ def push(lp, ls, p):  # pragma: no cover - compiled
         tfric = p[E.P_TFRIC]
     p[E.P_S] = min(max(s, 0.95), 1.25)
     p[E.P_K] = _lim(k, p[E.P_K], rate, 2000.0, 20000.0)
-    if not cf_keep:
-        t_old = p[E.P_K] / p[E.P_CF]
-        t_new = min(max(t, t_old * (1.0 - rate)), t_old * (1.0 + rate))
-        t_new = min(max(t_new, 0.04), 0.25)
-        p[E.P_CF] = min(max(p[E.P_K] / t_new, 20000.0), 200000.0)
+    t_old = p[E.P_K] / p[E.P_CF]
+    t_new = min(max(t, t_old * (1.0 - rate)), t_old * (1.0 + rate))
+    t_new = min(max(t_new, 0.04), 0.25)
+    p[E.P_CF] = min(max(p[E.P_K] / t_new, 20000.0), 200000.0)
     p[E.P_CR] = _lim(cr, p[E.P_CR], rate, 20000.0, 200000.0)
     p[E.P_TFRIC] = min(max(tfric, 0.0), 2.0)
     p[E.P_CTB] = min(max(ctb, 0.0), 2.0 * DEG)
