@@ -132,7 +132,7 @@ def one(args: tuple) -> list[dict[str, Any]]:
         block, info = run_engine(frames, profile, vehicle, learned, None, hook)
         r = {"plant": plant, "profile": profile, "scenario": sc, "seed": seed, "warm": warm}
         r.update(score(block, truth, sc))
-        r.update(p_after)
+        r.update(p_after if warm else _learned_summary(info))
         rows.append(r)
     return rows
 
