@@ -118,6 +118,9 @@ N_LS = LS_AC + 1
 
 ST_NOT, ST_LEARNING, ST_LEARNED = 0, 1, 2
 
+#: the learned torsion twist's upper bound [rad/Nm] (the lower one is 0: a twist cannot be negative)
+CTB_MAX = 2.0 * DEG
+
 
 def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     """The learner's constants (``L_*`` slots); ``torsion``: the profile's angle sensor sits above the
@@ -248,6 +251,22 @@ def _kupdate(ls, toff, poff, n, xr, innov, r, ph):  # pragma: no cover - compile
 
 
 @njit(cache=True, inline="always")
+def _project_bound(ls, toff, poff, n, i, lo, hi):  # pragma: no cover - compiled
+    """Keep coefficient ``i`` of theta within [lo, hi]: outside it, move theta to the bound along the
+    covariance's row i (the estimate projection of a Kalman filter with an inequality constraint,
+    W = P^-1: the most probable theta with theta_i on the bound); P is left as it is."""
+    v = ls[toff + i]
+    target = min(max(v, lo), hi)
+    pii = ls[poff + i * n + i]
+    if target == v or pii <= 0.0:
+        return
+    g = (v - target) / pii
+    for j in range(n):
+        ls[toff + j] -= ls[poff + j * n + i] * g
+    ls[toff + i] = target
+
+
+@njit(cache=True, inline="always")
 def _svf(ls, k, u, w, zeta, dt):  # pragma: no cover - compiled
     """y'' = w^2 (u - y) - 2 zeta w y' (semi-implicit Euler); stores y, y', y''."""
     o = LS_SVF + 3 * k
@@ -353,6 +372,9 @@ def learner_step(
             xr[4] = -v_f * tc_d / n
             xr[5] = 1.0
             _rls(ls, LS_T3, LS_P3, N3, xr, ay_f, slow * lp[L_SIG3] ** 2, ph)
+            # a twist is >= 0: push clamps it there, so R3 must too, or K, s and the friction stay
+            # fitted to the negative twist the filter never uses (docs/estimator.md, "Twist bound")
+            _project_bound(ls, LS_T3, LS_P3, N3, 4, 0.0, ls[LS_T3] * CTB_MAX)
             ls[LS_N + 1] += 1.0
             # cascade: R1 uses s (and the friction) from R3, R2 uses t from R1 and K from R3; a
             # regression starts only once what it uses has CASCADE samples (no generic-value bias)
@@ -466,7 +488,7 @@ def push(lp, ls, p):  # pragma: no cover - compiled
     p[E.P_CF] = min(max(p[E.P_K] / t_new, 20000.0), 200000.0)
     p[E.P_CR] = _lim(cr, p[E.P_CR], rate, 20000.0, 200000.0)
     p[E.P_TFRIC] = min(max(tfric, 0.0), 2.0)
-    p[E.P_CTB] = min(max(ctb, 0.0), 2.0 * DEG)
+    p[E.P_CTB] = min(max(ctb, 0.0), CTB_MAX)
     p[E.P_BR] = min(max(ls[LS_B], -1.0 * DEG), 1.0 * DEG)
     p[E.P_DSW] = min(max(ls[LS_D], -5.0 * DEG), 5.0 * DEG)
     # learned state of the tire group: by the excited samples seen (a learned value stays learned)

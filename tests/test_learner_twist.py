@@ -1,0 +1,112 @@
+"""The torsion twist's bound inside the learner's R3 regression (docs/estimator.md, "Twist bound").
+
+A twist is >= 0, and ``push`` clamps the filter's value there. R3 must hold the same bound, or its
+other coefficients (s/K: the aligning slope, the friction) stay fitted to a negative twist the filter
+never applies: on the zoo's profile ``lde`` (the pinion angle) that made K and Cf 10-13 % low.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_learner import _truth, _weave
+
+from lde import estimator as E
+from lde import learner as Ln
+from lde.params import load_vehicle
+from lde.status import VALID
+from lde.step import N_OUT
+from lde.units import DEG, STEP_NS, STEP_S
+
+VX = 100.0 / 3.6
+I_TB = Ln.LS_T3 + 4  # R3's twist coefficient s c_tb
+
+
+def _spd(n: int, rng: np.random.Generator) -> np.ndarray:
+    a = rng.normal(size=(n, n))
+    return a @ a.T + 0.1 * np.eye(n)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_projection_is_the_gaussian_conditioned_on_the_bound(seed):
+    """Outside the bound, theta moves to the mean of N(theta, P) given theta_i = bound (numpy's
+    conditional mean); P is unchanged; inside the bound nothing moves."""
+    rng = np.random.default_rng(seed)
+    n, i = Ln.N3, 4
+    P = _spd(n, rng)
+    theta = rng.normal(size=n)
+    for lo, hi, bound in (
+        (theta[i] + 0.5, theta[i] + 2.0, theta[i] + 0.5),
+        (-5.0, theta[i] - 0.3, theta[i] - 0.3),
+    ):
+        ls = np.zeros(Ln.N_LS)
+        ls[Ln.LS_T3 : Ln.LS_T3 + n] = theta
+        ls[Ln.LS_P3 : Ln.LS_P3 + n * n] = P.ravel()
+        Ln._project_bound(ls, Ln.LS_T3, Ln.LS_P3, n, i, lo, hi)
+        expect = theta + P[:, i] / P[i, i] * (bound - theta[i])
+        np.testing.assert_allclose(ls[Ln.LS_T3 : Ln.LS_T3 + n], expect, rtol=1e-12, atol=1e-12)
+        assert ls[Ln.LS_T3 + i] == bound
+        np.testing.assert_array_equal(ls[Ln.LS_P3 : Ln.LS_P3 + n * n], P.ravel())
+    ls = np.zeros(Ln.N_LS)
+    ls[Ln.LS_T3 : Ln.LS_T3 + n] = theta
+    ls[Ln.LS_P3 : Ln.LS_P3 + n * n] = P.ravel()
+    Ln._project_bound(ls, Ln.LS_T3, Ln.LS_P3, n, i, theta[i] - 1.0, theta[i] + 1.0)
+    np.testing.assert_array_equal(ls[Ln.LS_T3 : Ln.LS_T3 + n], theta)
+
+
+def _learn_pinion(sig_ctb_deg: float, lag_twist_deg: float, seconds: float = 60.0):
+    """Filter + learner on the linear truth of test_learner (Cf, Cr, K 15 % above the prior), the
+    angle read below the torsion bar (the pinion: no twist), but lagging the road wheels by
+    ``lag_twist_deg`` x T_col [deg/Nm] (a negative twist: what R3 saw on the zoo's pinion angles).
+    Returns p and the smallest R3 twist coefficient seen."""
+    veh = load_vehicle("reference")
+    b, t = veh.body, veh.tires
+    n_ratio = veh.steering.ratio
+    p = E.params_vector(veh)
+    lp = Ln.default_lp(torsion=False)
+    lp[Ln.L_SIG_CTB] = sig_ctb_deg * DEG
+    ls = Ln.init_state(p, lp, friction_prior=p[E.P_TFRIC])
+    p[E.P_TFRIC] = 0.0
+    cf, cr, k = 1.15 * t.cf, 1.15 * t.cr, 1.15 * t.align_rate
+    s = p[E.P_S]
+    ad, bd = _truth(b.mass, b.yaw_inertia, b.lf, b.lr, cf, cr, VX)
+    x, xs, P = np.zeros(2), np.zeros(E.NX), np.zeros((E.NX, E.NX))
+    fs, ints = np.zeros(E.N_F), np.zeros(E.N_I, np.int64)
+    E.reset_kernel(p, xs, P, fs, ints)
+    h, ph, out, ws = np.zeros(E.NX), np.zeros(E.NX), np.zeros(N_OUT), np.zeros((2, Ln.N3))
+    rng = np.random.default_rng(0)
+    lowest = math.inf
+    for i in range(int(seconds / STEP_S)):
+        ti = i * STEP_S
+        delta = _weave(ti) / n_ratio
+        beta, r = x
+        af = delta - beta - b.lf * r / VX
+        ar = -beta + b.lr * r / VX
+        t_align = 2 * k * af
+        ay = s * (2 * cf * af + 2 * cr * ar) / b.mass + rng.normal(0, 0.02)
+        yaw = r + rng.normal(0, 0.05 * DEG)
+        tcol = t_align / n_ratio / 4 + rng.normal(0, 0.01)
+        tast = 3 * t_align / n_ratio / 4
+        angle = _weave(ti) + lag_twist_deg * DEG * tcol
+        st = E.step_kernel(
+            p, xs, P, fs, ints, h, ph, 10**9 + i * STEP_NS, VX, angle, yaw, tcol, tast, ay,
+            True, True, True, True, True, out,
+        )  # fmt: skip
+        Ln.learner_step(lp, ls, ws, p, out, VX, angle, yaw, tcol, tast, ay, fs[E.F_ZFRIC], bool(st & VALID))
+        lowest = min(lowest, ls[I_TB])
+        x = ad @ x + bd * delta
+    return p, lowest
+
+
+def test_r3_keeps_the_twist_at_or_above_zero_and_learns_k_as_if_it_were_known():
+    """An angle that wants a negative twist: R3's twist never goes below 0, and the aligning slope K
+    it gives is the one R3 learns when the twist is known to be 0 (prior std 0) within 1 %. Without
+    the bound R3 fits the negative twist, push clamps it to 0 for the filter, and K comes out off."""
+    p_bound, lowest = _learn_pinion(sig_ctb_deg=0.3, lag_twist_deg=-0.4)
+    p_known, _ = _learn_pinion(sig_ctb_deg=0.0, lag_twist_deg=-0.4)
+    assert lowest >= 0.0
+    assert p_bound[E.P_CTB] < 0.01 * DEG
+    assert p_bound[E.P_K] == pytest.approx(p_known[E.P_K], rel=0.01)
+    assert p_bound[E.P_CF] == pytest.approx(p_known[E.P_CF], rel=0.01)
