@@ -286,6 +286,7 @@ def between_drives(ls: np.ndarray) -> np.ndarray:
             ls[poff + j * n + i] = 0.0
         ls[poff + i * n + i] = var
     ls[Ln.LS_B + 1] = max(ls[Ln.LS_B + 1], (0.05 * math.pi / 180.0) ** 2)
-    for slot in (Ln.LS_INIT, Ln.LS_HI, Ln.LS_HT, Ln.LS_AC, Ln.LS_STEP):
+    for slot in (Ln.LS_INIT, Ln.LS_HI, Ln.LS_AC, Ln.LS_STEP):
         ls[slot] = 0.0
+    ls[Ln.LS_HT] = -1.0  # a new drive: its first gyro-bias window opens at its first anchor
     return ls

@@ -112,7 +112,7 @@ LS_BP = LS_TD + 1  # band-pass filter states: m a_y (fast, slow), F_wind_hat (fa
 # mean squares of the two band signals (4 + 2)
 LS_RLP = LS_BP + 6  # 2 s low-pass of the yaw rate minus the bias (the anchor test of the gyro-bias windows)
 LS_HI = LS_RLP + 1  # heading integral since the last anchor, int (r - b) dt [rad]
-LS_HT = LS_HI + 1  # time since the last anchor [s]
+LS_HT = LS_HI + 1  # time since the last anchor [s]; < 0: no window open (waiting for an anchor)
 LS_AC = LS_HT + 1  # how long the anchor condition has held [s]
 N_LS = LS_AC + 1
 
@@ -204,6 +204,7 @@ def init_state(p: np.ndarray, lp: np.ndarray, friction_prior: float = 0.3) -> np
     )
     ls[LS_B + 1] = lp[L_SIG_B] ** 2
     ls[LS_D + 1] = (1.0 * DEG) ** 2
+    ls[LS_HT] = -1.0  # no gyro-bias window open: the first opens at the first anchor
     return ls
 
 
@@ -295,6 +296,7 @@ def learner_step(
     ls[LS_STEP] += 1.0
     if not ok:
         ls[LS_INIT] = 0.0
+        ls[LS_HT] = -1.0  # no heading through a gap: the next gyro-bias window starts at an anchor
         return False
     T = n * (tcol + tast)
     u = (yaw, ay, T, zfric, angle, tcol, vx)
@@ -409,8 +411,9 @@ def learner_step(
         # other (lane changes, a slalom, an S-bend that returns, gusts) counts whole. The windows are
         # averaged (running average over the first L_B_TAU s of windows, then an EMA of that length).
         ls[LS_RLP] += tdec / 2.0 * (r_f - ls[LS_B] - ls[LS_RLP])
-        ls[LS_HI] += tdec * (r_f - ls[LS_B])
-        ls[LS_HT] += tdec
+        if ls[LS_HT] >= 0.0:  # a window is open (it began at an anchor)
+            ls[LS_HI] += tdec * (r_f - ls[LS_B])
+            ls[LS_HT] += tdec
         steady = (
             abs(ls[LS_RLP]) < lp[L_B_GATE]
             and abs(r_f - ls[LS_B]) < 2.0 * lp[L_B_GATE]
@@ -418,16 +421,23 @@ def learner_step(
         )
         ls[LS_AC] = ls[LS_AC] + tdec if steady else 0.0
         anchor = ls[LS_AC] >= 1.5  # steady for 1.5 s (not the zero crossing inside a lane change)
-        if anchor and ls[LS_HT] >= 8.0:
+        if anchor and ls[LS_HT] < 0.0:
+            # the first window opens here: one that began elsewhere (a log that starts in a lane
+            # change, after a stop) would hold a heading change of its start, not the bias
+            ls[LS_HI] = 0.0
+            ls[LS_HT] = 0.0
+        elif anchor and ls[LS_HT] >= 8.0:
             if abs(ls[LS_HI]) < 10.0 * DEG:
                 tw = ls[LS_HT]
                 ls[LS_TB] += tw
                 ls[LS_B] += tw / min(ls[LS_TB] + 5.0, lp[L_B_TAU]) * (ls[LS_HI] / tw)
             ls[LS_HI] = 0.0
             ls[LS_HT] = 0.0
-        elif ls[LS_HT] > 120.0 or (anchor and ls[LS_HT] < 8.0 and abs(ls[LS_HI]) > 10.0 * DEG):
+        elif anchor and ls[LS_HT] < 8.0 and abs(ls[LS_HI]) > 10.0 * DEG:
             ls[LS_HI] = 0.0
             ls[LS_HT] = 0.0
+        elif ls[LS_HT] > 120.0:
+            ls[LS_HT] = -1.0  # too long to tell a bias from a curve: wait for the next anchor
         # angle offset: an offset d (steering wheel) shows in the filter as a 'wind' through the rear
         # axle, (F, M) = o (s, -lr) with o = 2 Cr d / N; a real wind has (F, M) = w (1, x) with x its
         # centre of pressure (learned, prior 0.3 m ahead of the CG). Split the filter's wind estimate
@@ -447,6 +457,9 @@ def learner_step(
             d_obs = p[E.P_DSW] + o * n / (2.0 * p[E.P_CR])
             ls[LS_TD] += tdec
             ls[LS_D] += tdec / min(ls[LS_TD] + 5.0, lp[L_D_TAU]) * (d_obs - ls[LS_D])
+
+    elif istep % decim == 0:
+        ls[LS_HT] = -1.0  # slow or (re)starting: the heading is not followed, a window would miss a turn
 
     if istep % int(lp[L_PUSH]) == 0 and lp[L_ENABLE] > 0.0:
         push(lp, ls, p)
