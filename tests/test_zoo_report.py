@@ -189,6 +189,16 @@ def test_marked_text_is_replaced_and_the_rest_kept(tmp_path):
     assert f.read_text() == want  # idempotent
 
 
+def test_a_bad_file_leaves_every_file_as_it_was(tmp_path):
+    good, bad = tmp_path / "README.md", tmp_path / "study.md"
+    good.write_text(f"{zooreport.MARK_BEGIN}\nold\n{zooreport.MARK_END}\n")
+    # the marker quoted in the page's prose makes it ambiguous
+    bad.write_text(f"see `{zooreport.MARK_BEGIN}`\n{zooreport.MARK_BEGIN}\nold\n{zooreport.MARK_END}\n")
+    with pytest.raises(ConfigError, match="once each"):
+        zooreport.replace_all_marked([(good, "new"), (bad, "new")])
+    assert "old" in good.read_text()
+
+
 @pytest.mark.parametrize(
     "text",
     [

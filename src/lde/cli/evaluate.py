@@ -16,7 +16,7 @@ and OUT/spec_sheets/. ``--modes cold,warm`` (the default): cold runs with the sp
 first replays an earlier drive of the same car with ``--learned S`` and then the run with it. A
 payload plant also runs with the spec sheet plus the load (``PLANT + load`` rows).
 ``--readme README.md --doc docs/study.md`` (full run only) write the summary and the tables between
-the files' ``<!-- lde evaluate --zoo: begin -->`` / ``end -->`` markers.
+the files' two marker comments (``lde evaluate --zoo: begin`` and ``end``).
 """
 
 from __future__ import annotations
@@ -230,10 +230,8 @@ def run_zoo(args: argparse.Namespace) -> int:
     write_rows(zoo.plant_table_rows(results), out / "zoo_table.csv")
     doc = zooreport.doc_block(results, info)
     (out / "zoo_table.md").write_text(f"# Zoo evaluation\n\n{doc}\n")
-    if args.readme:
-        zooreport.replace_marked(args.readme, zooreport.readme_block(results, info))
-    if args.doc:
-        zooreport.replace_marked(args.doc, doc)
+    docs = [(args.readme, zooreport.readme_block(results, info)), (args.doc, doc)]
+    zooreport.replace_all_marked([(path, text) for path, text in docs if path is not None])
     print("\n".join(zooreport.summary_block(results)))
     print()
     print(zoo.plant_table_markdown(results, backend=backends[0]))

@@ -130,11 +130,22 @@ def replace_marked(path: Path, text: str, begin: str = MARK_BEGIN, end: str = MA
     """Put ``text`` between the ``begin`` and ``end`` markers of ``path`` (the markers and everything
     outside them stay; written atomically); ConfigError as :func:`marked_span`, or when it cannot be
     written."""
-    s, a, b = marked_span(path, begin, end)
-    new = s[:a] + "\n" + text.strip("\n") + "\n" + s[b:]
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        tmp.write_text(new)
-        tmp.replace(path)
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot write ({exc.strerror})") from None
+    replace_all_marked([(path, text)], begin, end)
+
+
+def replace_all_marked(
+    edits: Sequence[tuple[Path, str]], begin: str = MARK_BEGIN, end: str = MARK_END
+) -> None:
+    """:func:`replace_marked` for several files: every file's markers are checked before any is
+    written, so that a bad file leaves all of them as they were."""
+    new = []
+    for path, text in edits:
+        s, a, b = marked_span(path, begin, end)
+        new.append((path, s[:a] + "\n" + text.strip("\n") + "\n" + s[b:]))
+    for path, s in new:
+        tmp = path.with_name(path.name + ".tmp")
+        try:
+            tmp.write_text(s)
+            tmp.replace(path)
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot write ({exc.strerror})") from None
