@@ -151,6 +151,21 @@ def test_summary_counts_wind_bank_and_payload_about_both_cgs():
     assert "spec sheet + load: Fw 7.0 %, Mw about the unloaded CG 60.0 %, about the true CG 5.0 %" in payload
 
 
+def test_backends_are_compared_run_by_run():
+    rs = [
+        _res("indep_twin", "wind_step", _acc(D, 0.08, 0.04, rms=(100.0, 20.0))),
+        _res("indep_twin", "wind_step", _acc(D, 0.11, 0.04, rms=(100.5, 20.25)), backend="float"),
+        _res("indep_twin", "lane_change", _acc(U, math.nan, math.nan, rms=(30.0, 9.0))),
+        _res("indep_twin", "lane_change", _acc(U, math.nan, math.nan, rms=(30.0, 9.0)), backend="float"),
+        _res("suv_slow", "lane_change", _acc(U, math.nan, math.nan, rms=(30.0, 9.0))),  # no pair
+    ]
+    (line,) = zoo.backend_lines(rs)
+    assert line == (
+        "backends fixed and float: any run's RMS error differs by at most 0.5 N (Fw) and 0.25 Nm (Mw) "
+        "over 2 pairs of runs; the target verdict differs in 1"
+    )
+
+
 def test_zoo_specs_cold_and_warm_with_the_load_rows():
     specs = zoo.zoo_specs(["indep_twin", "loaded_twin"], scenarios=("wind_step",), modes=tuple(zoo.Mode))
     # 2 modes x (indep_twin 1 + loaded_twin 2 files) x 2 profiles x 2 backends

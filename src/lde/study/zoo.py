@@ -438,6 +438,32 @@ def payload_lines(results: Sequence[RunResult]) -> list[str]:
     return out
 
 
+def backend_lines(results: Sequence[RunResult]) -> list[str]:
+    """Per pair of backends run on the same drives: the largest difference in any run's RMS error
+    of Fw [N] and Mw [Nm], and in how many runs one meets its target and the other does not."""
+    by: dict[tuple[Any, ...], dict[str, RunResult]] = {}
+    for r in results:
+        if r.ok and r.accuracy is not None:
+            s = r.spec
+            key = (row_label(r), s.profile, mode_of(r), s.scenario, s.seed)
+            by.setdefault(key, {})[s.backend] = r
+    backends = list(dict.fromkeys(r.spec.backend for r in results))
+    out = []
+    for i, a in enumerate(backends):
+        for b in backends[i + 1 :]:
+            pairs = [(v[a], v[b]) for v in by.values() if a in v and b in v]
+            if not pairs:
+                continue
+            df = max(abs(x.accuracy.rms_fw - y.accuracy.rms_fw) for x, y in pairs)  # type: ignore[union-attr]
+            dm = max(abs(x.accuracy.rms_mw - y.accuracy.rms_mw) for x, y in pairs)  # type: ignore[union-attr]
+            split = sum(meets(x) != meets(y) for x, y in pairs)
+            out.append(
+                f"backends {a} and {b}: any run's RMS error differs by at most {df:.3g} N (Fw) and "
+                f"{dm:.3g} Nm (Mw) over {len(pairs)} pairs of runs; the target verdict differs in {split}"
+            )
+    return out
+
+
 def _mean(xs: Any) -> float:
     v = [float(x) for x in xs if math.isfinite(float(x))]
     return sum(v) / len(v) if v else math.nan

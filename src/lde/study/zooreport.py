@@ -93,8 +93,10 @@ def run_line(info: RunInfo) -> str:
 
 
 def summary_block(results: Sequence[RunResult]) -> list[str]:
-    """The summary lines (targets, wind, bank, failures; then the payload) as markdown bullets."""
-    return [f"- {line}" for line in zoo.summary_lines(results) + zoo.payload_lines(results)]
+    """The summary lines (targets, wind, bank, failures; then the payload, the backends' agreement)
+    as markdown bullets."""
+    lines = zoo.summary_lines(results) + zoo.payload_lines(results) + zoo.backend_lines(results)
+    return [f"- {line}" for line in lines]
 
 
 def readme_block(results: Sequence[RunResult], info: RunInfo) -> str:
