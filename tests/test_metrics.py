@@ -178,3 +178,24 @@ def test_issue_11_targets_use_mw_about_the_vehicle_files_cg():
     bounds = (metrics.COLD.max_nrmse, metrics.WARM.max_nrmse, metrics.WARM_DEFECTS.max_nrmse)
     assert bounds == (0.1, 0.05, 0.1)
     assert "60 N / 20 Nm" in metrics.COLD.describe()
+
+
+def test_wind_apart_from_bank_known_values():
+    t = np.arange(0.0, 10.0, 0.01)
+    wind = np.where(t > 4.0, 1000.0, 0.0)
+    bank = np.full_like(t, np.radians(2.0))
+    truth = metrics.Truth(t, wind, 0 * t, 0 * t, fw_wind=wind, bank=bank)
+    sp = metrics.split_accuracy(t, wind + 50.0, bank + np.radians(0.2), truth)
+    assert sp.wind_nrmse == pytest.approx(0.05) and sp.wind_scale == pytest.approx(1000.0)
+    assert sp.bank_rms_deg == pytest.approx(0.2)
+    assert sp.wind_met() and sp.bank_met()
+    far = metrics.split_accuracy(t, wind + 150.0, bank + np.radians(0.4), truth)
+    assert far.wind_met() is False and far.bank_met() is False
+    # no wind in the truth (the car's own slip makes tens of newtons), or a backend that does not tell
+    calm = metrics.Truth(t, 0 * t, 0 * t, 0 * t, fw_wind=np.full_like(t, 30.0), bank=bank)
+    assert math.isnan(metrics.split_accuracy(t, 0 * t, bank, calm).wind_nrmse)
+    nan = np.full_like(t, np.nan)
+    blind = metrics.split_accuracy(t, nan, nan, truth)
+    assert math.isnan(blind.wind_nrmse) and math.isnan(blind.bank_rms_deg) and blind.wind_met() is None
+    with pytest.raises(metrics.MetricsError, match="no wind force"):
+        metrics.split_accuracy(t, wind, bank, metrics.Truth(t, wind, 0 * t, 0 * t))

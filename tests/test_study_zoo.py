@@ -123,7 +123,8 @@ def test_cli_engine_scores_exactly_the_users_replay(tmp_path):
     argv = ["replay", str(d / "drive.log"), "--profile", "hyundai", "--backend", "fixed"]
     assert main(argv + ["--vehicle", str(d / "spec_sheet.toml"), "--csv", str(out), "-q"]) == 0
     assert out.read_bytes() == (d / "estimate.csv").read_bytes()
-    t, fw, mw, status = cli_engine.read_estimate_csv(out)
+    e = cli_engine.read_estimate_csv(out)
+    t, fw, mw, status = e.t, e.fw, e.mw, e.status
     truth = np.genfromtxt(d / "truth.csv", delimiter=",", names=True)
     acc = metrics.accuracy(
         t,
@@ -136,6 +137,10 @@ def test_cli_engine_scores_exactly_the_users_replay(tmp_path):
     assert acc.nrmse_mw == pytest.approx(res.accuracy.nrmse_mw, rel=1e-3)
     # the estimate follows the 12 m/s crosswind step (a broken chain gives ~100 %)
     assert res.accuracy.kind is metrics.Kind.DISTURBED and res.accuracy.nrmse_fw < 0.5
+    # wind apart from bank and the learner's state come from the same CSV's columns
+    assert e.fw_wind is not None and e.bank is not None and e.learn_state is not None
+    assert res.extra["learn_state"] == e.learn_state[-1]
+    assert math.isfinite(res.extra["wind_nrmse"]) and math.isfinite(res.extra["bank_rms_deg"])
 
 
 def test_cli_engine_reports_lde_errors_as_a_failed_run(tmp_path):
@@ -216,7 +221,7 @@ def test_plant_table_and_summary():
         _res("loaded_twin", "lane_change", None),
         _res("indep_twin", "wind_step", _acc(D, 0.2, 0.02), profile="hyundai"),
     ]
-    md = zoo.plant_table_markdown(results, backend="fixed").splitlines()
+    md = zoo.plant_table_markdown(results, backend="fixed", extras=False).splitlines()
     assert md[0] == "| plant | profile | wind_step | lane_change | met |"
     assert md[2] == "| indep_twin | lde | 5.0 / 8.0 | **65 N / 8 Nm** | 1/2 |"
     # Mw about the spec sheet's CG decides; the payload plant shows Mw about the true CG in brackets
@@ -260,12 +265,23 @@ def test_lde_evaluate_zoo_end_to_end(tmp_path, capsys):
     assert "cold, crosswind/bank scenarios" in printed and "| compact_quick | lde |" in printed
     assert (out / "spec_sheets" / "compact_quick.toml").is_file()
     runs = list(csv.DictReader((out / "zoo_runs.csv").open()))
-    assert [r["scenario"] for r in runs] == ["wind_step", "lane_change"]
+    # cold and warm by default, cold first
+    assert [r["scenario"] for r in runs] == ["wind_step", "lane_change"] * 2
+    assert [r["est_options"] for r in runs] == [
+        "",
+        "",
+        "learned_prior=prior_drive",
+        "learned_prior=prior_drive",
+    ]
     assert all(r["error"] == "" for r in runs)
+    assert all(r["learn_state"] in ("0", "1", "2") and r["bank_rms_deg"] for r in runs)
+    assert runs[0]["wind_nrmse"] and not runs[1]["wind_nrmse"]  # the lane change has no wind
     table = list(csv.DictReader((out / "zoo_table.csv").open()))
-    assert table[0]["plant"] == "compact_quick" and float(table[0]["lane_change_fw"]) > 0
+    assert [(r["plant"], r["mode"]) for r in table] == [("compact_quick", "cold"), ("compact_quick", "warm")]
+    assert float(table[0]["lane_change_fw"]) > 0 and len(table[1]["learn_states"]) == 2
     md = (out / "zoo_table.md").read_text()
-    assert "lde evaluate --zoo --plants compact_quick" in md and "## backend fixed" in md
+    assert "Measured with `lde evaluate --zoo --plants compact_quick" in md
+    assert "**Cold**" in md and "**Warm**" in md
 
 
 def test_a_disturbance_free_scenario_is_scored_by_rms_whatever_the_aero_side_force():

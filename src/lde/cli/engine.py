@@ -8,13 +8,15 @@ For one :class:`~lde.study.spec.RunSpec` (on a worker):
 
 1. simulate the run (seeded) and write its candump ``-L`` log, as ``lde sim --log`` does;
 2. write the estimator's vehicle file: the simulated car's spec sheet (``est_vehicle =
-   "spec-sheet"``, :mod:`lde.study.specsheet`) or the file the spec names;
+   "spec-sheet"``, :mod:`lde.study.specsheet`), the spec sheet with the load (``"spec-sheet+load"``:
+   the loaded car's mass, yaw inertia and CG) or the file the spec names;
 3. cold: run the command line in process,
    ``lde.cli.main(["replay", LOG, "--profile", P, "--backend", B, "--vehicle", FILE, "--csv", OUT])``;
    warm (``est_options.learned_prior``): first ``lde replay PRIOR --learned S`` on an earlier drive
    of the same car (the named scenario, seed + :data:`PRIOR_SEED_OFFSET`), then
    ``lde replay LOG --learned S --csv OUT`` (the same options as cold);
-4. read the CSV (``t``, ``Fw``, ``Mw``, ``status``) and hand it to the metric with the truth.
+4. read the CSV (``t``, ``Fw``, ``Mw``, ``status``; ``Fw_wind``, ``bank_deg``, ``learn_state`` where
+   it has them) and hand it to the metric with the truth.
 
 The files live in a temporary directory removed after scoring, or under ``spec.work_dir`` (kept).
 A non-zero exit status of ``lde`` fails the run with its last error line.
@@ -35,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from vcan_sim.output import write_outputs
+from vcan_sim.run import SimResult
 
 from ..errors import ConfigError, LdeError, LogFormatError
 from ..status import VALID
@@ -46,7 +49,7 @@ from ..study.engine import (
     simulate_run,
     truth_of,
 )
-from ..study.spec import SPEC_SHEET, Estimate, Estimator, RunSpec
+from ..study.spec import SPEC_SHEET, SPEC_SHEET_LOADED, Estimate, Estimator, RunSpec
 from ..study.specsheet import write_spec_sheet
 from . import main
 
@@ -123,20 +126,61 @@ def _run_dir(spec: RunSpec) -> Iterator[Path]:
 
 #: the CSV columns the metric reads (lde.replay.CSV_COLUMNS)
 _CSV_USE = ("t", "Fw", "Mw", "status")
+#: the CSV columns read where the CSV has them: wind apart from bank, the learner's state
+_CSV_SPLIT = ("Fw_wind", "bank_deg", "learn_state")
 
 
-def read_estimate_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(t [s], Fw [N], Mw [Nm], status) from an ``lde replay --csv`` file."""
+@dataclass(frozen=True)
+class EstimateCsv:
+    """What the metric reads from an ``lde replay --csv`` file: t [s], Fw [N], Mw [Nm], status,
+    and where the CSV has them Fw_wind [N], bank [rad] and learn_state (else None)."""
+
+    t: np.ndarray
+    fw: np.ndarray
+    mw: np.ndarray
+    status: np.ndarray
+    fw_wind: np.ndarray | None = None
+    bank: np.ndarray | None = None
+    learn_state: np.ndarray | None = None
+
+
+def read_estimate_csv(path: Path) -> EstimateCsv:
+    """The columns of an ``lde replay --csv`` file the zoo scores (:class:`EstimateCsv`)."""
     try:
         with path.open() as fh:
             header = fh.readline().strip().split(",")
         idx = [header.index(c) for c in _CSV_USE]
     except (OSError, ValueError) as exc:
         raise LogFormatError(f"{path}: not an lde replay CSV with columns {', '.join(_CSV_USE)}") from exc
-    data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=idx, ndmin=2)
+    split = [c for c in _CSV_SPLIT if c in header]
+    data = np.loadtxt(
+        path, delimiter=",", skiprows=1, usecols=idx + [header.index(c) for c in split], ndmin=2
+    )
     if data.shape[0] == 0:
         raise LogFormatError(f"{path}: no estimator step")
-    return data[:, 0], data[:, 1], data[:, 2], data[:, 3].astype(np.int64)
+    col = {c: data[:, len(idx) + i] for i, c in enumerate(split)}
+    return EstimateCsv(
+        data[:, 0],
+        data[:, 1],
+        data[:, 2],
+        data[:, 3].astype(np.int64),
+        fw_wind=col.get("Fw_wind"),
+        bank=np.radians(col["bank_deg"]) if "bank_deg" in col else None,
+        learn_state=col["learn_state"].astype(np.int64) if "learn_state" in col else None,
+    )
+
+
+def estimator_file(spec: RunSpec, sim: SimResult, d: Path) -> Path | str:
+    """The ``--vehicle`` of a run: the spec sheet (:data:`SPEC_SHEET`), the spec sheet with the load
+    (:data:`SPEC_SHEET_LOADED`: the loaded car's mass, yaw inertia and CG, what a load signal gives
+    through eqs. 17-18), or the file the spec names."""
+    if spec.est_vehicle not in (SPEC_SHEET, SPEC_SHEET_LOADED):
+        return spec.est_vehicle  # a shipped name or a path, as --vehicle takes it
+    car = load_sim_vehicle(spec.sim_vehicle)
+    if spec.est_vehicle == SPEC_SHEET_LOADED:
+        b = sim.body
+        car = car.with_body(mass=b.mass, yaw_inertia=b.yaw_inertia, lf=b.lf, lr=b.lr)
+    return write_spec_sheet(car, d / "spec_sheet.toml")
 
 
 def estimate_with_cli(spec: RunSpec) -> Estimate:
@@ -153,9 +197,7 @@ def estimate_with_cli(spec: RunSpec) -> Estimate:
     with _run_dir(spec) as d:
         log = d / "drive.log"
         write_outputs(sim, log=log, truth=d / "truth.csv" if spec.work_dir else None)
-        vehicle: Path | str = spec.est_vehicle  # a shipped name or a path, as --vehicle takes it
-        if spec.est_vehicle == SPEC_SHEET:
-            vehicle = write_spec_sheet(load_sim_vehicle(spec.sim_vehicle), d / "spec_sheet.toml")
+        vehicle = estimator_file(spec, sim, d)
         learned = None
         if opts.learned_prior:
             prior = simulate_run(spec, opts.learned_prior, spec.seed + PRIOR_SEED_OFFSET)
@@ -166,9 +208,11 @@ def estimate_with_cli(spec: RunSpec) -> Estimate:
             run_cli(replay_argv(prior_log, spec.profile, spec.backend, vehicle, learned=learned))
         out = d / "estimate.csv"
         run_cli(replay_argv(log, spec.profile, spec.backend, vehicle, csv=out, learned=learned))
-        t, fw, mw, status = read_estimate_csv(out)
-    valid = (status & int(VALID)) != 0
-    return Estimate(t, fw, mw, valid, truth_of(sim))
+        e = read_estimate_csv(out)
+    valid = (e.status & int(VALID)) != 0
+    return Estimate(
+        e.t, e.fw, e.mw, valid, truth_of(sim), fw_wind=e.fw_wind, bank=e.bank, learn_state=e.learn_state
+    )
 
 
 def engine(spec: RunSpec) -> Estimate:

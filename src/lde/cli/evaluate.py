@@ -11,8 +11,12 @@ plant x scenario x profile x backend: simulate (seeded), write the candump log, 
 ``lde replay LOG --profile P --backend B --vehicle SPEC_SHEET --csv OUT`` in process with only the
 plant's spec sheet (mass, yaw inertia, lf, lr, tread, ratio on the generic defaults), score the CSV.
 Writes OUT/zoo_runs.csv (every run), OUT/zoo_table.csv and OUT/zoo_table.md (a row per plant x
-profile x backend, a summary line per target) and OUT/spec_sheets/. ``--warm`` first replays an
-earlier drive of the same car with ``--learned`` (needs ``lde replay --learned``).
+profile x backend x mode, a summary line per target, wind force, bank angle, payload about both CGs)
+and OUT/spec_sheets/. ``--modes cold,warm`` (the default): cold runs with the spec sheet only; warm
+first replays an earlier drive of the same car with ``--learned S`` and then the run with it. A
+payload plant also runs with the spec sheet plus the load (``PLANT + load`` rows).
+``--readme README.md --doc docs/study.md`` (full run only) write the summary and the tables between
+the files' two marker comments (``lde evaluate --zoo: begin`` and ``end``).
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from pathlib import Path
 
 from .. import study
 from ..errors import ConfigError
-from ..study import zoo
+from ..study import zoo, zooreport
 from ..study.engine import load_sim_vehicle
 from ..study.specsheet import write_spec_sheet
 from ..study.tables import write_rows
@@ -79,9 +83,25 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--backends", type=_csv_list, metavar="A,B", help="backends (default: --backend, else fixed,float)"
     )
     z.add_argument(
-        "--warm",
-        action="store_true",
-        help="warm: `lde replay PRIOR --learned S` on an earlier drive of the same car first",
+        "--modes",
+        type=_csv_list,
+        metavar="cold,warm",
+        help="cold: `lde replay LOG` with the spec sheet; warm: `lde replay PRIOR --learned S` on an "
+        "earlier drive of the same car first (default: cold,warm)",
+    )
+    z.add_argument("--warm", action="store_true", help="warm only (= --modes warm)")
+    z.add_argument(
+        "--readme",
+        type=Path,
+        metavar="FILE",
+        help=f"write the summary between the {zooreport.MARK_BEGIN} ... end markers of FILE (full run only)",
+    )
+    z.add_argument(
+        "--doc",
+        type=Path,
+        metavar="FILE",
+        help="write the summary and the tables between the same markers of FILE, e.g. docs/study.md "
+        "(full run only)",
     )
     z.add_argument("--out", type=Path, default=Path("results/zoo"), help="output directory (results/zoo)")
     z.add_argument("--keep-logs", action="store_true", help="keep every run's log, truth, spec sheet, CSV")
@@ -100,8 +120,19 @@ def run(args: argparse.Namespace) -> int:
         return run_zoo(args)
     if args.workers is None:
         args.workers = 0
-    if args.plants or args.profiles or args.backends or args.warm or args.keep_logs:
-        raise ConfigError("--plants, --profiles, --backends, --warm and --keep-logs need --zoo")
+    if (
+        args.plants
+        or args.profiles
+        or args.backends
+        or args.warm
+        or args.modes
+        or args.keep_logs
+        or args.readme
+        or args.doc
+    ):
+        raise ConfigError(
+            "--plants, --profiles, --backends, --modes, --warm, --keep-logs, --readme and --doc need --zoo"
+        )
     payloads = study.all_payloads() if args.all_payloads else tuple(args.payload or ("",))
     specs = study.evaluation_specs(
         scenarios=_scenarios(args) or study.EVALUATE_SCENARIOS,
@@ -146,47 +177,62 @@ def run_zoo(args: argparse.Namespace) -> int:
         raise ConfigError("--sim-vehicle/--estimator do not apply to --zoo (use --plants)")
     if args.workers is None:
         args.workers = 2
-    mode = zoo.Mode.WARM if args.warm else zoo.Mode.COLD
+    modes = _modes(args)
     profiles = args.profiles or ((args.profile,) if args.profile else zoo.PROFILES)
     backends = args.backends or ((args.backend,) if args.backend else zoo.BACKENDS)
     for b in backends:
         if b not in BACKEND_CHOICES:
             raise ConfigError(f"unknown backend {b!r} ({', '.join(BACKEND_CHOICES)})")
     out: Path = args.out
+    if args.readme or args.doc:
+        _check_full(args, modes, profiles, backends)
     specs = zoo.zoo_specs(
         plant_list=args.plants,
         scenarios=_scenarios(args) or zoo.ZOO_SCENARIOS,
         profiles=profiles,
         backends=backends,
         seed=args.seed,
-        mode=mode,
+        modes=modes,
         duration=args.duration,
         work_dir=str((out / "runs").resolve()) if args.keep_logs else "",
     )
 
+    for path in (args.readme, args.doc):
+        if path is not None:  # the markers are checked before the runs, not after
+            zooreport.marked_span(path)
     for plant in dict.fromkeys(s.group for s in specs):
         write_spec_sheet(load_sim_vehicle(f"zoo:{plant}"), out / "spec_sheets" / f"{plant}.toml")
     n_plants, n_scen = len({s.group for s in specs}), len({s.scenario for s in specs})
+    n_load = sum(s.est_vehicle == study.SPEC_SHEET_LOADED for s in specs)
     print(
-        f"lde evaluate --zoo ({mode.value}): {len(specs)} runs = {n_plants} plants x {n_scen} scenarios x "
-        f"{len(profiles)} profiles x {len(backends)} backends",
+        f"lde evaluate --zoo ({','.join(m.value for m in modes)}): {len(specs)} runs = {len(modes)} modes x "
+        f"{n_plants} plants x {n_scen} scenarios x {len(profiles)} profiles x {len(backends)} backends"
+        + (f" (+ {n_load} payload runs with the load in the vehicle file)" if n_load else ""),
         file=sys.stderr,
     )
+    load_before = zooreport.load_average()
     t0 = time.perf_counter()
     results = study.run_specs(
         specs, cluster_config(args), progress=not args.no_progress, desc="lde zoo", engine=engine
     )
     wall = time.perf_counter() - t0
+    info = zooreport.RunInfo(
+        command=_command(args),
+        runs=len(results),
+        wall_s=wall,
+        workers=args.workers,
+        machine=zooreport.machine_description(),
+        load_before=load_before,
+        load_after=zooreport.load_average(),
+        date=zooreport.now(),
+    )
     study.write_csv(results, out / "zoo_runs.csv")
     write_rows(zoo.plant_table_rows(results), out / "zoo_table.csv")
-    summary = zoo.summary_lines(results)
-    md = [f"# Zoo evaluation ({mode.value})", "", f"`{_command(args)}`: {len(results)} runs in {wall:.0f} s."]
-    md += ["", _LEGEND, ""]
-    md += [f"- {line}" for line in summary] + [""]
-    for b in backends:
-        md += [f"## backend {b}", "", zoo.plant_table_markdown(results, backend=b), ""]
-    (out / "zoo_table.md").write_text("\n".join(md))
-    print("\n".join(summary))
+    doc = zooreport.doc_block(results, info)
+    (out / "zoo_table.md").write_text(f"# Zoo evaluation\n\n{doc}\n")
+    docs = [(args.readme, zooreport.readme_block(results, info)), (args.doc, doc)]
+    zooreport.replace_all_marked([(path, text) for path, text in docs if path is not None])
+    print("\n".join(zooreport.summary_block(results)))
     print()
     print(zoo.plant_table_markdown(results, backend=backends[0]))
     print(f"\n{len(results)} runs in {wall:.0f} s; tables in {out}/zoo_table.{{md,csv}}", file=sys.stderr)
@@ -196,10 +242,43 @@ def run_zoo(args: argparse.Namespace) -> int:
     return 0 if all(r.ok for r in results) else 1
 
 
-_LEGEND = (
-    "Cells: NRMSE Fw / Mw in % after 2 s (Mw about the spec sheet's CG; payload plants: about the true "
-    "CG in brackets); disturbance-free drives: RMS of the estimate in N / Nm. **Bold**: target missed."
-)
+def _modes(args: argparse.Namespace) -> tuple[zoo.Mode, ...]:
+    if args.warm and args.modes:
+        raise ConfigError("--warm is --modes warm: give one of them")
+    names = ("warm",) if args.warm else args.modes or ("cold", "warm")
+    known = {m.value: m for m in zoo.Mode}
+    bad = [n for n in names if n not in known]
+    if bad:
+        raise ConfigError(f"unknown mode(s) {', '.join(bad)} (modes: cold, warm)")
+    return tuple(known[n] for n in dict.fromkeys(names))
+
+
+def _check_full(
+    args: argparse.Namespace,
+    modes: tuple[zoo.Mode, ...],
+    profiles: tuple[str, ...],
+    backends: tuple[str, ...],
+) -> None:
+    """--readme/--doc take only the full table (every plant, the default scenarios, both profiles,
+    both backends, cold and warm, seed 0, the scenarios' own lengths): the documents' headline."""
+    partial = [
+        flag
+        for flag, is_partial in (
+            ("--plants", bool(args.plants) and set(args.plants) != set(zoo.plants())),
+            ("--scenarios", (_scenarios(args) or zoo.ZOO_SCENARIOS) != zoo.ZOO_SCENARIOS),
+            ("--profiles/--profile", set(profiles) != set(zoo.PROFILES)),
+            ("--backends/--backend", set(backends) != set(zoo.BACKENDS)),
+            ("--modes/--warm", set(modes) != set(zoo.Mode)),
+            ("--seed", args.seed != 0),
+            ("--duration", args.duration is not None),
+        )
+        if is_partial
+    ]
+    if partial:
+        raise ConfigError(
+            f"--readme/--doc write the full zoo table; {', '.join(partial)} select a part of it "
+            "(the subset's tables are in --out)"
+        )
 
 
 def _command(args: argparse.Namespace) -> str:
@@ -207,6 +286,8 @@ def _command(args: argparse.Namespace) -> str:
     parts = ["lde evaluate --zoo"]
     if args.warm:
         parts.append("--warm")
+    if args.modes:
+        parts.append(f"--modes {','.join(args.modes)}")
     for flag, val in (
         ("--plants", args.plants),
         ("--scenarios", _scenarios(args)),
@@ -223,5 +304,10 @@ def _command(args: argparse.Namespace) -> str:
         parts.append(f"--seed {args.seed}")
     if args.duration:
         parts.append(f"--duration {args.duration:g}")
+    if args.workers != 2:
+        parts.append(f"--workers {args.workers}")
     parts.append(f"--out {args.out}")
+    for flag, path in (("--readme", args.readme), ("--doc", args.doc)):
+        if path is not None:
+            parts.append(f"{flag} {path}")
     return " ".join(parts)

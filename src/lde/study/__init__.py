@@ -56,6 +56,7 @@ from .presets import (
 from .runner import ClusterConfig, run_specs
 from .spec import (
     SPEC_SHEET,
+    SPEC_SHEET_LOADED,
     Estimate,
     Estimator,
     EstOptions,
@@ -96,6 +97,7 @@ __all__ = [
     "PAPER_SCENARIOS",
     "SIM_OPTION_FIELDS",
     "SPEC_SHEET",
+    "SPEC_SHEET_LOADED",
     "TABLE_COLUMNS",
     "TARGET_SCENARIOS",
     "TRACE_DECIMATION",

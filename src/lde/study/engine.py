@@ -36,7 +36,16 @@ from ..profiles import load_profile
 from ..replay import replay
 from ..step import Status
 from ..units import DEG
-from .spec import Estimate, Estimator, EstOptions, RunResult, RunSpec, SimOptions
+from .spec import (
+    SPEC_SHEET,
+    SPEC_SHEET_LOADED,
+    Estimate,
+    Estimator,
+    EstOptions,
+    RunResult,
+    RunSpec,
+    SimOptions,
+)
 
 Engine = Callable[[RunSpec], Estimate]
 
@@ -105,7 +114,14 @@ def simulate_run(spec: RunSpec, scenario: str, seed: int) -> Any:
 def truth_of(sim: Any) -> metrics.Truth:
     """The metric's truth (Fw, Mw about the actual CG, Mw_ref about the unloaded CG) of a run."""
     tr = sim.truth
-    return metrics.Truth(t=np.asarray(tr["t"]), fw=tr["Fw"], mw=tr["Mw"], mw_ref=tr["Mw_ref"])
+    return metrics.Truth(
+        t=np.asarray(tr["t"]),
+        fw=tr["Fw"],
+        mw=tr["Mw"],
+        mw_ref=tr["Mw_ref"],
+        fw_wind=tr["Fy_wind"],
+        bank=tr["bank"],
+    )
 
 
 def check_plant(truth: dict[str, np.ndarray]) -> None:
@@ -142,8 +158,8 @@ def estimator_vehicle(spec: RunSpec, sim: Any, profile: Any) -> tuple[Vehicle, A
     """The estimator's vehicle of an in-process run with ``spec.est_options`` applied (calibration,
     corrections, the known load); also the calibration result (or None)."""
     opts: EstOptions = spec.est_options
-    if spec.est_vehicle == "spec-sheet":
-        raise ConfigError("est_vehicle 'spec-sheet' needs the cli estimator")
+    if spec.est_vehicle in (SPEC_SHEET, SPEC_SHEET_LOADED):
+        raise ConfigError(f"est_vehicle {spec.est_vehicle!r} needs the cli estimator")
     vehicle = load_vehicle(spec.est_vehicle)
     # the `lde` profile's angle is the MDPS's motor-side (pinion) angle: no torsion-bar twist in it
     use_torsion = opts.torsion if opts.torsion is not None else spec.profile != "lde"
@@ -188,6 +204,18 @@ def simulate_and_estimate(spec: RunSpec) -> Estimate:
             raise ConfigError(f"estimator options {sorted(proto)} need --estimator adaptive")
         out = replay(sim.frames, profile, vehicle, spec.backend)
         t_ns, fw, mw, status = out.t_ns, out.fw, out.mw, out.status
+        valid = (np.asarray(status) & int(Status.VALID)) != 0
+        b = out.block
+        return Estimate(
+            np.asarray(t_ns, dtype=np.float64) * 1e-9,
+            fw,
+            mw,
+            valid,
+            truth_of(sim),
+            fw_wind=np.asarray(b.fw_wind, dtype=np.float64),
+            bank=np.asarray(b.bank, dtype=np.float64),
+            learn_state=np.asarray(b.learn_state),
+        )
     else:
         grid = adaptive.grid_from_frames(sim.frames, profile)
         if opts.lat_accel:
@@ -239,9 +267,11 @@ def run_one(spec: RunSpec, engine: Engine | None = None) -> RunResult:
     t0 = time.perf_counter()
     eng = engine or default_engine
     try:
-        t, fw_hat, mw_hat, valid, truth = eng(spec)
+        est = eng(spec)
+        t, fw_hat, mw_hat, truth = est.t, est.fw, est.mw, est.truth
         kind = scenario_kind(spec.scenario)
-        acc = metrics.accuracy(t, fw_hat, mw_hat, truth, valid=valid, kind=kind)
+        acc = metrics.accuracy(t, fw_hat, mw_hat, truth, valid=est.valid, kind=kind)
+        extra = split_figures(est)
     except Exception as exc:  # a sweep must survive one bad case: the error is reported per row
         return RunResult(spec, None, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
     trace = None
@@ -256,7 +286,20 @@ def run_one(spec: RunSpec, engine: Engine | None = None) -> RunResult:
             "mw": mw[sl],
             "mw_ref": mw_ref[sl],
         }
-    return RunResult(spec, acc, "", time.perf_counter() - t0, trace=trace)
+    return RunResult(spec, acc, "", time.perf_counter() - t0, extra=extra, trace=trace)
+
+
+def split_figures(est: Estimate) -> dict[str, float]:
+    """The run's extra figures where the engine gives them: wind force NRMSE (``wind_nrmse``,
+    fraction; NaN without wind), its scale (``wind_scale_N``), bank RMS error (``bank_rms_deg``)
+    and the learner's state at the last step (``learn_state``)."""
+    out: dict[str, float] = {}
+    if est.fw_wind is not None and est.bank is not None and est.truth.fw_wind is not None:
+        sp = metrics.split_accuracy(est.t, est.fw_wind, est.bank, est.truth, valid=est.valid)
+        out.update(wind_nrmse=sp.wind_nrmse, wind_scale_N=sp.wind_scale, bank_rms_deg=sp.bank_rms_deg)
+    if est.learn_state is not None and len(est.learn_state):
+        out["learn_state"] = float(est.learn_state[-1])
+    return out
 
 
 def synthetic_engine(spec: RunSpec) -> Estimate:

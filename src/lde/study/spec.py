@@ -37,6 +37,9 @@ class Estimator(str, enum.Enum):
 
 #: ``RunSpec.est_vehicle`` value: derive the spec-sheet file from the simulated vehicle
 SPEC_SHEET = "spec-sheet"
+#: ``RunSpec.est_vehicle`` value: the spec sheet with the load (the loaded car's mass, yaw inertia
+#: and CG, what a load signal gives through the paper's eqs. 17-18); Mw is then about the true CG
+SPEC_SHEET_LOADED = "spec-sheet+load"
 
 
 def _as_bool(name: str, v: OptionValue) -> bool:
@@ -206,7 +209,8 @@ class RunSpec:
     Attributes:
         scenario: a :mod:`vcan_sim` scenario name (``lde sim --list``).
         est_vehicle: the estimator's vehicle file (shipped name or path), or :data:`SPEC_SHEET`:
-            the spec-sheet file of the simulated vehicle (:mod:`lde.study.specsheet`).
+            the spec-sheet file of the simulated vehicle (:mod:`lde.study.specsheet`), or
+            :data:`SPEC_SHEET_LOADED`: that file with the loaded car's mass, inertia and CG.
         sim_vehicle: the simulated vehicle (shipped name, path, or ``zoo:NAME`` for a zoo plant).
         payload: the simulator's payload case name ("none" = unloaded; "": the scenario's own).
         seed: the simulator's random seed.
@@ -259,13 +263,19 @@ class RunSpec:
 
 class Estimate(NamedTuple):
     """What an engine returns: step times t [s] (the log's time base), Fw_hat [N], Mw_hat [Nm],
-    the VALID mask, and the truth (Fw, Mw about the actual CG, Mw_ref about the unloaded CG)."""
+    the VALID mask, and the truth (Fw, Mw about the actual CG, Mw_ref about the unloaded CG); where
+    the engine has them, the wind's part of Fw [N], the bank angle [rad] (NaN where the backend does
+    not tell them apart) and the learner's state per step (0 not learned, 1 learning, 2 learned,
+    3 the backend does not learn)."""
 
     t: np.ndarray
     fw: np.ndarray
     mw: np.ndarray
     valid: np.ndarray
     truth: metrics.Truth
+    fw_wind: np.ndarray | None = None
+    bank: np.ndarray | None = None
+    learn_state: np.ndarray | None = None
 
 
 @dataclass
