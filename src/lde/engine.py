@@ -191,6 +191,28 @@ class StepBlock:
             frames=np.zeros((n, n_outputs, 8), np.uint8),
         )
 
+    @classmethod
+    def packed(cls, n: int, n_outputs: int = len(OUTPUT_MESSAGES)) -> tuple[StepBlock, np.ndarray]:
+        """:meth:`empty`, with every column a view into one uint8 buffer (returned too; each column
+        64-byte aligned): the live service's one-row block, whose row the compiled hand-off
+        (:mod:`lde.handoff`) copies into the recorder's rings as bytes. The columns have the same
+        dtypes, shapes and (C-contiguous, aligned, writable) numba types as :meth:`empty`'s."""
+        like = cls.empty(n, n_outputs)
+        cols = [(f.name, getattr(like, f.name)) for f in fields(cls)]
+        offs, size = [], 64  # room to align the first column
+        for _, a in cols:
+            offs.append(size)
+            size = (size + a.nbytes + 63) & ~63
+        mem = np.zeros(size, np.uint8)
+        base = (-mem.ctypes.data) % 64
+        views = {}
+        for (name, a), off in zip(cols, offs, strict=True):
+            o = base + off - 64
+            v = mem[o : o + a.nbytes].view(a.dtype).reshape(a.shape)
+            v[...] = a
+            views[name] = v
+        return cls(**views), mem
+
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
 
