@@ -386,7 +386,8 @@ class Service:
         self._pcols = new
         self._pt, self._pid, self._pext, self._pdlc, self._pword = new
         self._prx = np.ones(cap, np.bool_)
-        self._heads: dict[int, tuple[np.ndarray, ...]] = {}  # n -> the columns' first n rows (views)
+        #: n -> the engine's live arguments with the columns' first n rows (views)
+        self._heads: dict[int, tuple] = {}
 
     def pending_times(self) -> list[int]:
         """Receive times of the frames received and not fed to a step yet [ns] (time order)."""
@@ -523,24 +524,14 @@ class Service:
         self._tk[0] = t_k
         self._enable[0] = enable
         self._extra[0] = DEADLINE_MISS if miss else 0
-        cols = self._heads.get(n)
-        if cols is None:  # made once per count: a step sees 0 to a few frames
-            cols = self._heads[n] = (*(a[:n] for a in self._pcols), self._prx[:n])
-        pt, pid, pext, pdlc, pword, prx = cols
-        fed, steps = self.engine.run_arrays(
-            pt,
-            pid,
-            pext,
-            pdlc,
-            pword,
-            prx,
-            self._block,
-            step_times=self._tk,
-            enable=self._enable,
-            extra_status=self._extra,
-            final=True,
-            pinned=True,
-        )
+        eng = self.engine
+        args = self._heads.get(n)
+        if args is None or not eng.live_args_valid(
+            args
+        ):  # made once per count: a step sees 0 to a few frames
+            cols = (*(a[:n] for a in self._pcols), self._prx[:n])
+            args = self._heads[n] = eng.live_args(cols, self._block, self._tk, self._enable, self._extra)
+        fed, steps = eng.run_live(args)
         if steps != 1:  # the engine runs every given step when final: a broken invariant
             raise RuntimeError(f"the engine ran {steps} steps for one step time")
         if fed:
