@@ -113,7 +113,7 @@ class Phases:
         targets = [
             (svc.io, "recv", "recv"),
             (svc, "_take", "take"),
-            (svc.engine, "run_arrays", "engine"),
+            (svc.engine, "run_live" if hasattr(svc.engine, "run_live") else "run_arrays", "engine"),
             (svc.io, "send", "send"),
         ]
         for a, n in (("_after_send", "handoff"), ("_encode_diag", "diag")):
