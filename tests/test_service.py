@@ -673,3 +673,15 @@ def test_the_compiled_hand_off_sends_and_records_what_the_python_path_does(tmp_p
     np.testing.assert_array_equal(got.diag["deadline_misses"], timing[:, 4])
     np.testing.assert_allclose(got.diag["period_error_us"], timing[:, 0] / 1e3)
     np.testing.assert_allclose(got.diag["step_time_us"], timing[:, 1] / 1e3)
+
+
+def test_the_engine_call_built_once_follows_a_reset_of_the_engine(rig) -> None:
+    """The live engine call's arguments are built once per pending-frame count (Engine.live_args);
+    after Engine.reset (new state arrays) they are rebuilt, not run on the old state."""
+    svc, feeder, _, clock = rig
+    _lockstep(svc, feeder, clock, 5)
+    assert svc._heads and all(svc.engine.live_args_valid(a) for a in svc._heads.values())
+    svc.engine.reset()
+    assert not any(svc.engine.live_args_valid(a) for a in svc._heads.values())
+    _lockstep(svc, feeder, clock, 3, k0=5)
+    assert svc.engine.steps == 3  # the reset engine ran them
