@@ -47,9 +47,10 @@ def is_deadline_miss(period_error_ns: int) -> bool:
     return period_error_ns > DEADLINE_MISS_NS
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class StepTiming:
-    """Timing of one step (ns). ``latency_ns`` is -1 when no input frame has been used yet."""
+    """Timing of one step (ns). ``latency_ns`` is -1 when no input frame has been used yet. Built
+    once per live step: not frozen (see :class:`lde.service.StepResult`)."""
 
     period_error_ns: int
     step_time_ns: int

@@ -126,9 +126,11 @@ _PROBE_NS = 1_000_000_000  # SocketCAN filters lifted this long to name the ids 
 _E2E_KINDS = ("wrong sequence (counter jumped)", "wrong CRC", "repeated counter", "malformed")
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class StepResult:
-    """What one step produced (SI; ``t_ns`` in the bus/log time base).
+    """What one step produced (SI; ``t_ns`` in the bus/log time base). Built once per live step, so
+    not frozen: a frozen dataclass's ``__init__`` (``object.__setattr__`` per field) costs 3-4 times
+    as much.
 
     Attributes:
         t_ns: step time t_k [ns].
