@@ -5,9 +5,10 @@ Once a step's ``LDE_Estimate``, ``LDE_Overlay`` and ``LDE_Disturbance`` are on t
 timing into the statistics ring (:class:`lde.diagnostics.TimingStats`), ``LDE_Diag`` (values,
 saturation, encoding, E2E counter and CRC) into its prebuilt frame, and the recorder's hand-off (the
 sent frames and the step's row into the shared-memory rings of :class:`lde.recording.StepRing`).
-Done in Python they were about 30 small numpy stores and calls (15-30 us per step live, on cold
-caches); here they are one call, so a live step crosses from Python into compiled code twice (the
-engine's loop, then this) instead of once per store.
+Done in Python they were about 30 small numpy stores and calls (29-41 us per step live, on cold
+caches: docs/service.md, "The compiled hand-off"); here they are one call of 5-9 us, so a live step
+crosses from Python into compiled code twice (the engine's loop, then this) instead of once per
+store.
 
 The rings' heads are not advanced here: the call returns them and the caller publishes them after it
 returns (a function boundary: every store of the rows is done before a head that makes them visible
