@@ -103,7 +103,9 @@ class Phases:
     """``--phases``: the time spent in each part of a step, per step (only inside ``step_once``; a
     wrapper costs about 0.2 us per call, so the step cost of such a run is a little higher)."""
 
-    NAMES = ("recv", "take", "engine", "send", "diag", "rec_step", "rec_frame")
+    #: "handoff": the compiled hand-off after the sends (timing, LDE_Diag, recorder rings: lde.handoff);
+    #: "diag": the LDE_Diag encoding of a service before it (run the same harness on an older checkout)
+    NAMES = ("recv", "take", "engine", "send", "handoff", "diag", "rec_step", "rec_frame")
 
     def __init__(self, svc: Service, rec: Recorder | None) -> None:
         self.acc = dict.fromkeys(self.NAMES, 0)
@@ -111,10 +113,12 @@ class Phases:
         targets = [
             (svc.io, "recv", "recv"),
             (svc, "_take", "take"),
-            (svc.engine, "run_arrays", "engine"),
+            (svc.engine, "run_live" if hasattr(svc.engine, "run_live") else "run_arrays", "engine"),
             (svc.io, "send", "send"),
-            (svc, "_encode_diag", "diag"),
         ]
+        for a, n in (("_after_send", "handoff"), ("_encode_diag", "diag")):
+            if hasattr(svc, a):
+                targets.append((svc, a, n))
         if rec is not None:
             targets += [(rec, "step", "rec_step"), (rec, "frame", "rec_frame")]
         for obj, attr, name in targets:

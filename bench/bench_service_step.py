@@ -81,8 +81,9 @@ def run(n: int, backend: str, gap_s: float, phases: bool, rec_dir: Path) -> dict
     )
     acc: dict[str, list[int]] = collections.defaultdict(list)
     if phases:
-        for name in ("_drain", "_encode_diag", "_send"):
-            _timed(svc, name, acc)
+        for name in ("_drain", "_after_send", "_encode_diag", "_send"):
+            if hasattr(svc, name):
+                _timed(svc, name, acc)
         _timed(svc.engine, "run_arrays", acc)
         _timed(rec, "step", acc)
     mdps, esc = MessageEncoder(profile, "MDPS_Sensors"), MessageEncoder(profile, "ESC_Motion")

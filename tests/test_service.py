@@ -594,3 +594,94 @@ def test_the_mdps_grid_skips_the_windows_it_fell_behind_by_and_counts_them() -> 
     assert t[20] - t[19] == 10 * STEP_NS  # the phase is kept: whole periods skipped
     assert 0 < pe[20] < STEP_NS  # the one late step: the latest window that ended
     assert np.all(np.diff(t[20:]) == STEP_NS) and np.all(pe[21:] <= 1)  # on time again
+
+
+class _CallRecorder:
+    """A recorder without rings: the service calls it per frame and per step (the Python hand-off)."""
+
+    def __init__(self) -> None:
+        self.frames: list[tuple[int, int, int, int, bool]] = []
+        self.rows: list[tuple[float, float, tuple[int, ...]]] = []
+
+    def frame(self, t_ns: int, can_id: int, ext: bool, dlc: int, word: int, is_rx: bool) -> None:
+        self.frames.append((t_ns, can_id, dlc, word, is_rx))
+
+    def step(self, block, row: int, timing: tuple[int, ...]) -> None:
+        self.rows.append((float(block.est[row, 0]), float(block.t_overlay[row]), tuple(timing)))
+
+
+def test_the_compiled_hand_off_sends_and_records_what_the_python_path_does(tmp_path) -> None:
+    """The step's compiled hand-off (lde.handoff: timing, LDE_Diag, the recorder's rings) against a
+    recorder called from Python, on the same inputs and start times: the same LDE_Diag frames (and
+    their values those of lde.diagnostics.diag_values, saturations included), the same sent frames and
+    step rows in the recording."""
+    from lde.diagnostics import diag_signals
+    from lde.recording import Recorder, read_recording
+
+    runs = []
+    for ringed in (True, False):
+        ch = f"lde-test-handoff-{next(_channels)}"
+        feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+        svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+        clock = SimulatedClock(T0)
+        rec = Recorder(tmp_path / "ring.mcap") if ringed else _CallRecorder()
+        profile, vehicle = load_profile("lde"), load_vehicle("reference")
+        svc = Service(svc_bus, profile, vehicle, clock, backend="float", recorder=rec)
+        assert (svc._ring is not None) == ringed
+        fd = feeder(feed_bus, svc.profile)
+        results = []
+        # late starts: inside the range, past a deadline, past every LDE_Diag range (saturated)
+        lateness = {40: 300_000, 41: DEADLINE_MISS_NS + 1, 42: 9_000_000, 43: 20_000_000}
+        for k in range(120):
+            t_k = T0 + k * STEP_NS
+            fd.send_until(t_k)
+            clock.sleep_until(t_k)
+            late = lateness.get(k, 0)
+            clock.sleep_until(t_k + late)
+            results.append(svc.step_once(t_k, t_start=t_k + late))
+        if ringed:
+            rec.close()
+        names = ("LDE_Estimate", "LDE_Overlay", "LDE_Disturbance", "LDE_Diag")
+        ids = {svc.profile.output_id(n) for n in names}
+        out = [m for m in _outputs(feed_bus) if m.arbitration_id in ids]
+        feed_bus.shutdown()
+        svc_bus.shutdown()
+        runs.append((svc, rec, results, out))
+
+    (svc, rec, results, out), (_, calls, results_py, out_py) = runs
+    assert [bytes(m.data) for m in out] == [bytes(m.data) for m in out_py]
+    diag_id = svc.profile.output_id("LDE_Diag")
+    dc = MessageCodec(svc.profile, "LDE_Diag")
+    diags = [dc.decode(bytes(m.data)) for m in out if m.arbitration_id == diag_id]
+    assert len(diags) == len(results) == 120
+    for r, d in zip(results, diags, strict=True):
+        assert r.timing is not None
+        want = diag_signals(r.timing, 0)
+        assert {k: d[k] for k in want} == pytest.approx(want), r.t_ns
+    assert diags[42]["PeriodError"] == 8191 and diags[43]["DeadlineMisses"] == 3
+    assert [r.timing for r in results] == [r.timing for r in results_py]
+
+    got = read_recording(tmp_path / "ring.mcap")
+    tx = got.tx
+    cols = zip(tx.t_ns, tx.can_id, tx.data, tx.dlc, strict=True)
+    sent = [(int(t), int(i), bytes(d[:n])) for t, i, d, n in cols]
+    sent_py = [(t, i, int(w).to_bytes(8, "little")[:n]) for t, i, n, w, is_rx in calls.frames if not is_rx]
+    assert sent == sent_py
+    assert [s[2] for s in sent] == [bytes(m.data) for m in out]
+    np.testing.assert_array_equal(got.estimate["Fw"], [row[0] for row in calls.rows])
+    timing = np.array([row[2] for row in calls.rows])
+    np.testing.assert_array_equal(got.diag["deadline_misses"], timing[:, 4])
+    np.testing.assert_allclose(got.diag["period_error_us"], timing[:, 0] / 1e3)
+    np.testing.assert_allclose(got.diag["step_time_us"], timing[:, 1] / 1e3)
+
+
+def test_the_engine_call_built_once_follows_a_reset_of_the_engine(rig) -> None:
+    """The live engine call's arguments are built once per pending-frame count (Engine.live_args);
+    after Engine.reset (new state arrays) they are rebuilt, not run on the old state."""
+    svc, feeder, _, clock = rig
+    _lockstep(svc, feeder, clock, 5)
+    assert svc._heads and all(svc.engine.live_args_valid(a) for a in svc._heads.values())
+    svc.engine.reset()
+    assert not any(svc.engine.live_args_valid(a) for a in svc._heads.values())
+    _lockstep(svc, feeder, clock, 3, k0=5)
+    assert svc.engine.steps == 3  # the reset engine ran them

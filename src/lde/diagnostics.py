@@ -47,9 +47,10 @@ def is_deadline_miss(period_error_ns: int) -> bool:
     return period_error_ns > DEADLINE_MISS_NS
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class StepTiming:
-    """Timing of one step (ns). ``latency_ns`` is -1 when no input frame has been used yet."""
+    """Timing of one step (ns). ``latency_ns`` is -1 when no input frame has been used yet. Built
+    once per live step: not frozen (see :class:`lde.service.StepResult`)."""
 
     period_error_ns: int
     step_time_ns: int
@@ -112,30 +113,44 @@ class TimingStats:
         if capacity <= 0:
             raise ValueError("capacity must be > 0")
         self.capacity = int(capacity)
-        self._period = np.zeros(self.capacity, np.int64)
-        self._step = np.zeros(self.capacity, np.int64)
-        self._lat = np.zeros(self.capacity, np.int64)
-        self.count = 0  # steps recorded since start
-        self.deadline_misses = 0  # late steps + skipped grid points since start
-        self.skipped = 0  # grid points skipped after an overrun
+        #: the ring: period error, step time, latency [ns] (rows), one column per step
+        self.rows = np.zeros((3, self.capacity), np.int64)
+        self._period, self._step, self._lat = self.rows
+        #: steps recorded, deadline misses (late steps + skipped grid points), skipped grid points,
+        #: since start (an array: the live step's compiled hand-off, lde.handoff, updates it in place)
+        self.ctr = np.zeros(3, np.int64)
         self._window_start = 0
 
+    @property
+    def count(self) -> int:
+        """Steps recorded since start."""
+        return int(self.ctr[0])
+
+    @property
+    def deadline_misses(self) -> int:
+        """Late steps + skipped grid points since start."""
+        return int(self.ctr[1])
+
+    @property
+    def skipped(self) -> int:
+        """Grid points skipped after an overrun, since start."""
+        return int(self.ctr[2])
+
     def record(self, period_error_ns: int, step_time_ns: int, latency_ns: int) -> StepTiming:
-        """Store one step's timing (hot path: three array stores and a compare)."""
+        """Store one step's timing (three array stores and a compare)."""
         i = self.count % self.capacity
         self._period[i] = period_error_ns
         self._step[i] = step_time_ns
         self._lat[i] = latency_ns
-        self.count += 1
         miss = is_deadline_miss(period_error_ns)
-        if miss:
-            self.deadline_misses += 1
+        self.ctr[0] += 1
+        self.ctr[1] += miss
         return StepTiming(period_error_ns, step_time_ns, latency_ns, miss, self.deadline_misses)
 
     def record_skipped(self, n: int) -> None:
         """``n`` grid points were skipped (the loop overran): each is a deadline miss."""
-        self.skipped += n
-        self.deadline_misses += n
+        self.ctr[2] += n
+        self.ctr[1] += n
 
     def _slice(self, start: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         start = max(start, self.count - self.capacity)

@@ -477,6 +477,8 @@ class StepRing:
         for (name, dt, shape), off in zip(spec, offs, strict=True):
             a = np.frombuffer(self._mm, dtype=dt, count=int(np.prod(shape)), offset=off).reshape(shape)
             setattr(self, name, a)
+        #: byte offset of each column in the shared memory (:meth:`memory`)
+        self.offsets = {name: off for (name, _, _), off in zip(spec, offs, strict=True)}
         self._fh = 0  # producer's copies of its heads
         self._sh = 0
         self._f_tail_seen = 0
@@ -532,6 +534,18 @@ class StepRing:
             self.timing[i] = timing
         self._sh = h + 1
         self.ctl[_S_HEAD] = h + 1
+
+    def memory(self) -> np.ndarray:
+        """The rings' shared memory as one uint8 array (the columns are views of it at
+        :attr:`offsets`), for a compiled producer (:mod:`lde.handoff`)."""
+        return np.frombuffer(self._mm, np.uint8)
+
+    def published(self, frame_head: int, step_head: int) -> None:
+        """A compiled producer stored rows up to these heads: make them visible to the writer."""
+        self._fh = frame_head
+        self.ctl[_F_HEAD] = frame_head
+        self._sh = step_head
+        self.ctl[_S_HEAD] = step_head
 
     # ------------------------------------------------------------------ consumer (writer)
     def take_frames(self) -> FrameBatch:

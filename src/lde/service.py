@@ -60,7 +60,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -70,16 +70,30 @@ import numpy as np
 from .busfaults import FLOOD_FOREIGN_HZ, BusFaults, WindowCounts
 from .busio import ERROR_FRAME, RxFrame, TxFrame, bus_io
 from .clock import SimulatedClock
-from .codec import MessageCodec, encode_word
-from .diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummary, diag_values
-from .e2e import advance_counter
+from .codec import MessageCodec
+from .diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummary
 from .engine import Engine, StepBlock
 from .errors import BusError, ConfigError
 from .frames import FrameBatch, seconds_to_ns
 from .grid import L_REF, lock_anchor, lock_deadline, lock_timeout, new_lock
+from .handoff import (
+    I_DIAG_CTR,
+    I_DIAG_SLOT,
+    I_F_HEAD,
+    I_N_SENT,
+    I_NEWEST,
+    I_S_HEAD,
+    I_T_K,
+    I_T_SENT,
+    I_T_START,
+    N_INTS,
+    RING_LAY,
+    after_send,
+)
 from .learned import LearnedKeeper, LearnedSnapshot
 from .params import Vehicle, load_vehicle
 from .profiles import Profile, load_profile
+from .recording import StepRing
 from .signals import Receiver
 from .status import DEADLINE_MISS, VALID
 from .units import STEP_NS, STEP_S
@@ -112,9 +126,11 @@ _PROBE_NS = 1_000_000_000  # SocketCAN filters lifted this long to name the ids 
 _E2E_KINDS = ("wrong sequence (counter jumped)", "wrong CRC", "repeated counter", "malformed")
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class StepResult:
-    """What one step produced (SI; ``t_ns`` in the bus/log time base).
+    """What one step produced (SI; ``t_ns`` in the bus/log time base). Built once per live step, so
+    not frozen: a frozen dataclass's ``__init__`` (``object.__setattr__`` per field) costs 3-4 times
+    as much.
 
     Attributes:
         t_ns: step time t_k [ns].
@@ -200,7 +216,6 @@ class Service:
         self.vehicle = vehicle if isinstance(vehicle, Vehicle) else load_vehicle(vehicle)
         self.clock = clock
         self.backend = backend
-        self.recorder = recorder
         self.overlay_enabled = overlay_enabled
         if timebase_offset_ns is None:
             simulated = isinstance(clock, SimulatedClock)
@@ -209,7 +224,8 @@ class Service:
         self.log_period_ns = int(log_period_s * 1e9)
 
         self.engine = Engine(self.profile, self.vehicle, backend, explicit=True)
-        self._block = StepBlock.empty(1, len(self.engine.outputs.names))
+        n_out = len(self.engine.outputs.names)
+        self._block, self._block_mem = StepBlock.packed(1, n_out)
         self._tk = np.zeros(1, np.int64)
         self._enable = np.ones(1, np.bool_)
         self._extra = np.zeros(1, np.uint8)
@@ -230,15 +246,45 @@ class Service:
             )
         )
         self._diag_view = self._diag_tx.view
-        self._diag_args = dc.layout.kernel_args()
-        self._diag_vals = np.zeros(len(dc.order), np.float64)
-        self._diag_slots = tuple(
-            dc.index[n] for n in ("PeriodError", "StepTime", "Latency", "DeadlineMisses", "E2ERejects")
-        )
-        self._diag_word = np.zeros(1, np.uint64)
-        self._encode_word = _resolved(encode_word, self._diag_vals, *self._diag_args, 0)
-        self._diag_bytes = self._diag_word.view(np.uint8)
-        self._diag_ctr = (0, dc.scheme.modulus, dc.scheme.invalid_counter)
+        # the step's work after its sends, one compiled call (lde.handoff): timing, LDE_Diag, recorder
+        lay = dc.layout
+        slots = [dc.index[n] for n in ("PeriodError", "StepTime", "Latency", "DeadlineMisses", "E2ERejects")]
+        rejects_at = self._block.e2e_rejects.ctypes.data - self._block_mem.ctypes.data
+        self._ints = np.zeros(N_INTS, np.int64)
+        self._tx_t = np.full(n_out + 1, -1, np.int64)
+        self._ints[I_N_SENT] = n_out
+        self.stats = TimingStats()
+        self._handoff_args = [
+            self._ints,
+            self.stats.rows,
+            self.stats.ctr,
+            np.zeros(len(dc.order), np.float64),
+            np.stack([lay.shift, lay.nbits, lay.little_endian, lay.signed, lay.is_value]).astype(np.int64),
+            np.stack([lay.scale, lay.offset, lay.lo, lay.hi]).astype(np.float64),
+            np.ascontiguousarray(dc.scheme.counter_parts),
+            np.ascontiguousarray(dc.scheme.checksum_parts),
+            np.array(
+                [lay.length, dc.scheme.kind_code, lay.frame_id, dc.scheme.modulus, dc.scheme.invalid_counter]
+                + slots
+                + [rejects_at],
+                np.int64,
+            ),
+            self._diag_view,
+            self._block.frames,
+            np.array([(tx.can_id, tx.dlc) for tx in (*self._tx, self._diag_tx)], np.int64),
+            self._tx_t,
+            self._block_mem,
+            np.zeros(0, np.uint8),  # the recorder's rings (recorder setter)
+            np.zeros((0, 3), np.int64),
+            np.zeros(len(RING_LAY), np.int64),
+        ]
+        self._ring: StepRing | None = None
+        self._recorder: Any = None
+        self._after_send = _resolved(after_send, *self._handoff_args)  # no recorder yet: stores nothing
+        self._ints[I_DIAG_CTR] = 0  # the resolving call above advanced it
+        self.stats.ctr[:] = 0
+        self.stats.rows[:] = 0
+        self.recorder = recorder
         # the frames received and not fed yet, in preallocated columns (the engine reads slices)
         self._np = 0
         self._pcols: tuple[np.ndarray, ...] = ()
@@ -262,7 +308,6 @@ class Service:
         self._e2e_prev: dict[str, tuple[int, ...]] = {}  # message -> E2E counts at that check
         self._warm_up()
         self._run_engine_empty()  # resolves the pinned overload now (28 ms of numba typing), not at step 1
-        self.stats = TimingStats()
         self._newest_input_ns = -1  # receive time of the newest frame fed so far
         self._restamp: bool | None = None  # stamp frames on receipt (decided at the first frame)
         self._last_t_k: int | None = None  # the latest step time run [ns, bus time base]
@@ -301,6 +346,32 @@ class Service:
                 )
             self.learned = LearnedKeeper(learned, int(learned_period_s * 1e9))
 
+    @property
+    def recorder(self) -> Any:
+        """The recorder (:class:`lde.recording.Recorder`, or any object with its ``frame`` and
+        ``step`` methods), or None. A Recorder's rings are written by the step's compiled hand-off
+        (:mod:`lde.handoff`); any other recorder is called per frame and per step."""
+        return self._recorder
+
+    @recorder.setter
+    def recorder(self, rec: Any) -> None:
+        self._recorder = rec
+        ring = getattr(rec, "ring", None)
+        a = self._handoff_args
+        if isinstance(ring, StepRing) and ring.n_outputs == self._block.frames.shape[1]:
+            self._ring = ring
+            b, mem = self._block, self._block_mem
+            tab = []
+            for f in fields(StepBlock):
+                col = getattr(b, f.name)
+                tab.append((col.ctypes.data - mem.ctypes.data, ring.offsets[f.name], col.nbytes))
+            a[14] = ring.memory()
+            a[15] = np.array(tab, np.int64)
+            a[16] = np.array([ring.offsets[k] for k in RING_LAY[:-2]] + [ring.nf, ring.ns], np.int64)
+        else:
+            self._ring = None
+            a[14] = np.zeros(0, np.uint8)
+
     def _alloc_pending(self, cap: int) -> None:
         """(Re)allocate the pending columns with room for ``cap`` frames, keeping their contents."""
         n = self._np
@@ -317,7 +388,8 @@ class Service:
         self._pcols = new
         self._pt, self._pid, self._pext, self._pdlc, self._pword = new
         self._prx = np.ones(cap, np.bool_)
-        self._heads: dict[int, tuple[np.ndarray, ...]] = {}  # n -> the columns' first n rows (views)
+        #: n -> the engine's live arguments with the columns' first n rows (views)
+        self._heads: dict[int, tuple] = {}
 
     def pending_times(self) -> list[int]:
         """Receive times of the frames received and not fed to a step yet [ns] (time order)."""
@@ -406,8 +478,8 @@ class Service:
         self._pdlc[n] = dlc
         self._pword[n] = word
         self._np = n + 1
-        if self.recorder is not None:
-            self.recorder.frame(t_rx, can_id, ext, dlc, word, True)
+        if self._recorder is not None:
+            self._recorder.frame(t_rx, can_id, ext, dlc, word, True)
         if anchor and self._lock is not None:
             self._on_anchor(t_rx)
 
@@ -454,24 +526,14 @@ class Service:
         self._tk[0] = t_k
         self._enable[0] = enable
         self._extra[0] = DEADLINE_MISS if miss else 0
-        cols = self._heads.get(n)
-        if cols is None:  # made once per count: a step sees 0 to a few frames
-            cols = self._heads[n] = (*(a[:n] for a in self._pcols), self._prx[:n])
-        pt, pid, pext, pdlc, pword, prx = cols
-        fed, steps = self.engine.run_arrays(
-            pt,
-            pid,
-            pext,
-            pdlc,
-            pword,
-            prx,
-            self._block,
-            step_times=self._tk,
-            enable=self._enable,
-            extra_status=self._extra,
-            final=True,
-            pinned=True,
-        )
+        eng = self.engine
+        args = self._heads.get(n)
+        if args is None or not eng.live_args_valid(
+            args
+        ):  # made once per count: a step sees 0 to a few frames
+            cols = (*(a[:n] for a in self._pcols), self._prx[:n])
+            args = self._heads[n] = eng.live_args(cols, self._block, self._tk, self._enable, self._extra)
+        fed, steps = eng.run_live(args)
         if steps != 1:  # the engine runs every given step when final: a broken invariant
             raise RuntimeError(f"the engine ran {steps} steps for one step time")
         if fed:
@@ -520,14 +582,29 @@ class Service:
         if self._last_t_k is None or t_k > self._last_t_k:
             self._last_t_k = t_k
         b = self._block
-        for tx, view, j in zip(self._tx, self._out_views, range(len(self._tx)), strict=True):
-            view[:] = b.frames[0, j, : tx.dlc]
-            self._send(tx)
+        out = b.frames[0]
+        tx_t = self._tx_t
+        for j, tx in enumerate(self._tx):
+            tx.view[:] = out[j, : tx.dlc]
+            tx_t[j] = self._send(tx)
         t_sent = self.now_ns()
-        latency = t_sent - self._newest_input_ns if self._newest_input_ns >= 0 else -1
-        timing = self.stats.record(period_error, t_sent - t_start, latency)
-        self._send(self._encode_diag(timing, int(b.e2e_rejects[0])))
+        diag = self._diag_tx
+        t_diag = t_sent / 1e9  # LDE_Diag is stamped with the time its step time ends
+        ints = self._ints
+        ints[I_T_K] = t_k
+        ints[I_T_START] = t_start
+        ints[I_T_SENT] = t_sent
+        ints[I_NEWEST] = self._newest_input_ns
+        tx_t[-1] = seconds_to_ns(t_diag)
+        self._after_send(*self._handoff_args)
+        ring = self._ring
+        diag_sent = self._send(diag, t_diag, ring is None) >= 0
+        if ring is not None:
+            ring.published(int(ints[I_F_HEAD]) + (diag_sent and bool(ints[I_DIAG_SLOT])), int(ints[I_S_HEAD]))
 
+        step_time = t_sent - t_start
+        latency = t_sent - self._newest_input_ns if self._newest_input_ns >= 0 else -1
+        timing = StepTiming(period_error, step_time, latency, miss, self.stats.deadline_misses)
         self.steps += 1
         status = int(b.status[0])
         state = int(b.overlay_state[0])
@@ -549,35 +626,18 @@ class Service:
             overlay_enable=enable,
         )
         self.last = res
-        if self.recorder is not None:
-            self.recorder.step(
-                b,
-                0,
-                (
-                    timing.period_error_ns,
-                    timing.step_time_ns,
-                    timing.latency_ns,
-                    int(timing.deadline_miss),
-                    timing.deadline_misses,
-                    self.stats.skipped,
-                ),
-            )
+        rec = self._recorder
+        if rec is not None and ring is None:  # a recorder without rings: called
+            row = (period_error, step_time, latency, int(miss), timing.deadline_misses, self.stats.skipped)
+            rec.step(b, 0, row)
         return res
 
-    def _encode_diag(self, timing: StepTiming, rejects: int) -> TxFrame:
-        """``LDE_Diag`` of this step into its prebuilt message (compiled encoder, counter, CRC)."""
-        vals = self._diag_vals
-        for slot, v in zip(self._diag_slots, diag_values(timing, rejects), strict=True):
-            vals[slot] = v
-        ctr, mod, inv = self._diag_ctr
-        self._diag_word[0] = self._encode_word(vals, *self._diag_args, ctr)
-        self._diag_ctr = (advance_counter.py_func(ctr, mod, inv), mod, inv)  # plain Python: no dispatch
-        view = self._diag_view
-        view[:] = self._diag_bytes[: view.shape[0]]
-        return self._diag_tx
-
-    def _send(self, tx: TxFrame) -> None:
-        t_s = self.now_ns() / 1e9
+    def _send(self, tx: TxFrame, t_s: float | None = None, record: bool = True) -> int:
+        """Send ``tx`` stamped ``t_s`` [s] (None: now); returns its stamp [ns, microsecond-rounded as
+        recorded] or -1 when the bus did not take it. ``record``: hand it to a recorder without rings
+        (a recorder's rings get the sent frames from the compiled hand-off)."""
+        if t_s is None:
+            t_s = self.now_ns() / 1e9
         try:
             self.io.send(tx, t_s)
         except (can.CanError, OSError) as exc:
@@ -585,10 +645,13 @@ class Service:
             # on (said in the log once per fault by the bus check, lde.busfaults)
             self.send_errors += 1
             self._send_error = str(exc)
-            return
+            return -1
         self.sent += 1
-        if self.recorder is not None:  # only frames the bus took
-            self.recorder.frame(seconds_to_ns(t_s), tx.can_id, tx.is_extended, tx.dlc, tx.word(), False)
+        t_ns = seconds_to_ns(t_s)
+        rec = self._recorder
+        if record and rec is not None and self._ring is None:
+            rec.frame(t_ns, tx.can_id, tx.is_extended, tx.dlc, tx.word(), False)
+        return t_ns
 
     # ------------------------------------------------------------------ learned state
     def learned_snapshot(self) -> LearnedSnapshot:

@@ -5,7 +5,8 @@ cache (:mod:`lde.jitcache`); parts can run in parallel processes (one core each)
 
 ===========  ======================================================================================
 ``fixed``    the data path with the default backend (the lateral filter in fixed point, its float
-             shadow and the learner)
+             shadow and the learner), and the live service's own kernels (``lde run``, ``lde demo``:
+             the MDPS-locked grid, the step's compiled hand-off :mod:`lde.handoff`)
 ``float``    the data path with the lateral filter in float
 ``paper-fixed``  the paper's filter in fixed point with its shadow
 ``paper``    the paper's filter in float
@@ -24,10 +25,12 @@ from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
 
+import can
 import numpy as np
 
 from vcan_sim.run import simulate
 
+from .clock import SimulatedClock
 from .engine import Engine
 from .frames import FrameBatch
 from .grid import build_grid
@@ -36,6 +39,7 @@ from .logio.textfmt import EXACT, Column, format_rows, time_column
 from .params import load_vehicle
 from .profiles import load_profile
 from .replay import CsvWriter, RecordingWriter, run_replay
+from .service import Service
 from .signals import decode_batch
 from .smoother import smooth_run
 
@@ -56,6 +60,15 @@ def _engine(backend: str) -> None:
         e = Engine(profile, vehicle, backend, explicit=explicit, shadow_thread=False)
         steps = frames.t_ns[::3] if explicit else None
         e.feed(frames, step_times=steps, final=True)
+
+
+def _service() -> None:
+    """A service on a virtual bus: building it loads (or compiles) every kernel its step calls."""
+    bus = can.Bus(interface="virtual", channel="lde-warmup")
+    try:
+        Service(bus, "lde", "reference", SimulatedClock(0), backend="fixed", input_filters=False).close()
+    finally:
+        bus.shutdown()
 
 
 def _logio() -> None:
@@ -92,7 +105,7 @@ def _smooth() -> None:
 
 
 _RUN: dict[str, Callable[[], None]] = {
-    "fixed": lambda: _engine("fixed"),
+    "fixed": lambda: (_engine("fixed"), _service()),
     "float": lambda: _engine("float"),
     "paper-fixed": lambda: _engine("paper-fixed"),
     "paper": lambda: _engine("paper"),
