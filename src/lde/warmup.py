@@ -104,8 +104,13 @@ def _smooth() -> None:
         track.read_all()
 
 
+def _fixed() -> None:
+    _engine("fixed")
+    _service()
+
+
 _RUN: dict[str, Callable[[], None]] = {
-    "fixed": lambda: (_engine("fixed"), _service()),
+    "fixed": _fixed,
     "float": lambda: _engine("float"),
     "paper-fixed": lambda: _engine("paper-fixed"),
     "paper": lambda: _engine("paper"),
