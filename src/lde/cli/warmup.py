@@ -39,7 +39,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--background",
         action="store_true",
-        help="return at once; a detached process compiles (log: --log, default: lde-warmup.log in /tmp)",
+        help="return at once; a detached process compiles (log: --log, default: lde-warmup.log, temp dir)",
     )
     p.add_argument("--log", type=Path, default=None, help="with --background: where its output goes")
     p.set_defaults(func=run)
