@@ -38,3 +38,31 @@ def test_a_part_really_runs(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["warmup", "--parts", "logio"]) == 0
     err = capsys.readouterr().err
     assert "logio:" in err and "lde warmup: done" in err
+
+
+def test_background_detaches_the_same_command(
+    monkeypatch: pytest.MonkeyPatch, tmp_path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    started: list[tuple[list[str], dict]] = []
+
+    class FakePopen:
+        pid = 4242
+
+        def __init__(self, argv, **kw):
+            started.append((argv, kw))
+
+    monkeypatch.setattr("lde.cli.warmup.subprocess.Popen", FakePopen)
+    log = tmp_path / "w.log"
+    assert main(["warmup", "--parts", "fixed", "--jobs", "2", "--background", "--log", str(log)]) == 0
+    ((argv, kw),) = started
+    assert argv[1:] == ["-m", "lde", "warmup", "--parts", "fixed", "--jobs", "2"]
+    assert kw["start_new_session"] and log.exists()
+    assert "pid 4242" in capsys.readouterr().err
+
+
+def test_background_with_an_unwritable_log_is_a_one_line_error(
+    tmp_path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["warmup", "--background", "--log", str(tmp_path / "no" / "such" / "w.log")]) == 2
+    err = capsys.readouterr().err
+    assert "cannot write it" in err and "Traceback" not in err

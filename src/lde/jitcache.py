@@ -4,10 +4,11 @@ lde's kernels are numba functions cached on disk (``cache=True``). numba (0.59+)
 function's cache next to its source in ``__pycache__`` when that directory is writable, else in
 the user's cache directory (``~/.cache/numba/<dir>_<sha1 of the source directory>``), or only in
 ``$NUMBA_CACHE_DIR/<dir>_<sha1>`` when that is set; an entry is valid for the same source content,
-Python, numba and CPU. A first run after a fresh install (or an upgrade) compiles them: 20-40 s of
-CPU per backend (``bench/run_all.py --cold`` measures it). :func:`is_warm` tells, before numba is
-even imported, whether the data path's loop is cached, so that the CLI can say what is happening
-at once (:mod:`lde.cli.jit`); ``lde warmup`` compiles everything ahead of time (:mod:`lde.warmup`).
+Python, numba and CPU. A first run after a fresh install (or an upgrade) compiles them: 25-35 s of
+CPU per backend (``bench/run_all.py --cold`` measures it; docs/startup.md has the breakdown).
+:func:`is_warm` tells, before numba is even imported, whether the data path's loop is cached, so
+that the CLI can say what is happening at once (:mod:`lde.cli.jit`); ``lde warmup`` compiles
+everything ahead of time (:mod:`lde.warmup`).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ __all__ = ["cache_dirs", "is_warm", "notice", "NOTICE"]
 
 NOTICE = (
     "lde: compiling the numba kernels of the data path (first run after an install or an upgrade: "
-    "20-40 s of CPU per backend, once; cached in {where}; `lde warmup` does it ahead of time)"
+    "25-35 s of CPU per backend, once; cached in {where}; `lde warmup --background` does it ahead of time)"
 )
 
 

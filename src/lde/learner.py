@@ -281,7 +281,7 @@ def _svf(ls, k, u, w, zeta, dt):  # pragma: no cover - compiled
     ls[o + 2] = ydd
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def learner_step(
     lp, ls, ws, p, kout, vx, angle, yaw, tcol, tast, ay, zfric, valid
 ):  # pragma: no cover - compiled

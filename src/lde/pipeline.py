@@ -259,7 +259,9 @@ def _run_loop(
                     fresh |= 1 << q
             prev_t[0] = tk
             est = o_est[n]
-            status = STEP(bp, bs, tk, vin, fresh, ok_m, ok_e, est)
+            # np.int64 / bool: numba types the call while the loop's types are still partial (fresh
+            # as the literal 0, the flags as literal True) and would compile the step once more for them
+            status = STEP(bp, bs, tk, vin, np.int64(fresh), bool(ok_m), bool(ok_e), est)
             status |= extra
             gain = est[O_GAIN]
             if math.isfinite(gain) and gain > 0.0:  # the backend's learned tires (else the vehicle file's)

@@ -1,15 +1,20 @@
-"""``lde warmup [--parts fixed,float,...] [--jobs N]``: compile lde's numba kernels now.
+"""``lde warmup [--parts fixed,float,...] [--jobs N] [--background]``: compile lde's numba kernels now.
 
-A first run after an install or an upgrade compiles them (20-40 s of CPU per backend); after
+A first run after an install or an upgrade compiles them (25-35 s of CPU per backend); after
 ``lde warmup`` the first ``lde replay``, ``lde run`` or ``lde demo`` starts warm. Run it once
-after ``pip install`` (with ``--jobs 2`` on two cores).
+after ``pip install`` (with ``--jobs 2`` on two cores; ``--background`` returns at once and leaves
+the compiling to a detached process, e.g. in a post-install step).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 from ..errors import ConfigError
 
@@ -31,6 +36,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "writers, the simulator, the smoother; default: all)",
     )
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="compile in N processes")
+    p.add_argument(
+        "--background",
+        action="store_true",
+        help="return at once; a detached process compiles (log: --log, default: lde-warmup.log, temp dir)",
+    )
+    p.add_argument("--log", type=Path, default=None, help="with --background: where its output goes")
     p.set_defaults(func=run)
     return p
 
@@ -48,12 +59,38 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--parts {args.parts}: choose from {', '.join(PARTS)}")
     if args.jobs < 1:
         raise ConfigError(f"--jobs {args.jobs}: give 1 or more")
+    if args.background:
+        return _detach(parts, args.jobs, args.log or Path(tempfile.gettempdir()) / "lde-warmup.log")
     t0 = time.perf_counter()
     for part, seconds in warm_up(parts, jobs=args.jobs):
         print(f"  {part}: {seconds:.1f} s", file=sys.stderr, flush=True)
     state = "were cached already" if warm else "compiled"
     print(
         f"lde warmup: done in {time.perf_counter() - t0:.1f} s (the data path's kernels {state})",
+        file=sys.stderr,
+    )
+    return 0
+
+
+def _detach(parts: list[str], jobs: int, log: Path) -> int:
+    """Start ``lde warmup`` for ``parts`` in a new session (it survives this shell), output to ``log``."""
+    argv = [sys.executable, "-m", "lde", "warmup", "--parts", ",".join(parts), "--jobs", str(jobs)]
+    try:
+        out = log.open("ab")
+    except OSError as e:
+        raise ConfigError(f"--log {log}: cannot write it ({e.strerror})") from None
+    with out:
+        proc = subprocess.Popen(
+            argv,
+            stdin=subprocess.DEVNULL,
+            stdout=out,
+            stderr=out,
+            start_new_session=True,
+            env=dict(os.environ),
+        )
+    print(
+        f"lde warmup: compiling in the background (pid {proc.pid}, log {log}); commands started before it "
+        "ends compile what they need themselves",
         file=sys.stderr,
     )
     return 0

@@ -229,6 +229,9 @@ def _parse_lines(buf: np.ndarray, counts: np.ndarray) -> FrameBatch:
     dlc = np.empty(cap, np.uint8)
     words = np.empty(cap, np.uint64)
     rx = np.empty(cap, np.bool_)
+    if buf.flags.writeable:  # one signature (read-only, as a bytes buffer gives it): one compilation
+        buf = buf.view()
+        buf.flags.writeable = False
     k = _parse_block(buf, _HEX, t, cid, ext, dlc, words, rx, counts) if buf.size else 0
     # copies: the capacity's unused pages are released with the arrays
     return FrameBatch(

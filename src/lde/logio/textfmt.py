@@ -122,10 +122,11 @@ def _digits17(a, limbs):  # pragma: no cover - compiled
         # m * 5**q * 2**(e2 + q), q >= 0 for a < 1e17
         limbs[0] = np.uint64(m) & np.uint64(0xFFFFFFFF)
         limbs[1] = np.uint64(m) >> np.uint64(32)
-        n = 2
+        # int64, not literals: numba would compile _mul_small once more per literal it sees
+        n = np.int64(2)
         r = q
         while r >= 13:  # 5**13 < 2**32
-            n = _mul_small(limbs, n, 1220703125)
+            n = _mul_small(limbs, n, np.int64(1220703125))
             r -= 13
         if r > 0:
             n = _mul_small(limbs, n, 5**r)
@@ -150,7 +151,7 @@ def _digits17(a, limbs):  # pragma: no cover - compiled
 def _format(fcols, icols, kinds, slot, decimals, sep, sep_off, end, nan_text, lut, out, row_off, r0, r1):
     """Rows r0..r1-1 into ``out`` from 0; row_off[i - r0] = start of row i. Returns bytes written."""
     m = kinds.shape[0]
-    o = 0
+    o = np.int64(0)  # not the literal 0: numba would compile _write_exact for it too
     digits = np.empty(24, np.uint8)
     limbs = np.zeros(40, np.uint64)
     p10 = np.empty(m, np.float64)
