@@ -44,6 +44,23 @@ def _weave(t):
     return DEG * (12 * math.sin(2 * math.pi * 0.25 * t) + 8 * math.sin(2 * math.pi * 0.55 * t + 1.0))
 
 
+def _sense(x, delta, body, tires, s, n_ratio, rng, wind=0.0):
+    """The sensors of the linear truth at state ``x = [beta, r]`` and road-wheel angle ``delta``
+    [rad]: (a_y [m/s^2], yaw rate [rad/s], column and assist torque [Nm]). ``tires``: per-tire
+    (Cf, Cr, K); the aligning torque 2 K alpha_f splits 1:3 between driver and assist; ``wind``
+    [N] acts on the body, so the accelerometer (roll-tilt scale ``s`` on the tire forces) feels it."""
+    cf, cr, k = tires
+    beta, r = x
+    af = delta - beta - body.lf * r / VX
+    ar = -beta + body.lr * r / VX
+    t_align = 2 * k * af
+    ay = (s * (2 * cf * af + 2 * cr * ar) + wind) / body.mass + rng.normal(0, 0.02)
+    yaw = r + rng.normal(0, 0.05 * DEG)
+    tcol = t_align / n_ratio / 4 + rng.normal(0, 0.01)
+    tast = 3 * t_align / n_ratio / 4
+    return ay, yaw, tcol, tast
+
+
 def _learn(scale_f, scale_r, scale_k, steer=_weave, seconds=60.0, seed=0):
     """Run filter + learner on a truth whose Cf, Cr, K are the prior's times the scales; returns the
     filter's parameter vector at the end, the prior's and the learner state."""
@@ -66,14 +83,7 @@ def _learn(scale_f, scale_r, scale_k, steer=_weave, seconds=60.0, seed=0):
     for i in range(int(seconds / STEP_S)):
         ti = i * STEP_S
         delta = steer(ti) / n_ratio
-        beta, r = x
-        af = delta - beta - b.lf * r / VX
-        ar = -beta + b.lr * r / VX
-        t_align = 2 * k * af
-        ay = s * (2 * cf * af + 2 * cr * ar) / b.mass + rng.normal(0, 0.02)
-        yaw = r + rng.normal(0, 0.05 * DEG)
-        tcol = t_align / n_ratio / 4 + rng.normal(0, 0.01)
-        tast = 3 * t_align / n_ratio / 4
+        ay, yaw, tcol, tast = _sense(x, delta, b, (cf, cr, k), s, n_ratio, rng)
         st = E.step_kernel(
             p, xs, P, fs, ints, h, ph, 10**9 + i * STEP_NS, VX, steer(ti), yaw, tcol, tast, ay,
             True, True, True, True, True, out,

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 from scipy.linalg import expm
+from test_learner import VX, _sense
 
 from lde import estimator as E
 from lde import learner as Ln
@@ -29,7 +30,6 @@ from lde.status import VALID
 from lde.step import N_OUT, O_BANK, O_FW, O_FW_WIND, O_MW
 from lde.units import DEG, STEP_NS, STEP_S
 
-VX = 100.0 / 3.6
 G = 9.80665
 SCALES = (1.12, 0.92, 1.08)  # the truth's Cf, Cr, K against the prior's
 X_CP = 0.4  # m, the wind's centre of pressure ahead of the CG
@@ -105,15 +105,9 @@ def _drive(wind_n, bank_rad, seconds, *, step_at=None, step_n=0.0, learn=True) -
             sol = np.linalg.solve(np.column_stack([a[:, 0], bm[:, 0]]), -dist)
             hold_for[wind] = float(sol[1])
         delta = hold_for[wind] + (_lane_changes(ti) - K_PSI * psi) / n_ratio
-        beta, r = x
-        af = delta - beta - b.lf * r / VX
-        ar = -beta + b.lr * r / VX
-        t_align = 2 * k * af
-        ay = (s * (2 * cf * af + 2 * cr * ar) + wind) / b.mass + rng.normal(0, 0.02)
-        yaw = r + rng.normal(0, 0.05 * DEG)
+        r = x[1]
+        ay, yaw, tcol, tast = _sense(x, delta, b, (cf, cr, k), s, n_ratio, rng, wind=wind)
         sw = delta * n_ratio
-        tcol = t_align / n_ratio / 4 + rng.normal(0, 0.01)
-        tast = 3 * t_align / n_ratio / 4
         st = E.step_kernel(
             p, xs, P, fs, ints, h, ph, 10**9 + i * STEP_NS, VX, sw, yaw, tcol, tast, ay,
             True, True, True, True, True, out,

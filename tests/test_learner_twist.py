@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 import pytest
-from test_learner import _truth, _weave
+from test_learner import _sense, _truth, _weave
 
 from lde import estimator as E
 from lde import learner as Ln
@@ -81,14 +81,7 @@ def _learn_pinion(sig_ctb_deg: float, lag_twist_deg: float, seconds: float = 60.
     for i in range(int(seconds / STEP_S)):
         ti = i * STEP_S
         delta = _weave(ti) / n_ratio
-        beta, r = x
-        af = delta - beta - b.lf * r / VX
-        ar = -beta + b.lr * r / VX
-        t_align = 2 * k * af
-        ay = s * (2 * cf * af + 2 * cr * ar) / b.mass + rng.normal(0, 0.02)
-        yaw = r + rng.normal(0, 0.05 * DEG)
-        tcol = t_align / n_ratio / 4 + rng.normal(0, 0.01)
-        tast = 3 * t_align / n_ratio / 4
+        ay, yaw, tcol, tast = _sense(x, delta, b, (cf, cr, k), s, n_ratio, rng)
         angle = _weave(ti) + lag_twist_deg * DEG * tcol
         st = E.step_kernel(
             p, xs, P, fs, ints, h, ph, 10**9 + i * STEP_NS, VX, angle, yaw, tcol, tast, ay,
