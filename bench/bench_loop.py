@@ -45,7 +45,6 @@ import collections
 import json
 import os
 import platform
-import random
 import re
 import signal
 import subprocess
@@ -62,6 +61,7 @@ from lde.params import load_vehicle
 from lde.profiles import load_profile
 from lde.recording import Recorder
 from lde.service import Service
+from lde.testing.bus import private_multicast
 from lde.units import STEP_NS
 
 #: the service runs this long before the simulator's first frame can come (its start-up) [s]
@@ -241,8 +241,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--label", default="", help="a name for this run in the JSON")
     args = ap.parse_args(argv)
 
-    port = args.port or random.randint(40000, 60000)
-    channel = args.channel or (f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}")
+    own = private_multicast()
+    port = args.port or own["port"]
+    channel = args.channel or own["channel"]
     bus_kw: dict[str, object] = {"interface": args.interface, "channel": channel}
     if args.interface == "udp_multicast":
         bus_kw["port"] = port

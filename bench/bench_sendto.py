@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import random
 import socket
 import sys
 import time
@@ -30,6 +29,7 @@ import numpy as np
 from lde.busio import bus_io
 from lde.profiles import load_profile
 from lde.service import set_input_filters
+from lde.testing.bus import private_multicast
 
 _SLEEP_S = 0.0035
 
@@ -48,10 +48,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=4, help="datagrams per round (a step's outputs)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    channel = f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}"
-    port = random.randint(20000, 60000)
-    bus = can.Bus(interface="udp_multicast", channel=channel, port=port)
-    member = can.Bus(interface="udp_multicast", channel=channel, port=port)  # the simulator's socket
+    kw = private_multicast()
+    bus = can.Bus(**kw)
+    member = can.Bus(**kw)  # the simulator's socket
     set_input_filters(bus, load_profile("lde"))
     io = bus_io(bus)
     txs = [

@@ -48,6 +48,7 @@ import numpy as np
 
 from lde.errors import LogFormatError
 from lde.recording import read_recording
+from lde.testing.bus import private_multicast
 
 
 def _wait_steps(path: Path, n: int, timeout: float) -> bool:
@@ -66,8 +67,8 @@ def _wait_steps(path: Path, n: int, timeout: float) -> bool:
 
 
 def one_run(tmp: Path, k: int, target: str, rng: random.Random) -> dict:
-    port = rng.randint(40000, 60000)
-    channel = f"239.74.{rng.randint(1, 254)}.{rng.randint(1, 254)}"
+    kw = private_multicast(rng)
+    port, channel = kw["port"], kw["channel"]
     bus = ["--interface", "udp_multicast", "--channel", channel, "--bus-kwarg", f"port={port}"]
     path = tmp / f"killed_{k}.mcap"
     env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -158,8 +159,8 @@ def one_sim_run(tmp: Path, k: int, rng: random.Random) -> dict:
     from lde.logio import read_log, read_mcap
     from vcan_sim.truth import read_truth_csv
 
-    port = rng.randint(40000, 60000)
-    channel = f"239.74.{rng.randint(1, 254)}.{rng.randint(1, 254)}"
+    kw = private_multicast(rng)
+    port, channel = kw["port"], kw["channel"]
     bus = ["--interface", "udp_multicast", "--channel", channel, "--bus-kwarg", f"port={port}"]
     log, csv, mcap = (tmp / f"sim_{k}.{ext}" for ext in ("log", "csv", "mcap"))
     listener = _Listener({"interface": "udp_multicast", "channel": channel, "port": port})

@@ -3,7 +3,6 @@ bus that is not one of them (or a frame they do not recognise) goes through pyth
 
 from __future__ import annotations
 
-import random
 import time
 
 import can
@@ -14,6 +13,7 @@ from lde.busio import ERROR_FRAME, NOT_DATA, BusIO, bus_io, message_fields, sock
 from lde.frames import seconds_to_ns
 from lde.params import load_vehicle
 from lde.profiles import load_profile
+from lde.testing.bus import private_multicast
 
 msgpack = pytest.importorskip("msgpack")
 from can.interfaces.udp_multicast.utils import pack_message, unpack_message  # noqa: E402
@@ -37,11 +37,7 @@ FRAMES = [
 
 
 def _udp_pair() -> tuple[can.BusABC, can.BusABC]:
-    kw = {
-        "interface": "udp_multicast",
-        "channel": f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}",
-        "port": random.randint(40000, 60000),
-    }
+    kw = private_multicast()
     try:
         return can.Bus(**kw), can.Bus(**kw)
     except (can.CanError, OSError) as exc:  # pragma: no cover - no multicast on this host

@@ -345,15 +345,11 @@ def test_a_killed_live_sim_leaves_its_files_readable_up_to_about_the_kill(tmp_pa
     ends near the kill. The bound here is generous (a loaded machine); bench_sigkill.py --target sim
     holds the 1 s promise. The loss is measured against the frames heard on the bus."""
     pytest.importorskip("msgpack")
-    import random
 
+    from lde.testing.bus import private_multicast
     from vcan_sim.truth import read_truth_csv
 
-    kw = {
-        "interface": "udp_multicast",
-        "channel": f"239.75.{random.randint(1, 254)}.{random.randint(1, 254)}",
-    }
-    kw["port"] = random.randint(40000, 60000)
+    kw = private_multicast()
     try:
         heard = _Heard(kw)
     except (can.CanError, OSError) as exc:  # pragma: no cover - no multicast on this host

@@ -464,16 +464,12 @@ def test_udp_multicast_socket_filter_drops_foreign_frames_in_the_kernel() -> Non
     """The BPF program on python-can's udp_multicast socket: only the input ids get through (the
     service's own outputs, which the multicast loopback delivers, never reach Python)."""
     pytest.importorskip("msgpack")
-    import random
     import time
 
     from lde.service import set_input_filters
+    from lde.testing.bus import private_multicast
 
-    kw = {
-        "interface": "udp_multicast",
-        "channel": f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}",
-    }
-    kw["port"] = random.randint(40000, 60000)
+    kw = private_multicast()
     try:
         rx = can.Bus(**kw)
         tx = can.Bus(**kw)

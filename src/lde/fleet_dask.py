@@ -2,7 +2,7 @@
 
 :func:`run_jobs_on_dask` maps :func:`lde.fleet.replay_job` over the jobs on a ``LocalCluster`` of
 ``n_workers`` processes (one thread each: a replay's loop holds one core) or on an existing
-scheduler by address, and feeds the progress bar from ``distributed.as_completed``. A worker that
+scheduler by address, and feeds the progress bar as the jobs finish. A worker that
 dies or cannot import lde gives a failed :class:`lde.fleet.LogReport`; the other logs go on.
 
 A ``stop`` (the CLI's SIGINT/SIGTERM) sets a ``distributed.Event`` that every job polls between
@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from distributed import Client, Event, LocalCluster, as_completed, wait
+from distributed import Client, Event, LocalCluster, wait
 
 from .errors import LdeError
 from .fleet import LogReport, ReplayJob, job_done, progress_bar, replay_job
@@ -113,21 +113,18 @@ def _run(
         event_name = f"lde-replay-stop-{uuid.uuid4().hex}"
         event = Event(event_name, client=client)
         futures = client.map(_stoppable_job, list(jobs), event_name=event_name, poll_s=cfg.poll_s, pure=False)
-        index = {f.key: i for i, f in enumerate(futures)}
         out: list[LogReport | None] = [None] * len(jobs)
-        pending = set(futures)
+        pending = dict(enumerate(futures))
         stopping = False
-        ac = as_completed(futures)
         while pending:
             if stop is not None and not stopping and stop():
                 stopping = True
                 event.set()
-            # nothing finished in this poll: look at the stop flag again
+            # at most one poll without news: then the stop flag is looked at again
             with contextlib.suppress(TimeoutError):
-                wait(list(pending), timeout=cfg.poll_s, return_when="FIRST_COMPLETED")
-            for fut in ac.next_batch(block=False) if ac.has_ready() else []:
-                pending.discard(fut)
-                i = index[fut.key]
+                wait(list(pending.values()), timeout=cfg.poll_s, return_when="FIRST_COMPLETED")
+            for i in [i for i, fut in pending.items() if fut.done()]:
+                fut = pending.pop(i)
                 try:
                     rep = fut.result()
                 except Exception as exc:  # noqa: BLE001 - a worker died or could not import lde: report it

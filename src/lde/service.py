@@ -528,9 +528,8 @@ class Service:
         self._extra[0] = DEADLINE_MISS if miss else 0
         eng = self.engine
         args = self._heads.get(n)
-        if args is None or not eng.live_args_valid(
-            args
-        ):  # made once per count: a step sees 0 to a few frames
+        # the arguments are made once per count of pending frames (a step sees 0 to a few)
+        if args is None or not eng.live_args_valid(args):
             cols = (*(a[:n] for a in self._pcols), self._prx[:n])
             args = self._heads[n] = eng.live_args(cols, self._block, self._tk, self._enable, self._extra)
         fed, steps = eng.run_live(args)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import random
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -40,7 +41,7 @@ from ..errors import BusError, ConfigError
 from ..frames import ns_to_seconds, seconds_to_ns
 from .scheduler import Rank, Scheduler, Task
 
-__all__ = ["INTERFACES", "DELIVERY_TIMEOUT_S", "Medium", "BenchBus", "unique_channel"]
+__all__ = ["INTERFACES", "DELIVERY_TIMEOUT_S", "Medium", "BenchBus", "unique_channel", "private_multicast"]
 
 #: the python-can interfaces a bench runs on
 INTERFACES = ("virtual", "socketcan")
@@ -54,6 +55,18 @@ def unique_channel(label: str = "") -> str:
     """A python-can ``virtual`` channel name no other bench in this process uses."""
     tail = f"-{label}" if label else ""
     return f"lde-bench-{os.getpid()}-{next(_channel_ids)}{tail}"[:120]
+
+
+def private_multicast(rng: random.Random | None = None) -> dict[str, Any]:
+    """``can.Bus`` keyword arguments of a python-can ``udp_multicast`` bus on a group and port of
+    its own (239.74.x.y, 40000-60000): tests and benches running at the same time on one host do
+    not hear each other. Two buses made from the same dict hear each other."""
+    r = rng if rng is not None else random.Random()
+    return {
+        "interface": "udp_multicast",
+        "channel": f"239.74.{r.randint(1, 254)}.{r.randint(1, 254)}",
+        "port": r.randint(40000, 60000),
+    }
 
 
 def _key(msg: can.Message) -> tuple[int, bool, bytes]:
