@@ -83,8 +83,8 @@ N_SIG = 7
  L_EXC_TAU, L_EXC_RDOT, L_SIG1, L_SIG2, L_SIG3, L_QI1, L_QI2, L_QI3, L_QPHYS,
  L_TORSION, L_B_TAU, L_B_GATE, L_D_TAU, L_D_GATE_F, L_D_GATE_M, L_RATE,
  L_LEARNED_REL, L_MIN_SAMPLES, L_SIG_B, L_ENABLE, L_RELAX, L_EXC_SW, L_SLIDE, L_SLOW,
- L_QUIET, L_EXC_F, L_SIG_CTB) = range(34)  # fmt: skip
-N_LP = 34
+ L_QUIET, L_EXC_F, L_SIG_CTB, L_JP, L_CP, L_W_PIN) = range(37)  # fmt: skip
+N_LP = 37
 
 # --- learner state (ls, float) -----------------------------------------------------------------------
 # svf: 3 * N_SIG (value, derivative, second derivative); then regression blocks
@@ -114,7 +114,8 @@ LS_RLP = LS_BP + 6  # 2 s low-pass of the yaw rate minus the bias (the anchor te
 LS_HI = LS_RLP + 1  # heading integral since the last anchor, int (r - b) dt [rad]
 LS_HT = LS_HI + 1  # time since the last anchor [s]; < 0: no window open (waiting for an anchor)
 LS_AC = LS_HT + 1  # how long the anchor condition has held [s]
-N_LS = LS_AC + 1
+LS_PIN = LS_AC + 1  # fast SVF of the pinion angle (value, rate, acceleration): the rack's inertia and damping
+N_LS = LS_PIN + 3
 
 ST_NOT, ST_LEARNING, ST_LEARNED = 0, 1, 2
 
@@ -165,6 +166,12 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     lp[L_EXC_F] = 150.0  # ... and m a_y varies by more than this [N RMS, 0.2-3 Hz]
     lp[L_SLOW] = 1000.0  # once learned, the regressions' noise variance is this much larger (slower)
     lp[L_SIG_CTB] = 0.3 * DEG  # prior std of the torsion twist in the angle [rad/Nm]
+    # generic rack below the torsion bar (lower column, motor through its gear, rack, road wheels;
+    # referred to the steering column): vcan_sim's default steering, not a zoo plant's. Taken out of the
+    # measured N (T_col + T_ast) before the regressions (docs/estimator.md, "Rack inertia")
+    lp[L_JP] = 0.09  # [kg m^2]
+    lp[L_CP] = 0.40  # viscous damping [Nm s/rad]
+    lp[L_W_PIN] = 2.0 * math.pi * 15.0  # the pinion angle's SVF [rad/s]: 17 ms of lag at zeta 0.8
     return lp
 
 
@@ -268,9 +275,8 @@ def _project_bound(ls, toff, poff, n, i, lo, hi):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def _svf(ls, k, u, w, zeta, dt):  # pragma: no cover - compiled
-    """y'' = w^2 (u - y) - 2 zeta w y' (semi-implicit Euler); stores y, y', y''."""
-    o = LS_SVF + 3 * k
+def _svf(ls, o, u, w, zeta, dt):  # pragma: no cover - compiled
+    """y'' = w^2 (u - y) - 2 zeta w y' (semi-implicit Euler); stores y, y', y'' at ls[o:o+3]."""
     y = ls[o]
     yd = ls[o + 1]
     ydd = w * w * (u - y) - 2.0 * zeta * w * yd
@@ -298,7 +304,17 @@ def learner_step(
         ls[LS_INIT] = 0.0
         ls[LS_HT] = -1.0  # no heading through a gap: the next gyro-bias window starts at an anchor
         return False
-    T = n * (tcol + tast)
+    w, zeta = lp[L_W], lp[L_ZETA]
+    # the measured N (T_col + T_ast) drives the rack's inertia and damping as well as the tires: take
+    # them out (a generic J_p, c_p) with the pinion's rate and acceleration from a fast SVF, so that
+    # R3 does not explain them as twist and K (docs/estimator.md, "Rack inertia")
+    pin = angle - p[E.P_CTB] * tcol
+    if ls[LS_INIT] == 0.0:
+        ls[LS_PIN] = pin
+        ls[LS_PIN + 1] = 0.0
+        ls[LS_PIN + 2] = 0.0
+    _svf(ls, LS_PIN, pin, lp[L_W_PIN], zeta, dt)
+    T = n * (tcol + tast - lp[L_JP] * ls[LS_PIN + 2] - lp[L_CP] * ls[LS_PIN + 1])
     u = (yaw, ay, T, zfric, angle, tcol, vx)
     if ls[LS_INIT] == 0.0:
         for k in range(N_SIG):
@@ -312,9 +328,8 @@ def learner_step(
         ls[LS_BP + 4] = 0.0
         ls[LS_BP + 5] = 0.0
         ls[LS_WARM] = 0.0
-    w, zeta = lp[L_W], lp[L_ZETA]
     for k in range(N_SIG):
-        _svf(ls, k, u[k], w, zeta, dt)
+        _svf(ls, LS_SVF + 3 * k, u[k], w, zeta, dt)
     ls[LS_WARM] += dt
     o = LS_SVF
     r_f, r_d = ls[o + 3 * S_R], ls[o + 3 * S_R + 1]
