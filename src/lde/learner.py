@@ -83,8 +83,8 @@ N_SIG = 7
  L_EXC_TAU, L_EXC_RDOT, L_SIG1, L_SIG2, L_SIG3, L_QI1, L_QI2, L_QI3, L_QPHYS,
  L_TORSION, L_B_TAU, L_B_GATE, L_D_TAU, L_D_GATE_F, L_D_GATE_M, L_RATE,
  L_LEARNED_REL, L_MIN_SAMPLES, L_SIG_B, L_ENABLE, L_RELAX, L_EXC_SW, L_SLIDE, L_SLOW,
- L_QUIET, L_EXC_F, L_SIG_CTB, L_JP, L_CP, L_W_PIN) = range(37)  # fmt: skip
-N_LP = 37
+ L_QUIET, L_EXC_F, L_SIG_CTB) = range(34)  # fmt: skip
+N_LP = 34
 
 # --- learner state (ls, float) -----------------------------------------------------------------------
 # svf: 3 * N_SIG (value, derivative, second derivative); then regression blocks
@@ -114,8 +114,7 @@ LS_RLP = LS_BP + 6  # 2 s low-pass of the yaw rate minus the bias (the anchor te
 LS_HI = LS_RLP + 1  # heading integral since the last anchor, int (r - b) dt [rad]
 LS_HT = LS_HI + 1  # time since the last anchor [s]; < 0: no window open (waiting for an anchor)
 LS_AC = LS_HT + 1  # how long the anchor condition has held [s]
-LS_PIN = LS_AC + 1  # fast SVF of the pinion angle (value, rate, acceleration): the rack's inertia and damping
-N_LS = LS_PIN + 3
+N_LS = LS_AC + 1
 
 ST_NOT, ST_LEARNING, ST_LEARNED = 0, 1, 2
 
@@ -166,12 +165,6 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     lp[L_EXC_F] = 150.0  # ... and m a_y varies by more than this [N RMS, 0.2-3 Hz]
     lp[L_SLOW] = 1000.0  # once learned, the regressions' noise variance is this much larger (slower)
     lp[L_SIG_CTB] = 0.3 * DEG  # prior std of the torsion twist in the angle [rad/Nm]
-    # generic rack below the torsion bar (lower column, motor through its gear, rack, road wheels;
-    # referred to the steering column): vcan_sim's default steering, not a zoo plant's. Taken out of the
-    # measured N (T_col + T_ast) before the regressions (docs/estimator.md, "Rack inertia")
-    lp[L_JP] = 0.09  # [kg m^2]
-    lp[L_CP] = 0.40  # viscous damping [Nm s/rad]
-    lp[L_W_PIN] = 2.0 * math.pi * 15.0  # the pinion angle's SVF [rad/s]: 17 ms of lag at zeta 0.8
     return lp
 
 
@@ -275,8 +268,9 @@ def _project_bound(ls, toff, poff, n, i, lo, hi):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def _svf(ls, o, u, w, zeta, dt):  # pragma: no cover - compiled
-    """y'' = w^2 (u - y) - 2 zeta w y' (semi-implicit Euler); stores y, y', y'' at ls[o:o+3]."""
+def _svf(ls, k, u, w, zeta, dt):  # pragma: no cover - compiled
+    """y'' = w^2 (u - y) - 2 zeta w y' (semi-implicit Euler); stores y, y', y''."""
+    o = LS_SVF + 3 * k
     y = ls[o]
     yd = ls[o + 1]
     ydd = w * w * (u - y) - 2.0 * zeta * w * yd
@@ -304,17 +298,7 @@ def learner_step(
         ls[LS_INIT] = 0.0
         ls[LS_HT] = -1.0  # no heading through a gap: the next gyro-bias window starts at an anchor
         return False
-    w, zeta = lp[L_W], lp[L_ZETA]
-    # the measured N (T_col + T_ast) drives the rack's inertia and damping as well as the tires: take
-    # them out (a generic J_p, c_p) with the pinion's rate and acceleration from a fast SVF, so that
-    # R3 does not explain them as twist and K (docs/estimator.md, "Rack inertia")
-    pin = angle - p[E.P_CTB] * tcol
-    if ls[LS_INIT] == 0.0:
-        ls[LS_PIN] = pin
-        ls[LS_PIN + 1] = 0.0
-        ls[LS_PIN + 2] = 0.0
-    _svf(ls, LS_PIN, pin, lp[L_W_PIN], zeta, dt)
-    T = n * (tcol + tast - lp[L_JP] * ls[LS_PIN + 2] - lp[L_CP] * ls[LS_PIN + 1])
+    T = n * (tcol + tast)
     u = (yaw, ay, T, zfric, angle, tcol, vx)
     if ls[LS_INIT] == 0.0:
         for k in range(N_SIG):
@@ -328,8 +312,9 @@ def learner_step(
         ls[LS_BP + 4] = 0.0
         ls[LS_BP + 5] = 0.0
         ls[LS_WARM] = 0.0
+    w, zeta = lp[L_W], lp[L_ZETA]
     for k in range(N_SIG):
-        _svf(ls, LS_SVF + 3 * k, u[k], w, zeta, dt)
+        _svf(ls, k, u[k], w, zeta, dt)
     ls[LS_WARM] += dt
     o = LS_SVF
     r_f, r_d = ls[o + 3 * S_R], ls[o + 3 * S_R + 1]
@@ -372,14 +357,17 @@ def learner_step(
         s = p[E.P_S]
         ls[LS_P3 + N3 * N3 - 1] += lp[L_QI3] * tdec
         linear = abs(ay_f) < lp[L_AYMAX] and abs(a_f) < lp[L_DSWMAX]
-        excited = ls[LS_EXC] > lp[L_EXC_SW] ** 2 and ls[LS_BP + 4] > lp[L_EXC_F] ** 2
-        quiet = ls[LS_BP + 5] < (lp[L_QUIET] ** 2) * ls[LS_BP + 4]
-        excited = excited and quiet
+        # R3 and R1 need the steering to move (R3 works on its rate, R1 on the aligning torque's
+        # variation); R2 needs the lateral force to vary only: a steering-rate gate left it the fast
+        # parts of the manoeuvres, where its quasi-static rear-axle model is worst (Cr 8-16 % low on
+        # indep_twin, long_trail, tires_plus25; docs/estimator.md, "R2's own bias")
+        force_exc = ls[LS_BP + 4] > lp[L_EXC_F] ** 2 and ls[LS_BP + 5] < (lp[L_QUIET] ** 2) * ls[LS_BP + 4]
+        excited = force_exc and ls[LS_EXC] > lp[L_EXC_SW] ** 2
         xr = ws[0]
         ph = ws[1]
         sliding = abs(a_d) > lp[L_SLIDE]
         slow = lp[L_SLOW] if ls[LS_STATE] == ST_LEARNED else 1.0
-        if linear and excited and sliding:
+        if linear and force_exc and sliding:
             tfric = p[E.P_TFRIC]
             # R3: a_y = s X0 - (s/K) X1 - (s tau/K) X2 + (s N Tfric/(2K)) Xz - (s c_tb) Xtb + c3
             xr[0] = v_f * a_d / n - lf * r_d + v_f * (r_f - p[E.P_BR])
@@ -388,11 +376,12 @@ def learner_step(
             xr[3] = v_f * z_d
             xr[4] = -v_f * tc_d / n
             xr[5] = 1.0
-            _rls(ls, LS_T3, LS_P3, N3, xr, ay_f, slow * lp[L_SIG3] ** 2, ph)
-            # a twist is >= 0: push clamps it there, so R3 must too, or K, s and the friction stay
-            # fitted to the negative twist the filter never uses (docs/estimator.md, "Twist bound")
-            _project_bound(ls, LS_T3, LS_P3, N3, 4, 0.0, ls[LS_T3] * CTB_MAX)
-            ls[LS_N + 1] += 1.0
+            if excited:
+                _rls(ls, LS_T3, LS_P3, N3, xr, ay_f, slow * lp[L_SIG3] ** 2, ph)
+                # a twist is >= 0: push clamps it there, so R3 must too, or K, s and the friction stay
+                # fitted to the negative twist the filter never uses (docs/estimator.md, "Twist bound")
+                _project_bound(ls, LS_T3, LS_P3, N3, 4, 0.0, ls[LS_T3] * CTB_MAX)
+                ls[LS_N + 1] += 1.0
             # cascade: R1 uses s (and the friction) from R3, R2 uses t from R1 and K from R3; a
             # regression starts only once what it uses has CASCADE samples (no generic-value bias)
             cascade = 0.15 * lp[L_MIN_SAMPLES]
@@ -401,7 +390,7 @@ def learner_step(
             T_true = T_f - n * tfric * z_f - p[E.P_T0]
             xr[0] = T_true
             xr[1] = 1.0
-            if ls[LS_N + 1] > cascade:
+            if ls[LS_N + 1] > cascade and excited:
                 _rls(ls, LS_T1, LS_P1, N1, xr, iz * r_d + lr * m * ay_f / s, slow * lp[L_SIG1] ** 2, ph)
                 ls[LS_N + 2] += 1.0
             # R2: (lf T_true/t - Iz r_dot)/lr = 2 Cr alpha_r - 2 Cr sigma D'/vx + c2
@@ -418,7 +407,8 @@ def learner_step(
                 _rls(
                     ls, LS_T2, LS_P2, N2, xr, (lf * T_true / t_tr - iz * r_d) / lr, slow * lp[L_SIG2] ** 2, ph
                 )
-            ls[LS_N] += 1.0
+            if excited:
+                ls[LS_N] += 1.0
         # gyro bias: a straight road returns to its heading. Anchors are instants of straight steady
         # driving (2 s mean yaw rate within 0.3 deg/s of the bias, steering still); between two anchors
         # 8-120 s apart the heading change int (r - b) dt is, on a straight road, the bias times the
