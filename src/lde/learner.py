@@ -30,8 +30,9 @@ R2 (rear axle; Cr)::
     (lf T_true / t - Iz r_dot) / lr = 2 Cr alpha_r - 2 Cr sigma D_dot / vx + c2,  alpha_r = T_true/(2K) - D
 
 The regressions start in cascade (R1 once R3 has samples, R2 once R1 has): without it Cr ended 5 %
-off. They learn only when the drive is excited (road-wheel rate RMS > 0.5 deg/s, lateral-force
-variation > 150 N) and disturbance-quiet (the filter's wind estimate varies less than half as much as
+off. They learn only when the drive is excited (lateral-force variation > 150 N; for R3 and R1 also
+road-wheel rate RMS > 0.5 deg/s, not for R2: on the fast ends of the manoeuvres alone it learned Cr
+8-16 % low) and disturbance-quiet (the filter's wind estimate varies less than half as much as
 m a_y): a steady crosswind or a long bank gives no excitation and is never learned as a tire value.
 
 Offsets (not identifiable from a steady state: a steady crosswind looks like them):
