@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
 from tune_zoo import run_engine, score, simulated, spec_vehicle
 
 TRUE_CSV = Path(__file__).resolve().parents[1] / "vcan_sim" / "zoo" / "true_values.csv"
@@ -40,9 +39,10 @@ def true_values(plant: str) -> dict[str, str]:
 
 
 def make_hook(plant: str, profile: str, variant: str, extra: str):
+    from tune_zoo import make_hook as tz_hook
+
     from lde import estimator as E
     from lde import learner as Ln
-    from tune_zoo import make_hook as tz_hook
 
     tv = true_values(plant)
     twist = math.radians(float(tv["torsion_deg_per_Nm"])) if tv[f"angle_{profile}"] == "wheel" else 0.0
@@ -158,27 +158,38 @@ def report(rows: list[dict[str, Any]], variants: list[str]) -> None:
         cells = []
         for v in variants:
             rs = [r for r in rows if (r["plant"], r["profile"]) == k and r["variant"] == v]
-            cells.append(f"{100 * np.mean([r['fw'] for r in rs]):.1f}/{100 * np.mean([r['mw'] for r in rs]):.1f}")
-        print(f"{k[0]}/{k[1]} | " + " | ".join(cells))
-    print("all | " + " | ".join(
-        f"{100 * np.mean([r['fw'] for r in rows if r['variant'] == v]):.1f}/"
-        f"{100 * np.mean([r['mw'] for r in rows if r['variant'] == v]):.1f}"
-        for v in variants
-    ))
-    spec = [r for r in rows if r["variant"] == variants[0] and "mw_man_share" in r]
-    if spec:
-        print(f"\n{variants[0]}: share of the squared error in manoeuvres (time share), |bias| steady / manoeuvre, share of the 2 s mean")
-        for k in keys:
-            rs = [r for r in spec if (r["plant"], r["profile"]) == k]
-            mf = np.mean([r["man_frac"] for r in rs])
-            print(
-                f"{k[0]}/{k[1]}: time {100 * mf:.0f} %; Mw {100 * np.mean([r['mw_man_share'] for r in rs]):.0f} %, "
-                f"bias {np.nanmean([r['mw_steady_bias'] for r in rs]):.0f} / {np.nanmean([r['mw_man_bias'] for r in rs]):.0f} Nm, "
-                f"slow {100 * np.mean([r['mw_slow_share'] for r in rs]):.0f} %; "
-                f"Fw {100 * np.mean([r['fw_man_share'] for r in rs]):.0f} %, "
-                f"bias {np.nanmean([r['fw_steady_bias'] for r in rs]):.0f} / {np.nanmean([r['fw_man_bias'] for r in rs]):.0f} N, "
-                f"slow {100 * np.mean([r['fw_slow_share'] for r in rs]):.0f} %"
+            cells.append(
+                f"{100 * np.mean([r['fw'] for r in rs]):.1f}/{100 * np.mean([r['mw'] for r in rs]):.1f}"
             )
+        print(f"{k[0]}/{k[1]} | " + " | ".join(cells))
+    print(
+        "all | "
+        + " | ".join(
+            f"{100 * np.mean([r['fw'] for r in rows if r['variant'] == v]):.1f}/"
+            f"{100 * np.mean([r['mw'] for r in rows if r['variant'] == v]):.1f}"
+            for v in variants
+        )
+    )
+    spec = [r for r in rows if r["variant"] == variants[0] and "mw_man_share" in r]
+    if not spec:
+        return
+    print(
+        f"\n{variants[0]}: share of the squared error in manoeuvres (time share), "
+        "|bias| steady / manoeuvre, share of the 2 s mean"
+    )
+
+    def mean(rs: list[dict[str, Any]], key: str, scale: float = 1.0) -> float:
+        return scale * float(np.nanmean([r[key] for r in rs]))
+
+    for k in keys:
+        rs = [r for r in spec if (r["plant"], r["profile"]) == k]
+        parts = [f"{k[0]}/{k[1]}: time {mean(rs, 'man_frac', 100):.0f} %"]
+        for q, unit in (("mw", "Nm"), ("fw", "N")):
+            parts.append(
+                f"{q} {mean(rs, q + '_man_share', 100):.0f} %, bias {mean(rs, q + '_steady_bias'):.0f} / "
+                f"{mean(rs, q + '_man_bias'):.0f} {unit}, slow {mean(rs, q + '_slow_share', 100):.0f} %"
+            )
+        print("; ".join(parts))
 
 
 if __name__ == "__main__":

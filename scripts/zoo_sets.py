@@ -13,7 +13,6 @@ import sys
 from collections.abc import Sequence
 
 import numpy as np
-
 from tune_zoo import meets
 
 TUNE = ("indep_twin", "tires_minus25", "suv_slow", "angle_above_tb")
@@ -27,13 +26,19 @@ def line(rows: list[dict]) -> str:
     mf = 100 * np.mean([r["fw"] for r in dist])
     mm = 100 * np.mean([r["mw"] for r in dist])
     w10 = sum(max(r["fw"], r["mw"]) <= 0.10 for r in dist)
-    und_s = f"{max(r['fw'] for r in und):.0f} N / {max(r['mw'] for r in und):.0f} Nm" if und else "-"
-    return f"met {met}/{len(ok)}, <=10 % {w10}/{len(dist)}, Fw {mf:.2f} / Mw {mm:.2f} %, undisturbed worst {und_s}"
+    und_s = "-"
+    if und:
+        und_s = f"{max(r['fw'] for r in und):.0f} N / {max(r['mw'] for r in und):.0f} Nm"
+    return (
+        f"met {met}/{len(ok)}, <=10 % {w10}/{len(dist)}, Fw {mf:.2f} / Mw {mm:.2f} %, "
+        f"undisturbed worst {und_s}"
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> None:
     for path in argv if argv is not None else sys.argv[1:]:
-        rows = json.loads(open(path).read())
+        with open(path) as fh:
+            rows = json.load(fh)
         tune = [r for r in rows if r["plant"] in TUNE]
         held = [r for r in rows if r["plant"] not in TUNE]
         print(f"{path}\n  tune:     {line(tune)}\n  held out: {line(held)}\n  all:      {line(rows)}")

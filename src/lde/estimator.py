@@ -202,7 +202,9 @@ def wind_moment_output(p, out):  # pragma: no cover - compiled
     measurements, so its ``M_wind`` is whatever closes the yaw balance with the assumed tires; with
     tires known to +-25 % that is a yaw-moment error of the order of 0.3-0.7 m x the tire force, the
     same order as, and independent of, the spread of a car's aerodynamic centre of pressure. Both
-    errors scale with the disturbance, so the minimum-variance combination has a constant weight."""
+    errors scale with the disturbance, so the minimum-variance combination has a constant weight.
+    Off (``w = 0``) in the shipped defaults: a car whose tires are known and whose centre of pressure
+    is not near ``x_cp`` loses by it (the acceptance drive's wind has its centre 0.375 m behind the CG)."""
     w = p[P_WCP]
     if w > 0.0:
         mw = (1.0 - w) * out[O_MW_WIND] + w * p[P_XCP] * out[O_FW_WIND]

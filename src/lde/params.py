@@ -160,8 +160,9 @@ class EstimatorTuning:
         wind_cp: the wind's centre of pressure ahead of the CG [m] (a generic prior, 0.3; the learner's
             angle-offset split assumes the same), for the reported moment's blend.
         wind_cp_weight: weight w of that prior in the reported moment,
-            ``Mw = (1 - w) M_wind + w wind_cp F_wind`` (0: the filter's M_wind alone; 0.7 tuned on the
-            zoo's four tuning plants, docs/estimator.md "Cold: the wind's centre of pressure").
+            ``Mw = (1 - w) M_wind + w wind_cp F_wind``. 0 (shipped): the filter's M_wind alone; 0.7 is
+            best on the zoo's tuning plants with spec-sheet tires (docs/estimator.md, "Cold: the wind's
+            centre of pressure", with why it is not the default).
 
     (docs/estimator.md: chosen on the tuning plants with their identified tires; the zoo results are
     flat within 0.5 points across the sweep.)
@@ -185,7 +186,7 @@ class EstimatorTuning:
     r_lat_accel: float = 0.10**2
     p0_bank: float = 3000.0
     wind_cp: float = 0.3
-    wind_cp_weight: float = 0.7
+    wind_cp_weight: float = 0.0
 
 
 #: default steering-wheel rate scale of the smoothed friction sign tanh(rate / w) [rad/s]

@@ -492,7 +492,8 @@ def _backward(
     spill: TraceSpill, m_g: float, x_cp: float = 0.0, w_cp: float = 0.0, chunk: int = _BACK_ROWS
 ) -> int:
     """The backward pass over the spilled trace, newest chunk first, into ``smooth.f8`` (the moment
-    blended with the centre-of-pressure prior as the causal output: :func:`lde.estimator.wind_moment_output`)."""
+    blended with the centre-of-pressure prior as the causal output:
+    :func:`lde.estimator.wind_moment_output`)."""
     n = spill.n
     xs, Ps, have = np.zeros(NX), np.zeros((NX, NX)), np.zeros(1, np.int64)
     bad = 0
