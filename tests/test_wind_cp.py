@@ -44,3 +44,29 @@ def test_out_of_range_is_a_clear_error(tmp_path, key, value):
     f.write_text(f'extends = "reference"\nname = "v"\n[estimator]\n{key} = {value}\n')
     with pytest.raises(ConfigError, match=key):
         load_vehicle(f)
+
+
+@pytest.mark.parametrize("backend", ["float", "fixed"])
+def test_both_backends_report_the_blend_and_keep_the_filter(backend):
+    """With w > 0 the reported Mw (and Mw_wind) is the blend of the w = 0 run's own M_wind and F_wind:
+    the filter, the learner and Fw are untouched (they see the filter's M_wind), on both backends."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from lde.logio import read_log
+    from lde.profiles import load_profile
+    from lde.replay import replay
+
+    data = Path(__file__).parent / "data"
+    frames = read_log(data / "sample_linear.log").frames
+    profile = load_profile("lde")
+    v0 = load_vehicle(data / "sample_linear_vehicle.toml")
+    v1 = replace(v0, estimator=replace(v0.estimator, wind_cp=0.3, wind_cp_weight=0.7))
+    r0 = replay(frames, profile, v0, backend)
+    r1 = replay(frames, profile, v1, backend)
+    np.testing.assert_array_equal(r1.fw, r0.fw)
+    np.testing.assert_array_equal(r1.block.fw_wind, r0.block.fw_wind)
+    expect = 0.3 * r0.block.mw_wind + 0.7 * 0.3 * r0.block.fw_wind
+    np.testing.assert_allclose(r1.mw, expect, atol=1e-6 * (1.0 + np.abs(expect).max()))
+    np.testing.assert_allclose(r1.block.mw_wind, expect, atol=1e-6 * (1.0 + np.abs(expect).max()))
+    assert np.abs(r1.mw - r0.mw).max() > 100.0  # the sample's 800 N wind: the blend shows
