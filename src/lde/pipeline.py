@@ -172,8 +172,9 @@ def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cov
 
 
 #: lde.engine.OutputTable's arrays as lde.packed kinds (read back by :func:`output_table_of`)
-OUTPUT_TABLE_KINDS = ("i8:1",) * 5 + ("i8:3", "i8:3") + ("i8:1",) * 4 + ("b1:1", "b1:1") + ("f8:1",) * 4
-OUTPUT_TABLE_KINDS += ("b1:1", "i8:1")
+OUTPUT_TABLE_KINDS: tuple[str, ...] = (
+    ("i8:1",) * 5 + ("i8:3", "i8:3") + ("i8:1",) * 4 + ("b1:1", "b1:1") + ("f8:1",) * 4
+) + ("b1:1", "i8:1")
 #: the loop's ``tables`` buffer (:func:`lde.packed.pack`): the receiver's tables, then the outputs'
 TABLE_KINDS = RX_TABLE_KINDS + OUTPUT_TABLE_KINDS
 _N_RX = len(RX_TABLE_KINDS)

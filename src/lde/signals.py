@@ -201,8 +201,9 @@ class RxTables:
 
 
 #: :meth:`RxTables.kernel_args` as :func:`lde.packed.pack` kinds (read back by :func:`rx_tables_of`)
-RX_TABLE_KINDS = ("i8:1",) * 4 + ("i8:3", "i8:3", "i8:2") + ("i8:1",) * 5 + ("f8:1",) + ("i8:1",) * 3
-RX_TABLE_KINDS += ("b1:1", "b1:1", "f8:1", "f8:1")
+RX_TABLE_KINDS: tuple[str, ...] = (
+    ("i8:1",) * 4 + ("i8:3", "i8:3", "i8:2") + ("i8:1",) * 5 + ("f8:1",) + ("i8:1",) * 3
+) + ("b1:1", "b1:1", "f8:1", "f8:1")
 
 
 @njit(cache=True, inline="always")
