@@ -44,11 +44,9 @@ from .grid import (
 from .learned import LearnedSnapshot, LearnedState, load_learned, parse_learned, save_snapshot
 from .learner import tire_state
 from .overlay import limiter_params, new_limiter_state
-from .packed import pack
 from .params import Vehicle
 from .pipeline import (
     N_V,
-    TABLE_KINDS,
     V_ACTIVE,
     V_BANK_DEG,
     V_FW,
@@ -334,8 +332,6 @@ class Engine:
         self.shadow_thread = shadow_thread
         self.rx_tables = RxTables.of(profile)
         self.outputs = OutputTable.of(profile)
-        # the loop's constant tables as one buffer (lde.packed: 2 arguments to unbox instead of 39)
-        self._tables = pack(self.rx_tables.kernel_args() + self.outputs.args, TABLE_KINDS)
         self._dt = dt
         self.est: BackendState
         self.reset()
@@ -351,7 +347,7 @@ class Engine:
         self.counters = np.zeros(len(self.outputs.names), np.int64)
         self.used_since = np.zeros(1, np.int64)
         self._steps, self._enable, self._extra = _NO_TIMES, _NO_BOOL, _NO_U8
-        self._st = self.rx.kernel_args()
+        self._tb, self._st = self.rx_tables.kernel_args(), self.rx.kernel_args()
         self.frames_fed = 0
         self.est = self.backend.make(vehicle, self._dt, self.profile.angle_above_torsion_bar)
         self._shadow: Engine | None = None
@@ -516,7 +512,7 @@ class Engine:
 
     def live_args_valid(self, args: tuple) -> bool:
         """``args`` (:meth:`live_args`) still name this engine's state (not after :meth:`reset`)."""
-        return args[0] is self.est.params and args[1] is self.est.state and args[5] is self.grid
+        return args[0] is self.est.params and args[1] is self.est.state and args[4] is self.grid
 
     def run_live(self, args: tuple) -> tuple[int, int]:
         """:meth:`run_arrays` (explicit mode, ``pinned``, resolved before by a pinned call) on an
@@ -547,7 +543,7 @@ class Engine:
         return (
             e.params,
             e.state,
-            *self._tables,
+            self._tb,
             self._st,
             g,
             step_times,
@@ -557,6 +553,7 @@ class Engine:
             self.lp,
             self.lsi,
             self.lsf,
+            self.outputs.args,
             self.counters,
             self.encode_outputs,
             self.used_since,

@@ -53,16 +53,13 @@ from .grid import (
     grid_step_done,
 )
 from .overlay import LP_GAIN, LS_STATE, overlay_kernel
-from .packed import b1_1, f8_1, i8_1, i8_3
 from .signals import (
     I_COLUMN_TORQUE,
     I_SPEED,
     I_STEERING_ANGLE,
-    RX_TABLE_KINDS,
     rx_feed,
     rx_msg_of,
     rx_sample,
-    rx_tables_of,
 )
 from .status import DEGRADED, VALID
 from .step import O_BANK, O_FW, O_FW_WIND, O_GAIN, O_LEARN, O_MW, O_MW_WIND, O_T_ALIGN
@@ -84,8 +81,6 @@ __all__ = [
     "N_V",
     "make_loop",
     "finalise",
-    "OUTPUT_TABLE_KINDS",
-    "TABLE_KINDS",
 ]
 
 # --- the values an output frame's signals are taken from (lde.engine.OUTPUT_SOURCES) ----------
@@ -171,42 +166,6 @@ def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cov
         counters[j] = advance_counter(counters[j], m_mod[j], m_inv[j])
 
 
-#: lde.engine.OutputTable's arrays as lde.packed kinds (read back by :func:`output_table_of`)
-OUTPUT_TABLE_KINDS: tuple[str, ...] = (
-    ("i8:1",) * 5 + ("i8:3", "i8:3") + ("i8:1",) * 4 + ("b1:1", "b1:1") + ("f8:1",) * 4
-) + ("b1:1", "i8:1")
-#: the loop's ``tables`` buffer (:func:`lde.packed.pack`): the receiver's tables, then the outputs'
-TABLE_KINDS = RX_TABLE_KINDS + OUTPUT_TABLE_KINDS
-_N_RX = len(RX_TABLE_KINDS)
-
-
-@njit(cache=True, inline="always")
-def output_table_of(mem, lay, k):  # pragma: no cover - compiled
-    """The output table (lde.engine.OutputTable) from a :func:`lde.packed.pack` buffer, its arrays
-    from row ``k`` of ``lay`` on (:data:`OUTPUT_TABLE_KINDS`)."""
-    return (
-        i8_1(mem, lay, k),
-        i8_1(mem, lay, k + 1),
-        i8_1(mem, lay, k + 2),
-        i8_1(mem, lay, k + 3),
-        i8_1(mem, lay, k + 4),
-        i8_3(mem, lay, k + 5),
-        i8_3(mem, lay, k + 6),
-        i8_1(mem, lay, k + 7),
-        i8_1(mem, lay, k + 8),
-        i8_1(mem, lay, k + 9),
-        i8_1(mem, lay, k + 10),
-        b1_1(mem, lay, k + 11),
-        b1_1(mem, lay, k + 12),
-        f8_1(mem, lay, k + 13),
-        f8_1(mem, lay, k + 14),
-        f8_1(mem, lay, k + 15),
-        f8_1(mem, lay, k + 16),
-        b1_1(mem, lay, k + 17),
-        i8_1(mem, lay, k + 18),
-    )
-
-
 #: the backend's compiled step inside a specialised loop (:func:`make_loop` binds it)
 STEP: Any = None
 
@@ -214,8 +173,7 @@ STEP: Any = None
 def _run_loop(
     bp,
     bs,
-    tables,
-    tables_lay,
+    tb,
     st,
     g,
     explicit,
@@ -225,6 +183,7 @@ def _run_loop(
     lp,
     lsi,
     lsf,
+    otab,
     counters,
     encode,
     used_since,
@@ -261,12 +220,7 @@ def _run_loop(
     due step and no frame is left (a later call continues), with explicit step times when none is
     left (the frames after it stay unfed), or when the grid overflows (``g[G_OVERFLOW]``). Frames with
     ``is_rx`` False (lde's own, in a recording) are skipped.
-
-    ``tables``, ``tables_lay``: the receiver's and the output encoder's constant tables packed into one
-    buffer (:data:`TABLE_KINDS`, :mod:`lde.packed`): two arguments to unbox per call instead of 39.
     """
-    tb = rx_tables_of(tables, tables_lay, 0)
-    otab = output_table_of(tables, tables_lay, _N_RX)
     e2e = st[0]
     malformed = st[1]
     nf = t.shape[0]

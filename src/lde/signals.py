@@ -46,7 +46,6 @@ from .e2e import (
     receive_frame,
 )
 from .frames import FrameBatch
-from .packed import b1_1, f8_1, i8_1, i8_2, i8_3
 from .profiles import INPUT_NAMES, MDPS_INPUTS, Profile
 
 __all__ = [
@@ -198,40 +197,6 @@ class RxTables:
             self.sig_scale,
             self.sig_offset,
         )
-
-
-#: :meth:`RxTables.kernel_args` as :func:`lde.packed.pack` kinds (read back by :func:`rx_tables_of`)
-RX_TABLE_KINDS: tuple[str, ...] = (
-    ("i8:1",) * 4 + ("i8:3", "i8:3", "i8:2") + ("i8:1",) * 5 + ("f8:1",) + ("i8:1",) * 3
-) + ("b1:1", "b1:1", "f8:1", "f8:1")
-
-
-@njit(cache=True, inline="always")
-def rx_tables_of(mem, lay, k):  # pragma: no cover - compiled
-    """:meth:`RxTables.kernel_args` from a :func:`lde.packed.pack` buffer, its arrays from row ``k``
-    of ``lay`` on (:data:`RX_TABLE_KINDS`)."""
-    return (
-        i8_1(mem, lay, k),
-        i8_1(mem, lay, k + 1),
-        i8_1(mem, lay, k + 2),
-        i8_1(mem, lay, k + 3),
-        i8_3(mem, lay, k + 4),
-        i8_3(mem, lay, k + 5),
-        i8_2(mem, lay, k + 6),
-        i8_1(mem, lay, k + 7),
-        i8_1(mem, lay, k + 8),
-        i8_1(mem, lay, k + 9),
-        i8_1(mem, lay, k + 10),
-        i8_1(mem, lay, k + 11),
-        f8_1(mem, lay, k + 12),
-        i8_1(mem, lay, k + 13),
-        i8_1(mem, lay, k + 14),
-        i8_1(mem, lay, k + 15),
-        b1_1(mem, lay, k + 16),
-        b1_1(mem, lay, k + 17),
-        f8_1(mem, lay, k + 18),
-        f8_1(mem, lay, k + 19),
-    )
 
 
 @dataclass(eq=False)
