@@ -585,6 +585,7 @@ class McapLog:
             w = self._guard("chunk", self._walk, c, want, not self._counted)
             self.bad_can_messages += w.bad
             pool.add(w.frames, self._rank[c.offset])
+            del w  # the decompressed chunk is not held while the pieces are used
             bound = starts[j + 1] if j + 1 < len(chunks) else None
             yield from out.push(pool.release(bound))
         yield from out.push(pool.release(None))

@@ -110,37 +110,37 @@ _END = object()
 
 class ReadAhead(Generic[T]):
     """The items of ``items`` (an iterable of pieces, e.g. a :class:`lde.logio.LogStream`) produced
-    in a thread of their own, at most ``depth`` ready ahead of the consumer (memory: ``depth`` + 1
-    pieces more than reading them in line). The order is unchanged; an exception of the producer is
+    in a thread of their own, at most ``depth`` ahead of the consumer: the producer reads the next
+    piece only when the consumer has taken one (memory: ``depth`` pieces more than reading them in
+    line). The order is unchanged; an exception of the producer is
     raised to the consumer where it happened (after the pieces before it). Close it (or use it as a
     context manager) when the consumer stops early: the producer is stopped, its iterator closed in
     its own thread (files closed) and joined."""
 
     def __init__(self, items: Iterable[T], depth: int = 1, name: str = "lde-read") -> None:
-        self._q: queue.Queue[tuple[object, BaseException | None]] = queue.Queue(maxsize=depth)
+        self._q: queue.Queue[tuple[object, BaseException | None]] = queue.Queue()
+        self._ask = threading.Semaphore(depth)  # pieces the producer may read before one is taken
         self._stop = threading.Event()
         self._done = False
         self._thread = threading.Thread(target=self._run, args=(items,), name=name, daemon=True)
         self._thread.start()
 
-    def _put(self, item: tuple[object, BaseException | None]) -> bool:
+    def _wait_turn(self) -> bool:
         while not self._stop.is_set():
-            try:
-                self._q.put(item, timeout=0.05)
-                return True
-            except queue.Full:
-                continue
+            if self._ask.acquire(timeout=0.05):
+                return not self._stop.is_set()
         return False
 
     def _run(self, items: Iterable[T]) -> None:
         it = iter(items)
         try:
-            for x in it:
-                if not self._put((x, None)):
+            while self._wait_turn():
+                x = next(it, _END)
+                self._q.put((x, None))
+                if x is _END:
                     return
-            self._put((_END, None))
         except BaseException as exc:  # noqa: BLE001 - handed to the consumer, raised there
-            self._put((_END, exc))
+            self._q.put((_END, exc))
         finally:
             close = getattr(it, "close", None)
             if close is not None:
@@ -153,6 +153,7 @@ class ReadAhead(Generic[T]):
         if self._done:
             raise StopIteration
         x, exc = self._q.get()
+        self._ask.release()
         if x is _END:
             self._done = True
             self._thread.join()
@@ -163,14 +164,11 @@ class ReadAhead(Generic[T]):
 
     def close(self) -> None:
         """Stop the producer (after the piece it is on) and wait for it."""
-        self._stop.set()
-        while True:  # a producer blocked on a full queue sees the stop within its put timeout
-            try:
-                self._q.get_nowait()
-            except queue.Empty:
-                break
+        self._stop.set()  # a producer waiting for its turn sees it within 50 ms
         self._thread.join()
         self._done = True
+        while not self._q.empty():
+            self._q.get_nowait()
 
     def __enter__(self) -> ReadAhead[T]:
         return self
