@@ -20,8 +20,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
 from .errors import LdeError, OutputError
 from .logio import REORDER_WINDOW_NS
 from .params import load_vehicle
@@ -316,6 +314,8 @@ def progress_bar(enabled: bool, total: int) -> Any:
     """A tqdm bar over ``total`` logs (None when not ``enabled``)."""
     if not enabled:
         return None
+    from tqdm import tqdm  # only with a bar: one log replays without importing it
+
     return tqdm(total=total, unit="log", desc="lde replay")
 
 

@@ -15,9 +15,12 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import can
 import numpy as np
+
+if TYPE_CHECKING:  # python-can is imported where messages are made: ~60 ms of every start-up
+    import can
 
 __all__ = [
     "FrameBatch",
@@ -138,6 +141,8 @@ class FrameBatch:
         A frame with ``dlc > 8`` becomes an FD message whose ``data`` holds only the stored first 8
         bytes (the rest was never kept); its ``dlc`` is kept.
         """
+        import can
+
         out: list[can.Message] = []
         t_s = ns_to_seconds_array(self.t_ns)
         for i in range(len(self)):

@@ -10,11 +10,18 @@ calibrator or the study's imports. ``lde``, ``lde --help`` and an unknown comman
 inside its ``run`` (the one place where lde imports inside functions: measured with
 ``python -X importtime``, ``import lde.cli`` takes 8 ms, ``lde.replay`` 0.76 s, ``lde.service`` 1.0 s,
 ``lde.study`` with dask 1-2 s; ``tests/test_replay.py`` checks that ``--help`` stays light).
+
+Exit: the ``lde`` process (:func:`main` called without ``argv``) freezes the garbage collector's
+objects before it returns, so that Python's final collections do not walk the ~140k objects that
+numba, its registries and the kernels left behind (none of which needs a finaliser; lde closes its
+outputs itself). That took 0.3-1.5 s after a replay had ended, depending on the machine's load
+(docs/service.md, "Replay speed").
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import importlib
 import logging
 import sys
@@ -85,6 +92,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    whole_process = argv is None  # the `lde` command: the process ends when this returns
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(argv)
     args = parser.parse_args(argv)
@@ -102,6 +110,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return 0
+    finally:
+        if whole_process:
+            gc.freeze()
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -234,8 +234,6 @@ def run(args: argparse.Namespace) -> int:
     if cold and not args.quiet:  # before the heavy imports: said within a second
         print(notice(), file=sys.stderr, flush=True)
 
-    from tqdm import tqdm
-
     from ..fleet import ReplayJob, run_jobs, summary_table
     from ..logio import REORDER_WINDOW_NS
     from ..params import load_vehicle
@@ -336,6 +334,8 @@ def run(args: argparse.Namespace) -> int:
                 lines.append(f"lde: error: {err}")
             for text in lines:
                 if show_bar:
+                    from tqdm import tqdm
+
                     tqdm.write(text, file=sys.stderr)
                 else:
                     print(text, file=sys.stderr)

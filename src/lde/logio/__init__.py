@@ -178,12 +178,13 @@ def _classify(p: Path, suffix: str, head: bytes, compressed: bool = False) -> st
         return "mcap"
     if suffix == ".mcap":
         raise LogFormatError(f"{p}: not an MCAP file (no MCAP magic)")
-    pycan = pycan_suffixes() - {".mcap"}
-    if suffix in CANDUMP_SUFFIXES or suffix not in pycan:
+    if suffix in CANDUMP_SUFFIXES:  # decided without python-can's reader list (its import: ~60 ms)
         if looks_like_candump(head):
             return "candump"
-        if suffix in CANDUMP_SUFFIXES:
-            raise LogFormatError(f"{p}: not a {what}candump -L log (first line does not parse)")
+        raise LogFormatError(f"{p}: not a {what}candump -L log (first line does not parse)")
+    pycan = pycan_suffixes() - {".mcap"}
+    if suffix not in pycan and looks_like_candump(head):
+        return "candump"
     if suffix in pycan:
         return suffix.lstrip(".")
     raise LogFormatError(

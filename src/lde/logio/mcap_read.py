@@ -46,9 +46,6 @@ import lz4.frame as lz4frame
 import numba
 import numpy as np
 import zstandard
-from mcap.data_stream import ReadDataStream
-from mcap.reader import SeekingReader, make_reader
-from mcap.records import Channel, Header, Metadata, Schema
 
 from ..errors import LogFormatError
 from ..frames import FrameBatch
@@ -190,6 +187,9 @@ def _walk_top_level(raw) -> _Layout | None:
     Raises:
         LogFormatError: the file is cut before or inside its first chunk (nothing to recover).
     """
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Channel, Header, Schema
+
     schemas: dict[int, Any] = {}
     channels: dict[int, Any] = {}
     chunks: list[_Chunk] = []
@@ -368,6 +368,10 @@ class McapLog:
             raise LogFormatError(f"{p}: corrupt MCAP file ({type(exc).__name__}: {exc})") from exc
 
     def _open(self, force_library: bool) -> None:
+        from mcap.reader import (
+            SeekingReader,
+        )  # the library only for MCAP files (a candump replay: not at all)
+
         fh = self._fh
         size = os.fstat(fh.fileno()).st_size
         if size == 0:
@@ -442,6 +446,10 @@ class McapLog:
     def _read_metadata(self, summary, layout: _Layout | None) -> dict[str, dict[str, str]]:
         """Through the summary's metadata indexes with the ``mcap`` library; else the metadata
         records the walk found, parsed with its record type. A damaged record is left out."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.reader import SeekingReader
+        from mcap.records import Metadata
+
         out: dict[str, dict[str, str]] = {}
         if self._library is not None:
             return self._library.metadata
@@ -577,6 +585,7 @@ class McapLog:
             w = self._guard("chunk", self._walk, c, want, not self._counted)
             self.bad_can_messages += w.bad
             pool.add(w.frames, self._rank[c.offset])
+            del w  # the decompressed chunk is not held while the pieces are used
             bound = starts[j + 1] if j + 1 < len(chunks) else None
             yield from out.push(pool.release(bound))
         yield from out.push(pool.release(None))
@@ -667,6 +676,8 @@ class McapLog:
 
 
 def _header_library(fh: IO[bytes]) -> str:
+    from mcap.reader import SeekingReader
+
     try:
         return str(SeekingReader(fh).get_header().library)
     except Exception:  # noqa: BLE001 - a damaged header: not lde's layout
@@ -765,6 +776,8 @@ class _LibraryData:
 
 def _read_library(fh: IO[bytes]) -> _LibraryData:
     """The reference path: the ``mcap`` library's reader, one Python object per message."""
+    from mcap.reader import make_reader
+
     reader = make_reader(fh)
     schemas: dict[int, Any] = {}
     channels: dict[int, Any] = {}

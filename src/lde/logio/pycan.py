@@ -12,14 +12,15 @@ import io
 import locale
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import can
 import numpy as np
-from can.io import player
 
 from ..errors import LogFormatError
 from ..frames import FrameBatch, seconds_to_ns
+
+if TYPE_CHECKING:
+    import can
 
 __all__ = ["PycanReader", "pycan_suffixes", "BATCH"]
 
@@ -29,6 +30,8 @@ BATCH = 1 << 16
 
 def pycan_suffixes() -> set[str]:
     """File suffixes python-can has a reader for (built-in and plugins)."""
+    from can.io import player  # here, not at import: a candump or MCAP replay never needs python-can
+
     player._update_reader_plugins()
     return set(player.MESSAGE_READERS)
 
@@ -50,6 +53,8 @@ class PycanReader:
         self.remote_frames = 0
 
     def __iter__(self) -> Iterator[FrameBatch]:
+        import can
+
         p = self.path
         try:
             reader = can.LogReader(str(p)) if self.limit is None else _limited_reader(p, self.limit)
@@ -103,6 +108,8 @@ class _Head(io.RawIOBase):
 def _limited_reader(p: Path, limit: int) -> can.io.generic.MessageReader:
     """python-can's text reader for ``p`` over its first ``limit`` bytes (the encoding python-can
     uses for a path)."""
+    from can.io import player
+
     player._update_reader_plugins()
     cls: Any = player.MESSAGE_READERS[p.suffix.lower()]  # a text reader: takes a text file too
     text = io.TextIOWrapper(io.BufferedReader(_Head(p.open("rb"), limit)), locale.getpreferredencoding(False))

@@ -9,17 +9,22 @@ the file. A frame later than that (a log joined from two files out of order) can
 in its place: it is skipped and counted (``late``), never silently reordered.
 
 :func:`split` cuts a batch into pieces of at most ``n`` frames (views, no copies).
+:class:`ReadAhead` reads the pieces in a thread, a bounded number ahead of their consumer (the
+parsers and decompressors release the GIL, so that a replay reads while its engine runs).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import queue
+import threading
+from collections.abc import Iterable, Iterator
+from typing import Generic, TypeVar
 
 import numpy as np
 
 from ..frames import FrameBatch
 
-__all__ = ["Reorder", "split", "view", "CHUNK_FRAMES", "REORDER_WINDOW_NS"]
+__all__ = ["Reorder", "ReadAhead", "split", "view", "CHUNK_FRAMES", "REORDER_WINDOW_NS"]
 
 #: frames per piece handed to a replay: bounds its memory, whatever the log's length (64k frames,
 #: ~46k steps of rows: ~30 MB of a replay's peak RSS, ~190 MB of which is numba and its kernels)
@@ -97,3 +102,76 @@ class Reorder:
         if cut:
             self._released = int(out.t_ns[-1])
         return out
+
+
+T = TypeVar("T")
+_END = object()
+
+
+class ReadAhead(Generic[T]):
+    """The items of ``items`` (an iterable of pieces, e.g. a :class:`lde.logio.LogStream`) produced
+    in a thread of their own, at most ``depth`` ahead of the consumer: the producer reads the next
+    piece only when the consumer has taken one (memory: ``depth`` pieces more than reading them in
+    line). The order is unchanged; an exception of the producer is
+    raised to the consumer where it happened (after the pieces before it). Close it (or use it as a
+    context manager) when the consumer stops early: the producer is stopped, its iterator closed in
+    its own thread (files closed) and joined."""
+
+    def __init__(self, items: Iterable[T], depth: int = 1, name: str = "lde-read") -> None:
+        self._q: queue.Queue[tuple[object, BaseException | None]] = queue.Queue()
+        self._ask = threading.Semaphore(depth)  # pieces the producer may read before one is taken
+        self._stop = threading.Event()
+        self._done = False
+        self._thread = threading.Thread(target=self._run, args=(items,), name=name, daemon=True)
+        self._thread.start()
+
+    def _wait_turn(self) -> bool:
+        while not self._stop.is_set():
+            if self._ask.acquire(timeout=0.05):
+                return not self._stop.is_set()
+        return False
+
+    def _run(self, items: Iterable[T]) -> None:
+        it = iter(items)
+        try:
+            while self._wait_turn():
+                x = next(it, _END)
+                self._q.put((x, None))
+                if x is _END:
+                    return
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer, raised there
+            self._q.put((_END, exc))
+        finally:
+            close = getattr(it, "close", None)
+            if close is not None:
+                close()
+
+    def __iter__(self) -> Iterator[T]:
+        return self
+
+    def __next__(self) -> T:
+        if self._done:
+            raise StopIteration
+        x, exc = self._q.get()
+        self._ask.release()
+        if x is _END:
+            self._done = True
+            self._thread.join()
+            if exc is not None:
+                raise exc
+            raise StopIteration
+        return x  # type: ignore[return-value]
+
+    def close(self) -> None:
+        """Stop the producer (after the piece it is on) and wait for it."""
+        self._stop.set()  # a producer waiting for its turn sees it within 50 ms
+        self._thread.join()
+        self._done = True
+        while not self._q.empty():
+            self._q.get_nowait()
+
+    def __enter__(self) -> ReadAhead[T]:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
