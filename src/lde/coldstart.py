@@ -35,7 +35,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["EARLY_NAMES", "HELPER", "MAIN", "SplitReport", "compile_split", "helper_main", "start_helper", "state_types"]
+__all__ = ["EARLY_NAMES", "HELPER", "MAIN", "SplitReport", "compile_split", "helper_main", "last_split", "start_helper", "state_types"]
 
 #: the helper's share per backend, in its order (each name is a group of :data:`_GROUPS`)
 HELPER: dict[str, tuple[str, ...]] = {
@@ -248,7 +248,21 @@ def compile_split(backend: str, helper: _Helper | None = None, timeout_s: float 
         rep.helper_s = dict(helper.ready)
     _join(backend)
     rep.main_s["join"] = rep.total_s = time.perf_counter() - t0
+    global _LAST
+    _LAST = (rep, helper)
     return rep
+
+
+_LAST: tuple[SplitReport, _Helper | None] | None = None
+
+
+def last_split() -> tuple[SplitReport, subprocess.Popen[bytes] | None] | None:
+    """The last :func:`compile_split` of this process: its report and the helper process (for
+    ``scripts/compile_profile.py``), or None."""
+    if _LAST is None:
+        return None
+    rep, helper = _LAST
+    return rep, None if helper is None else helper.proc
 
 
 def helper_main(argv: list[str]) -> int:
