@@ -57,8 +57,16 @@ def main() -> int:
             for i, tree in enumerate(trees):
                 csv = out / f"{i}-{b}-{r}.csv"
                 wall, cpu, load = _run(tree, b, a.log.resolve(), csv)
-                same = "" if i == 0 else (" same CSV" if filecmp.cmp(csv, out / f"0-{b}-{r}.csv", False) else " CSV DIFFERS")
-                print(f"round {r + 1} {b:5s} {tree}: {wall:5.1f} s wall, {cpu:5.1f} s CPU, load {load:.2f}{same}", flush=True)
+                same = (
+                    ""
+                    if i == 0
+                    else (" same CSV" if filecmp.cmp(csv, out / f"0-{b}-{r}.csv", False) else " CSV DIFFERS")
+                )
+                print(
+                    f"round {r + 1} {b:5s} {tree}: {wall:5.1f} s wall, {cpu:5.1f} s CPU, "
+                    f"load {load:.2f}{same}",
+                    flush=True,
+                )
                 res.setdefault((i, b), []).append((wall, cpu, load))
     print("\nmedian (range) over the rounds:")
     for b in backends:
@@ -66,7 +74,8 @@ def main() -> int:
             w, c, ld = zip(*res[(i, b)], strict=True)
             print(
                 f"  {b:5s} {tree}: wall {statistics.median(w):.1f} s ({min(w):.1f}-{max(w):.1f}), "
-                f"CPU {statistics.median(c):.1f} s ({min(c):.1f}-{max(c):.1f}), load {min(ld):.1f}-{max(ld):.1f}"
+                f"CPU {statistics.median(c):.1f} s ({min(c):.1f}-{max(c):.1f}), "
+                f"load {min(ld):.1f}-{max(ld):.1f}"
             )
     shutil.rmtree(out, ignore_errors=True)
     return 0

@@ -70,9 +70,12 @@ def _split_line() -> str:
         cpu = f", its CPU {ru.ru_utime + ru.ru_stime:.1f} s"
     main = ", ".join(f"{k} {v:.1f}" for k, v in rep.main_s.items())
     helper = ", ".join(f"{k} {v:.1f}" for k, v in rep.helper_s.items())
+    hcpu = ", ".join(f"{k} {v:.1f}" for k, v in rep.helper_cpu.items())
     return (
         f"  split compile ({rep.backend}): helper pid {rep.helper_pid}{cpu}; this process ended {main} s; "
-        f"heard the helper's {helper} s; waited {rep.waited_s:.1f} s {rep.helper_failed}"
+        f"heard the helper's {helper} s; waited {rep.waited_s:.1f} s {rep.helper_failed}\n"
+        f"  CPU seconds: this process {rep.main_cpu_at_wait:.1f} when it began to wait; the helper's by "
+        f"its groups {hcpu}"
     )
 
 

@@ -34,8 +34,19 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
-__all__ = ["EARLY_NAMES", "HELPER", "MAIN", "SplitReport", "compile_split", "helper_main", "last_split", "start_helper", "state_types"]
+__all__ = [
+    "EARLY_NAMES",
+    "HELPER",
+    "MAIN",
+    "SplitReport",
+    "compile_split",
+    "helper_main",
+    "last_split",
+    "start_helper",
+    "state_types",
+]
 
 #: the helper's share per backend, in its order (each name is a group of :data:`_GROUPS`)
 HELPER: dict[str, tuple[str, ...]] = {
@@ -55,13 +66,13 @@ EARLY_NAMES: dict[str | None, str] = {None: "fixed", "fixed": "fixed", "float": 
 _NEEDS = {"fixed": "fx-step", "float": "learner"}
 
 
-def _types():  # type: ignore[no-untyped-def]
+def _types() -> Any:
     from numba import types as T
 
     return T, T.float64[::1], T.float64[:, ::1], T.int64[::1], T.int64[:, ::1]
 
 
-def state_types(backend: str) -> tuple[object, object]:
+def state_types(backend: str) -> tuple[Any, Any]:
     """numba types of ``(params, state)`` of :func:`lde.backends.make_backend_state` for
     ``backend`` (``fixed`` or ``float``), without making the state (that compiles kernels)."""
     T, f1, f2, i1, i2 = _types()
@@ -101,7 +112,8 @@ def _fx_step() -> None:
     f = T.float64
     q_args = (i1, f, f, f, f, f, f)
     FX.quantise_kernel.compile(q_args)
-    rets = tuple(FX.quantise_kernel.overloads[q_args].signature.return_type)  # (v, s, y, c, a, q, flags) as the step unpacks them
+    sig = next(s for s in FX.quantise_kernel.nopython_signatures if tuple(s.args) == q_args)
+    rets = tuple(sig.return_type)  # (v, s, y, c, a, q, flags) as the step unpacks them
     b = T.boolean
     FX.step_kernel.compile((i1, i1, i1, i1, i1, i1, i1, i2, T.int64, *rets, b, b, b, b, b, i1))
     FX.coef_set_kernel.compile((f1, i1, i1))
@@ -155,6 +167,8 @@ class SplitReport:
     helper_pid: int | None = None
     main_s: dict[str, float] = field(default_factory=dict)  # this process's groups: when each ended
     helper_s: dict[str, float] = field(default_factory=dict)  # the helper's: when this process heard
+    helper_cpu: dict[str, float] = field(default_factory=dict)  # the helper's CPU seconds by then
+    main_cpu_at_wait: float = 0.0  # this process's CPU seconds when it began to wait
     waited_s: float = 0.0  # this process waiting for the helper
     helper_failed: str = ""  # why this process stopped waiting (empty: it did not)
     total_s: float = 0.0
@@ -163,12 +177,13 @@ class SplitReport:
 class _Helper:
     """The helper process and its ``ready NAME`` lines."""
 
-    def __init__(self, backend: str, t0: float) -> None:
+    def __init__(self, backend: str, t0: float, argv: list[str] | None = None) -> None:
         self.backend = backend
         self.t0 = t0
-        self.ready: dict[str, float] = {}
+        self.ready: dict[str, float] = {}  # group: when this process heard it [s from t0]
+        self.ready_cpu: dict[str, float] = {}  # group: the helper's CPU seconds by then
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "lde.coldstart", backend],
+            argv or [sys.executable, "-m", "lde.coldstart", backend],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
@@ -197,8 +212,10 @@ class _Helper:
             *lines, self._buf = self._buf.split(b"\n")
             for line in lines:
                 word = line.decode(errors="replace").split()
-                if len(word) == 2 and word[0] == "ready":
+                if len(word) >= 2 and word[0] == "ready":
                     self.ready[word[1]] = time.perf_counter() - self.t0
+                    if len(word) == 3:
+                        self.ready_cpu[word[1]] = float(word[2])
         return ""
 
     def stop(self) -> None:
@@ -238,14 +255,23 @@ def compile_split(backend: str, helper: _Helper | None = None, timeout_s: float 
     if helper is not None:
         rep.helper_pid = helper.proc.pid
         t0 = helper.t0
-    for name in MAIN[backend]:
-        _GROUPS[name]()
-        rep.main_s[name] = time.perf_counter() - t0
+    from numba.core.event import install_recorder
+
+    with install_recorder("numba:compile") as rec:
+        for name in MAIN[backend]:
+            _GROUPS[name]()
+            rep.main_s[name] = time.perf_counter() - t0
+    if helper is not None and not rec.buffer:  # all loaded: this process's cache is warm after all
+        helper.stop()
+        rep.helper_failed = "not needed (the cache was warm)"
+        helper = None
     if helper is not None:
         t_wait = time.perf_counter()
+        rep.main_cpu_at_wait = time.process_time()
         rep.helper_failed = helper.wait_for(_NEEDS[backend], t0 + timeout_s)
         rep.waited_s = time.perf_counter() - t_wait
         rep.helper_s = dict(helper.ready)
+        rep.helper_cpu = dict(helper.ready_cpu)
     _join(backend)
     rep.main_s["join"] = rep.total_s = time.perf_counter() - t0
     global _LAST
@@ -272,7 +298,7 @@ def helper_main(argv: list[str]) -> int:
         return 2
     for name in HELPER[argv[0]]:
         _GROUPS[name]()
-        print(f"ready {name}", flush=True)
+        print(f"ready {name} {time.process_time():.3f}", flush=True)
     return 0
 
 
