@@ -71,8 +71,9 @@ def test_the_split_goes_on_without_its_helper() -> None:
 
 @pytest.mark.slow
 def test_on_an_empty_cache_each_kernel_is_compiled_once(tmp_path: Path) -> None:
-    """In a process with an empty cache, the split's groups and then the joining step: the step finds
-    its callees compiled for exactly the signatures it calls them with (no second compilation)."""
+    """In a process with an empty cache, the split's groups, then the joining step and a backend
+    state: they find their callees compiled for exactly the signatures they call them with (no
+    second compilation)."""
     code = """
 import collections, sys
 from numba.core import event
@@ -81,10 +82,13 @@ names = collections.Counter()
 class L(event.Listener):
     def on_start(self, ev): pass
     def on_end(self, ev): names[ev.data["dispatcher"].py_func.__qualname__] += 1
-for g in ("fx-step", "float-step", "learner"):
+for g in ("fx-step", "float-step", "learner", "resets"):
     C._GROUPS[g]()
 event.register("numba:compile", L())
 C._join("fixed")
+from lde.backends import make_backend_state
+from lde.params import load_vehicle
+make_backend_state("fixed", load_vehicle("reference"))
 print(dict(names))
 """
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "nb"), PYTHONPATH=f"{ROOT / 'src'}:{ROOT}")
@@ -92,5 +96,5 @@ print(dict(names))
     assert out.returncode == 0, out.stderr[-2000:]
     compiled = ast.literal_eval(out.stdout.strip().splitlines()[-1])
     assert compiled.get("lateral_fixed_step") == 1
-    for callee in ("step_kernel", "learner_step", "quantise_kernel", "coef_set_kernel"):
+    for callee in ("step_kernel", "learner_step", "quantise_kernel", "coef_set_kernel", "reset_kernel"):
         assert callee not in compiled, compiled

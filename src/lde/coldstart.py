@@ -8,8 +8,8 @@ into the on-disk cache and says so on its stdout (``ready NAME``), while this pr
 rest (:data:`MAIN`); then this process waits for the helper's share, loads it from the cache (numba
 looks there before it compiles) and compiles the step that joins them. The loop of the data path
 (:mod:`lde.pipeline`), compiled next by the run itself, then finds its step compiled. After its
-share of the step the helper compiles the candump parser and the CSV formatter (:mod:`lde.logio`),
-which the run needs later.
+share of the step the helper compiles the filters' resets and the CSV formatter
+(:mod:`lde.logio`), which the run needs later.
 
 The helper is a plain child process: when it fails, dies or takes longer than ``timeout_s`` this
 process stops waiting (and ends the helper), and numba compiles whatever is not in the cache here,
@@ -50,8 +50,8 @@ __all__ = [
 
 #: the helper's share per backend, in its order (each name is a group of :data:`_GROUPS`)
 HELPER: dict[str, tuple[str, ...]] = {
-    "fixed": ("fx-step", "csv"),
-    "float": ("learner", "csv"),
+    "fixed": ("fx-step", "resets", "csv"),
+    "float": ("learner", "resets", "csv"),
 }
 #: this process's share before the joining step, per backend
 MAIN: dict[str, tuple[str, ...]] = {
@@ -119,6 +119,18 @@ def _fx_step() -> None:
     FX.coef_set_kernel.compile((f1, i1, i1))
 
 
+def _resets() -> None:
+    """The filters' resets, which making a backend state calls (both backends' float filter, the
+    fixed one's integer filter)."""
+    from firmware_model import lateral as FX
+
+    from . import estimator as E
+
+    _, f1, f2, i1, _ = _types()
+    E.reset_kernel.compile((f1, f1, f2, f1, i1))
+    FX.reset_kernel.compile((i1, i1, i1, i1, i1))
+
+
 def _parse() -> None:
     from .logio import open_log
 
@@ -154,6 +166,7 @@ _GROUPS: dict[str, Callable[[], None]] = {
     "fx-step": _fx_step,
     "float-step": _float_step,
     "learner": _learner,
+    "resets": _resets,
     "parse": _parse,
     "csv": _csv,
 }
