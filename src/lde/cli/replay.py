@@ -286,7 +286,7 @@ def run(args: argparse.Namespace) -> int:
         if helper is not None:
             from ..coldstart import compile_split
 
-            compile_split(backend, helper)  # the step's kernels on both cores
+            compile_split(backend, helper, logs=logs)  # the step's kernels on both cores
         if args.smooth:
             from ..smoother import check_backend
 
