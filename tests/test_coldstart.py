@@ -98,3 +98,11 @@ print(dict(names))
     assert compiled.get("lateral_fixed_step") == 1
     for callee in ("step_kernel", "learner_step", "quantise_kernel", "coef_set_kernel", "reset_kernel"):
         assert callee not in compiled, compiled
+
+
+def test_no_helper_when_the_cache_dir_changed_after_numba_read_it(tmp_path: Path, monkeypatch) -> None:
+    """numba reads NUMBA_CACHE_DIR once, at import: a helper started with another value (a test's
+    monkeypatch) would compile into a cache this process never reads."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "elsewhere"))
+    assert C.start_helper("float") is None
+    assert C.start_helper("paper") is None  # no split for it at all

@@ -492,7 +492,7 @@ def test_a_cold_kernel_cache_is_announced_at_once(tmp_path: Path, capsys, monkey
     err = capsys.readouterr().err
     assert err.startswith("lde: compiling the numba kernels") and str(cache_dirs()[0]) in err.splitlines()[0]
     d = cache_dirs()[0]
-    d.mkdir(parents=True, exist_ok=True)  # the cold run's compile helper (lde.coldstart) may have made it
+    d.mkdir(parents=True)
     tag = f"py{sys.version_info[0]}{sys.version_info[1]}"
     (d / f"pipeline.run_paper-173.{tag}.nbi").write_bytes(b"")
     assert is_warm()

@@ -243,6 +243,9 @@ def start_helper(backend: str | None) -> _Helper | None:
     name = EARLY_NAMES.get(backend)
     if name is None:
         return None
+    numba = sys.modules.get("numba")
+    if numba is not None and os.environ.get("NUMBA_CACHE_DIR", "") != numba.config.CACHE_DIR:
+        return None  # NUMBA_CACHE_DIR changed since numba read it: the helper would cache elsewhere
     try:
         return _Helper(name, time.perf_counter())
     except OSError:
