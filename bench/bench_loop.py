@@ -234,6 +234,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sim-rt-priority", type=int, default=90, help="the simulator's SCHED_FIFO (0: normal)")
     ap.add_argument("--phases", action="store_true", help="time each part of the step (lde.busio I/O too)")
     ap.add_argument("--io-split", action="store_true", help="time python-can's send/recv inside the step")
+    ap.add_argument(
+        "--hop-limit",
+        type=int,
+        default=0,
+        help="udp_multicast TTL (0: this host only, the default; python-can's own default is 1)",
+    )
     ap.add_argument("--sim-pythonpath", default=None, help="PYTHONPATH of the simulator (another checkout's)")
     ap.add_argument("--profile", action="store_true", help="sample the service with py-spy (30 s)")
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
@@ -247,6 +253,7 @@ def main(argv: list[str] | None = None) -> int:
     bus_kw: dict[str, object] = {"interface": args.interface, "channel": channel}
     if args.interface == "udp_multicast":
         bus_kw["port"] = port
+        bus_kw["hop_limit"] = args.hop_limit
 
     # as lde run does (lde.cli.run): another thread of the service's process (an older recorder's) must
     # not keep the loop from the interpreter lock for CPython's default 5 ms
@@ -322,7 +329,7 @@ def main(argv: list[str] | None = None) -> int:
 
     sim_cmd = [sys.executable, "-m", "lde", "sim", "--interface", args.interface, "--channel", channel]
     if args.interface == "udp_multicast":
-        sim_cmd += ["--bus-kwarg", f"port={port}"]
+        sim_cmd += ["--bus-kwarg", f"port={port}", "--bus-kwarg", f"hop_limit={args.hop_limit}"]
     sim_cmd += ["--scenario", args.scenario, "--seed", "1", "--duration", str(args.seconds)]
     if args.sim_rt_priority:
         sim_cmd += ["--rt-priority", str(args.sim_rt_priority)]
@@ -396,6 +403,7 @@ def main(argv: list[str] | None = None) -> int:
         "grid_points": int(grid_points),
         "outputs_per_grid_point": round(steps / grid_points, 4),
         "interface": args.interface,
+        "hop_limit": args.hop_limit if args.interface == "udp_multicast" else None,
         "grid": grid,
         "backend": args.backend,
         "record": bool(args.record),

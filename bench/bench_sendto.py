@@ -1,6 +1,13 @@
 """What one output frame's send costs: python-can's ``udp_multicast`` datagram on the multicast socket
 (as the live service sends it, :mod:`lde.busio`) against the same bytes on a plain unicast UDP socket.
 
+Two multicast buses: ``multicast`` with ``hop_limit`` 0 (the IPv4 TTL; what
+:func:`lde.testing.bus.private_multicast` and ``bench/bench_loop.py`` use: the datagram is delivered
+to this host's members by the multicast loopback only) and ``multicast_ttl1`` with python-can's
+default ``hop_limit`` 1, where each datagram is also handed to the network card (``eth0``; on this VM
+a virtio queue whose kick is an exit to the hypervisor: ``perf record -g`` shows ``vp_notify`` /
+``iowrite16`` under ``udp_sendmsg``).
+
 Per round the four output datagrams of a step (``LDE_Estimate``, ``LDE_Overlay``, ``LDE_Disturbance``,
 ``LDE_Diag``: 165 bytes each) are sent back to back and each ``sendto`` is timed; "cold": a 3.5 ms
 sleep before each round (as live, once per 3.9 ms period), "hot": rounds back to back. The multicast
@@ -9,9 +16,12 @@ socket (here one in this process, drained between rounds) and the service's own,
 socket filter (:func:`lde.service.set_input_filters`) drops in the kernel; the unicast socket sends to
 one bound receiver on 127.0.0.1, drained the same way.
 
-    python bench/bench_sendto.py [--rounds 3000] [--json]
+    python bench/bench_sendto.py [--rounds 3000] [--idle sleep|spin] [--json]
 
-Medians and 99th percentiles in microseconds, the two kinds interleaved round by round (same load).
+``--idle spin``: instead of sleeping 3.5 ms before a "cold" round, keep the CPU busy for 3.5 ms (a
+loop on the clock): does the first send's extra cost come from the CPU's idle state?
+
+Medians and 99th percentiles in microseconds, the kinds interleaved round by round (same load).
 """
 
 from __future__ import annotations
@@ -46,50 +56,66 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--rounds", type=int, default=3000)
     ap.add_argument("--frames", type=int, default=4, help="datagrams per round (a step's outputs)")
+    ap.add_argument("--idle", choices=("sleep", "spin"), default="sleep", help="before a cold round")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    kw = private_multicast()
-    bus = can.Bus(**kw)
-    member = can.Bus(**kw)  # the simulator's socket
-    set_input_filters(bus, load_profile("lde"))
-    io = bus_io(bus)
-    txs = [
-        io.tx(can.Message(arbitration_id=0x3A0 + j, is_extended_id=False, dlc=8, data=bytes(8)))
-        for j in range(args.frames)
-    ]
-    if any(tx.buf is None for tx in txs):
+    profile = load_profile("lde")
+    buses, ios, txs, msocks = [], {}, {}, []
+    for kind, hop in (("multicast", 0), ("multicast_ttl1", 1)):
+        kw = {**private_multicast(), "hop_limit": hop}
+        bus = can.Bus(**kw)
+        member = can.Bus(**kw)  # the simulator's socket
+        buses += [bus, member]
+        set_input_filters(bus, profile)
+        io = ios[kind] = bus_io(bus)
+        txs[kind] = [
+            io.tx(can.Message(arbitration_id=0x3A0 + j, is_extended_id=False, dlc=8, data=bytes(8)))
+            for j in range(args.frames)
+        ]
+        msocks.append(member._multicast._socket)  # type: ignore[attr-defined]
+    if any(tx.buf is None for tt in txs.values() for tx in tt):
         print("bench_sendto: python-can's datagram layout is not the one lde.busio patches", file=sys.stderr)
         return 2
-    msock = member._multicast._socket  # type: ignore[attr-defined]
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     uni = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     dest = rx.getsockname()
     load0 = os.getloadavg()
     n, f = args.rounds, args.frames
-    t = {(kind, cold): np.zeros((n, f), np.int64) for kind in ("multicast", "unicast") for cold in (0, 1)}
+    kinds = ("multicast", "multicast_ttl1", "unicast")
+    t = {(kind, cold): np.zeros((n, f), np.int64) for kind in kinds for cold in (0, 1)}
     pc = time.perf_counter_ns
     for r in range(n):
         for cold in (0, 1):
-            for kind in ("multicast", "unicast"):
-                _drain(msock)
+            for kind in kinds:
+                for m in msocks:
+                    _drain(m)
                 _drain(rx)
                 out = t[kind, cold]
-                if cold:
+                if cold and args.idle == "sleep":
                     time.sleep(_SLEEP_S)
-                for j, tx in enumerate(txs):
-                    a = pc()
-                    if kind == "multicast":
-                        io.send(tx, time.time())
-                    else:
+                elif cold:
+                    busy_until = pc() + int(_SLEEP_S * 1e9)
+                    while pc() < busy_until:
+                        pass
+                if kind == "unicast":
+                    for j, tx in enumerate(txs["multicast"]):
+                        a = pc()
                         uni.sendto(tx.buf, dest)  # type: ignore[arg-type]
+                        out[r, j] = pc() - a
+                    continue
+                io = ios[kind]
+                for j, tx in enumerate(txs[kind]):
+                    a = pc()
+                    io.send(tx, time.time())
                     out[r, j] = pc() - a
     skip = min(100, n // 10)
     res: dict[str, object] = {
         "load_avg": [round(x, 2) for x in (*load0, *os.getloadavg())],
         "rounds": n - skip,
         "frames": f,
-        "bytes": len(txs[0].buf),  # type: ignore[arg-type]
+        "bytes": len(txs["multicast"][0].buf),  # type: ignore[arg-type]
+        "idle": args.idle,
     }
     for (kind, cold), a in t.items():
         a = a[skip:] / 1e3
@@ -103,14 +129,17 @@ def main(argv: list[str] | None = None) -> int:
             "round_p99_us": round(float(np.percentile(a.sum(axis=1), 99)), 1),
             "first3_p50_us": round(float(np.median(a[:, :3].sum(axis=1))), 1),
         }
-    bus.shutdown()
-    member.shutdown()
+    for b in buses:
+        b.shutdown()
     if args.json:
         print(json.dumps(res))
         return 0
-    print(f"sendto of {f} datagrams of {res['bytes']} B per round, {n - skip} rounds; load {res['load_avg']}")
+    print(
+        f"sendto of {f} datagrams of {res['bytes']} B per round, {n - skip} rounds, cold: {args.idle} 3.5 ms;"
+        f" load {res['load_avg']}"
+    )
     print(f"{'':18} {'first p50/p99':>15} {'next p50/p99':>15} {'round p50/p99':>15} {'3 frames p50':>13}")
-    for key in ("multicast_cold", "unicast_cold", "multicast_hot", "unicast_hot"):
+    for key in [f"{k}_{c}" for c in ("cold", "hot") for k in kinds]:
         v = res[key]
         assert isinstance(v, dict)
         print(

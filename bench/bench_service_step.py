@@ -9,7 +9,11 @@ same step run back to back ("hot") and with a 3.5 ms pause before each step ("co
 the step runs once per 3.9 ms period and the caches are refilled by whatever ran in between).
 
     python bench/bench_service_step.py [--steps 4000] [--backend fixed] [--realtime --cpu 1]
-        [--cpu-latency-us 0] [--json]
+        [--cpu-latency-us 0] [--phases] [--empty-call] [--json]
+
+``--empty-call``: only the engine's live call (``Engine.run_live``) with no frame and no step time,
+``5 * --steps`` times back to back and a tenth of that after a 0.5 ms sleep each: the cost of
+numba unboxing the loop's arrays (how many: ``arrays``).
 
 ``--cpu-latency-us 0`` holds ``/dev/cpu_dma_latency`` at 0 as ``lde run --realtime`` does (idle CPUs
 poll instead of halting: the "cold" step then runs on warmer caches).
@@ -85,6 +89,7 @@ def run(n: int, backend: str, gap_s: float, phases: bool, rec_dir: Path) -> dict
             if hasattr(svc, name):
                 _timed(svc, name, acc)
         _timed(svc.engine, "run_arrays", acc)
+        _timed(svc.engine, "run_live", acc)
         _timed(rec, "step", acc)
     mdps, esc = MessageEncoder(profile, "MDPS_Sensors"), MessageEncoder(profile, "ESC_Motion")
     mv = si_to_dbc(
@@ -134,6 +139,42 @@ def run(n: int, backend: str, gap_s: float, phases: bool, rec_dir: Path) -> dict
     return out
 
 
+def empty_call(n: int, backend: str) -> dict[str, object]:
+    """The engine's live call with no frame and no step time (``Engine.run_live`` as the service
+    makes it): what numba's unboxing of the loop's arguments costs, hot and after a 0.5 ms sleep."""
+    from lde.engine import Engine, StepBlock
+
+    eng = Engine(load_profile("lde"), load_vehicle("reference"), backend, explicit=True)
+    cols = tuple(np.zeros(0, dt) for dt in (np.int64, np.uint32, np.bool_, np.uint8, np.uint64, np.bool_))
+    block, _ = StepBlock.packed(1)
+    tk, en, ex = np.zeros(0, np.int64), np.zeros(0, np.bool_), np.zeros(0, np.uint8)
+    eng.run_arrays(*cols, block, step_times=tk, enable=en, extra_status=ex, final=True, pinned=True)
+    args = eng.live_args(cols, block, tk, en, ex)
+
+    def arrays(x: object) -> int:
+        return 1 if isinstance(x, np.ndarray) else sum(map(arrays, x)) if isinstance(x, tuple) else 0
+
+    hot, slept = np.zeros(n, np.int64), np.zeros(n, np.int64)
+    pc = time.perf_counter_ns
+    for k in range(n):
+        t = pc()
+        eng.run_live(args)
+        hot[k] = pc() - t
+    for k in range(n // 10):
+        time.sleep(0.0005)
+        t = pc()
+        eng.run_live(args)
+        slept[k] = pc() - t
+    slept = slept[: n // 10]
+    return {
+        "arrays": arrays(args),
+        "hot_p50_us": round(float(np.median(hot)) / 1e3, 2),
+        "hot_p99_us": round(float(np.percentile(hot, 99)) / 1e3, 2),
+        "after_sleep_p50_us": round(float(np.median(slept)) / 1e3, 2),
+        "after_sleep_p99_us": round(float(np.percentile(slept, 99)) / 1e3, 2),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=4000)
@@ -144,6 +185,9 @@ def main(argv: list[str] | None = None) -> int:
         "--cpu-latency-us", type=int, default=None, help="PM QoS bound (lde.clock.enable_realtime)"
     )
     ap.add_argument("--phases", action="store_true", help="time each phase (small overhead)")
+    ap.add_argument(
+        "--empty-call", action="store_true", help="only the engine's live call on no frame (unboxing)"
+    )
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     if args.realtime:
@@ -160,8 +204,13 @@ def main(argv: list[str] | None = None) -> int:
             _hold_cpu_latency(args.cpu_latency_us, warnings)
             for w in warnings:
                 print(w, file=sys.stderr)
-    tmp = Path(tempfile.mkdtemp(prefix="lde-bench-step-"))
     load = os.getloadavg()
+    if args.empty_call:
+        r = empty_call(args.steps * 5, args.backend)
+        r["load_avg"] = [round(x, 2) for x in (*load, *os.getloadavg())]
+        print(json.dumps(r) if args.json else f"engine live call, no frame: {r}")
+        return 0
+    tmp = Path(tempfile.mkdtemp(prefix="lde-bench-step-"))
     results = [run(args.steps, args.backend, gap, args.phases, tmp) for gap in (0.0, 0.0035)]
     summary = {
         "load_avg": [round(x, 2) for x in (*load, *os.getloadavg())],

@@ -153,7 +153,7 @@ def test_defaults_used_are_stated(tmp_path):
     )
     v = load_vehicle(f)
     note = v.defaults_note()
-    assert "[estimator] all 17 keys" in note and "[corrections] all 6 keys" in note
+    assert "[estimator] all 19 keys" in note and "[corrections] all 6 keys" in note
     assert "[overlay] max_rate_Nm_per_s" in note and "max_torque_Nm" not in note
     assert load_vehicle("reference").defaults == ()  # the shipped file states every key
     spec = tmp_path / "spec.toml"  # a spec sheet: no tires, generic ones from the axle loads

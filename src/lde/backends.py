@@ -321,6 +321,7 @@ def lateral_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no 
         fs[E.F_ZFRIC],
         mdps_ok and esc_ok and (status & VALID) != 0,
     )
+    E.wind_moment_output(p, out)
     out[O_LEARN] = ls[Ln.LS_STATE]
     # the overlay law with the learned trail K/Cf (the holding torque is 2 K alpha_f / N)
     out[O_GAIN] = p[E.P_K] / (p[E.P_N] * p[E.P_CF] * (p[E.P_LF] + p[E.P_LR]))
@@ -384,6 +385,9 @@ def lateral_fixed_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragm
     )  # fmt: skip
     if pushed:
         FX.coef_set_kernel(p, tv, cs)
+    # the centre-of-pressure blend of the reported moment, after the shadow check and the learner (both
+    # see the filter's own M_wind); in float at the boundary as the overlay law (not in the integer step)
+    E.wind_moment_output(p, out)
     out[O_LEARN] = ls[Ln.LS_STATE]
     # the overlay law's gain from the current (learned) parameters, as the float backend (the overlay
     # law runs in float after the estimator in this model, for every backend)

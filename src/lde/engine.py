@@ -43,6 +43,7 @@ from .grid import (
 )
 from .learned import LearnedSnapshot, LearnedState, load_learned, parse_learned, save_snapshot
 from .learner import tire_state
+from .loopargs import loop_arrays
 from .overlay import limiter_params, new_limiter_state
 from .params import Vehicle
 from .pipeline import (
@@ -347,7 +348,18 @@ class Engine:
         self.counters = np.zeros(len(self.outputs.names), np.int64)
         self.used_since = np.zeros(1, np.int64)
         self._steps, self._enable, self._extra = _NO_TIMES, _NO_BOOL, _NO_U8
-        self._tb, self._st = self.rx_tables.kernel_args(), self.rx.kernel_args()
+        # the loop's fixed arrays as one compiled argument (lde.loopargs: 1 to unbox instead of 51)
+        self._la = loop_arrays(
+            self.rx_tables.kernel_args(),
+            self.outputs.args,
+            self.rx.kernel_args(),
+            self.prev_t,
+            self.lp,
+            self.lsi,
+            self.lsf,
+            self.counters,
+            self.used_since,
+        )
         self.frames_fed = 0
         self.est = self.backend.make(vehicle, self._dt, self.profile.angle_above_torsion_bar)
         self._shadow: Engine | None = None
@@ -466,7 +478,7 @@ class Engine:
         unfed.
 
         ``pinned``: the first such call resolves numba's overload for its argument types, later ones
-        call it directly (numba's type dispatch of the loop's 40 arguments costs about 20 us on a cold
+        call it directly (numba's type dispatch of the loop's 31 arguments costs about 20 us on a cold
         cache). Only for a caller that passes arguments of the same types every time (the live
         service's preallocated columns): the compiled entry point does not check array dtypes.
         """
@@ -512,11 +524,12 @@ class Engine:
 
     def live_args_valid(self, args: tuple) -> bool:
         """``args`` (:meth:`live_args`) still name this engine's state (not after :meth:`reset`)."""
-        return args[0] is self.est.params and args[1] is self.est.state and args[4] is self.grid
+        e = self.est
+        return args[0] is e.params and args[1] is e.state and args[2] is self._la and args[3] is self.grid
 
     def run_live(self, args: tuple) -> tuple[int, int]:
         """:meth:`run_arrays` (explicit mode, ``pinned``, resolved before by a pinned call) on an
-        argument tuple from :meth:`live_args`: the live step's engine call without rebuilding its 40
+        argument tuple from :meth:`live_args`: the live step's engine call without rebuilding its 31
         arguments (about 8 us of Python per step on a hot cache)."""
         g = self.grid
         g[G_K] = 0
@@ -543,20 +556,12 @@ class Engine:
         return (
             e.params,
             e.state,
-            self._tb,
-            self._st,
+            self._la,
             g,
             step_times,
             enable,
             extra_status,
-            self.prev_t,
-            self.lp,
-            self.lsi,
-            self.lsf,
-            self.outputs.args,
-            self.counters,
             self.encode_outputs,
-            self.used_since,
             final,
             np.int64(t_end_ns or 0),
             t_end_ns is not None,

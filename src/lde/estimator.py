@@ -66,8 +66,9 @@ IX_BETA, IX_R, IX_FA, IX_MA, IX_FB = range(5)
  P_TFRIC, P_FW, P_CTB, P_DSW, P_BR, P_T0,                # learned corrections (P_FW: the sign's width)
  P_QB, P_QR, P_QFA, P_QMA, P_QFB, P_RR, P_RT, P_RA,      # noise densities / variances
  P_P0B, P_P0R, P_P0FA, P_P0MA, P_P0FB,
- P_VMIN, P_CONV) = range(32)  # fmt: skip
-N_P = 32
+ P_VMIN, P_CONV,
+ P_XCP, P_WCP) = range(34)  # fmt: skip
+N_P = 34
 
 # --- aux state slots ---------------------------------------------------------------------------
 # float: last valid delta_f, last T_align_hat, last friction sign, the 10 Hz rate filter (y, y')
@@ -106,6 +107,7 @@ def params_vector(
     p[P_RR], p[P_RT], p[P_RA] = e.r_yaw, e.r_align, e.r_lat_accel
     p[P_P0B], p[P_P0R], p[P_P0FA], p[P_P0MA], p[P_P0FB] = e.p0_beta, e.p0_yaw, e.p0_fw, e.p0_mw, e.p0_bank
     p[P_VMIN], p[P_CONV] = e.min_speed, e.converge_time
+    p[P_XCP], p[P_WCP] = e.wind_cp, e.wind_cp_weight
     return p
 
 
@@ -187,6 +189,27 @@ def _outputs(p, x, fs, out):  # pragma: no cover - compiled
     out[O_BETA] = x[IX_BETA]
     out[O_YAW] = x[IX_R]
     out[O_T_ALIGN] = fs[F_TALIGN]
+
+
+@njit(cache=True)
+def wind_moment_output(p, out):  # pragma: no cover - compiled
+    """The reported wind moment [Nm]: the filter's ``M_wind`` blended with the centre-of-pressure
+    prior ``x_cp F_wind``, ``Mw = (1 - w) M_wind + w x_cp F_wind`` (``x_cp`` [m] ahead of the CG,
+    ``w`` in 0..1; docs/estimator.md, "Cold: the wind's centre of pressure"). Both backends apply it
+    to ``out`` after the learner, which reads the filter's own ``M_wind`` (``O_MW_WIND`` before this).
+
+    Why a blend: in steady driving the filter's five states are fixed by two equilibria and three
+    measurements, so its ``M_wind`` is whatever closes the yaw balance with the assumed tires; with
+    tires known to +-25 % that is a yaw-moment error of the order of 0.3-0.7 m x the tire force, the
+    same order as, and independent of, the spread of a car's aerodynamic centre of pressure. Both
+    errors scale with the disturbance, so the minimum-variance combination has a constant weight.
+    Off (``w = 0``) in the shipped defaults: a car whose tires are known and whose centre of pressure
+    is not near ``x_cp`` loses by it (the acceptance drive's wind has its centre 0.375 m behind the CG)."""
+    w = p[P_WCP]
+    if w > 0.0:
+        mw = (1.0 - w) * out[O_MW_WIND] + w * p[P_XCP] * out[O_FW_WIND]
+        out[O_MW] = mw
+        out[O_MW_WIND] = mw
 
 
 @njit(cache=True, inline="always")

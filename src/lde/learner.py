@@ -30,8 +30,9 @@ R2 (rear axle; Cr)::
     (lf T_true / t - Iz r_dot) / lr = 2 Cr alpha_r - 2 Cr sigma D_dot / vx + c2,  alpha_r = T_true/(2K) - D
 
 The regressions start in cascade (R1 once R3 has samples, R2 once R1 has): without it Cr ended 5 %
-off. They learn only when the drive is excited (road-wheel rate RMS > 0.5 deg/s, lateral-force
-variation > 150 N) and disturbance-quiet (the filter's wind estimate varies less than half as much as
+off. They learn only when the drive is excited (lateral-force variation > 150 N; for R3 and R1 also
+road-wheel rate RMS > 0.5 deg/s, not for R2: on the fast ends of the manoeuvres alone it learned Cr
+8-16 % low) and disturbance-quiet (the filter's wind estimate varies less than half as much as
 m a_y): a steady crosswind or a long bank gives no excitation and is never learned as a tire value.
 
 Offsets (not identifiable from a steady state: a steady crosswind looks like them):
@@ -357,14 +358,17 @@ def learner_step(
         s = p[E.P_S]
         ls[LS_P3 + N3 * N3 - 1] += lp[L_QI3] * tdec
         linear = abs(ay_f) < lp[L_AYMAX] and abs(a_f) < lp[L_DSWMAX]
-        excited = ls[LS_EXC] > lp[L_EXC_SW] ** 2 and ls[LS_BP + 4] > lp[L_EXC_F] ** 2
-        quiet = ls[LS_BP + 5] < (lp[L_QUIET] ** 2) * ls[LS_BP + 4]
-        excited = excited and quiet
+        # R3 and R1 need the steering to move (R3 works on its rate, R1 on the aligning torque's
+        # variation); R2 needs the lateral force to vary only: a steering-rate gate left it the fast
+        # parts of the manoeuvres, where its quasi-static rear-axle model is worst (Cr 8-16 % low on
+        # indep_twin, long_trail, tires_plus25; docs/estimator.md, "R2's own bias")
+        force_exc = ls[LS_BP + 4] > lp[L_EXC_F] ** 2 and ls[LS_BP + 5] < (lp[L_QUIET] ** 2) * ls[LS_BP + 4]
+        excited = force_exc and ls[LS_EXC] > lp[L_EXC_SW] ** 2
         xr = ws[0]
         ph = ws[1]
         sliding = abs(a_d) > lp[L_SLIDE]
         slow = lp[L_SLOW] if ls[LS_STATE] == ST_LEARNED else 1.0
-        if linear and excited and sliding:
+        if linear and force_exc and sliding:
             tfric = p[E.P_TFRIC]
             # R3: a_y = s X0 - (s/K) X1 - (s tau/K) X2 + (s N Tfric/(2K)) Xz - (s c_tb) Xtb + c3
             xr[0] = v_f * a_d / n - lf * r_d + v_f * (r_f - p[E.P_BR])
@@ -373,11 +377,12 @@ def learner_step(
             xr[3] = v_f * z_d
             xr[4] = -v_f * tc_d / n
             xr[5] = 1.0
-            _rls(ls, LS_T3, LS_P3, N3, xr, ay_f, slow * lp[L_SIG3] ** 2, ph)
-            # a twist is >= 0: push clamps it there, so R3 must too, or K, s and the friction stay
-            # fitted to the negative twist the filter never uses (docs/estimator.md, "Twist bound")
-            _project_bound(ls, LS_T3, LS_P3, N3, 4, 0.0, ls[LS_T3] * CTB_MAX)
-            ls[LS_N + 1] += 1.0
+            if excited:
+                _rls(ls, LS_T3, LS_P3, N3, xr, ay_f, slow * lp[L_SIG3] ** 2, ph)
+                # a twist is >= 0: push clamps it there, so R3 must too, or K, s and the friction stay
+                # fitted to the negative twist the filter never uses (docs/estimator.md, "Twist bound")
+                _project_bound(ls, LS_T3, LS_P3, N3, 4, 0.0, ls[LS_T3] * CTB_MAX)
+                ls[LS_N + 1] += 1.0
             # cascade: R1 uses s (and the friction) from R3, R2 uses t from R1 and K from R3; a
             # regression starts only once what it uses has CASCADE samples (no generic-value bias)
             cascade = 0.15 * lp[L_MIN_SAMPLES]
@@ -386,7 +391,7 @@ def learner_step(
             T_true = T_f - n * tfric * z_f - p[E.P_T0]
             xr[0] = T_true
             xr[1] = 1.0
-            if ls[LS_N + 1] > cascade:
+            if ls[LS_N + 1] > cascade and excited:
                 _rls(ls, LS_T1, LS_P1, N1, xr, iz * r_d + lr * m * ay_f / s, slow * lp[L_SIG1] ** 2, ph)
                 ls[LS_N + 2] += 1.0
             # R2: (lf T_true/t - Iz r_dot)/lr = 2 Cr alpha_r - 2 Cr sigma D'/vx + c2
@@ -403,7 +408,8 @@ def learner_step(
                 _rls(
                     ls, LS_T2, LS_P2, N2, xr, (lf * T_true / t_tr - iz * r_d) / lr, slow * lp[L_SIG2] ** 2, ph
                 )
-            ls[LS_N] += 1.0
+            if excited:
+                ls[LS_N] += 1.0
         # gyro bias: a straight road returns to its heading. Anchors are instants of straight steady
         # driving (2 s mean yaw rate within 0.3 deg/s of the bias, steering still); between two anchors
         # 8-120 s apart the heading change int (r - b) dt is, on a straight road, the bias times the

@@ -157,6 +157,12 @@ class EstimatorTuning:
         q_bank: random-walk density of the bank force F_bank = m g sin(phi) [N^2/s], 5e4.
         r_lat_accel: lateral-acceleration measurement variance [(m/s^2)^2]: (0.10 m/s^2)^2.
         p0_bank: initial standard deviation of F_bank [N].
+        wind_cp: the wind's centre of pressure ahead of the CG [m] (a generic prior, 0.3; the learner's
+            angle-offset split assumes the same), for the reported moment's blend.
+        wind_cp_weight: weight w of that prior in the reported moment,
+            ``Mw = (1 - w) M_wind + w wind_cp F_wind``. 0 (shipped): the filter's M_wind alone; 0.7 is
+            best on the zoo's tuning plants with spec-sheet tires (docs/estimator.md, "Cold: the wind's
+            centre of pressure", with why it is not the default).
 
     (docs/estimator.md: chosen on the tuning plants with their identified tires; the zoo results are
     flat within 0.5 points across the sweep.)
@@ -179,6 +185,8 @@ class EstimatorTuning:
     q_bank: float = 5.0e4
     r_lat_accel: float = 0.10**2
     p0_bank: float = 3000.0
+    wind_cp: float = 0.3
+    wind_cp_weight: float = 0.0
 
 
 #: default steering-wheel rate scale of the smoothed friction sign tanh(rate / w) [rad/s]
@@ -354,6 +362,8 @@ _SCHEMA: dict[str, tuple[type, dict[str, tuple[str, float | None]]]] = {
             "q_bank_N2_per_s": ("q_bank", 1.0),
             "r_lat_accel_m_per_s2": ("r_lat_accel", None),  # a std dev, stored as variance
             "p0_bank_N": ("p0_bank", 1.0),
+            "wind_cp_m": ("wind_cp", 1.0),
+            "wind_cp_weight": ("wind_cp_weight", 1.0),
         },
     ),
     "learning": (
@@ -653,3 +663,5 @@ def validate(v: Vehicle) -> None:
         e.q_wind > 0 and e.q_wind_moment > 0 and e.q_bank > 0, s, "estimator q_wind/q_bank keys must be > 0"
     )
     _check(e.r_lat_accel > 0 and e.p0_bank > 0, s, "estimator r_lat_accel_m_per_s2 and p0_bank_N must be > 0")
+    _check(0.0 <= e.wind_cp_weight <= 1.0, s, "estimator wind_cp_weight must be within 0..1")
+    _check(abs(e.wind_cp) <= 2.0, s, "estimator wind_cp_m must be within -2..2 m")

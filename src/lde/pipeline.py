@@ -173,20 +173,12 @@ STEP: Any = None
 def _run_loop(
     bp,
     bs,
-    tb,
-    st,
+    la,
     g,
     explicit,
     ex_enable,
     ex_extra,
-    prev_t,
-    lp,
-    lsi,
-    lsf,
-    otab,
-    counters,
     encode,
-    used_since,
     final,
     t_end,
     have_end,
@@ -220,7 +212,13 @@ def _run_loop(
     due step and no frame is left (a later call continues), with explicit step times when none is
     left (the frames after it stay unfed), or when the grid overflows (``g[G_OVERFLOW]``). Frames with
     ``is_rx`` False (lde's own, in a recording) are skipped.
+
+    ``la``: the fixed arrays (receiver tables and state, the previous step time, the limiter's
+    parameters and state, the output table and counters) as one :class:`lde.loopargs.LoopArrays`:
+    one argument to unbox per call instead of 51.
     """
+    tb, otab, st = la.tb, la.otab, la.rxst
+    prev_t, lp, lsi, lsf, counters, used_since = la.prev_t, la.lp, la.lsi, la.lsf, la.counters, la.used_since
     e2e = st[0]
     malformed = st[1]
     nf = t.shape[0]

@@ -488,8 +488,12 @@ class SmoothTrack:
         self.close()
 
 
-def _backward(spill: TraceSpill, m_g: float, chunk: int = _BACK_ROWS) -> int:
-    """The backward pass over the spilled trace, newest chunk first, into ``smooth.f8``."""
+def _backward(
+    spill: TraceSpill, m_g: float, x_cp: float = 0.0, w_cp: float = 0.0, chunk: int = _BACK_ROWS
+) -> int:
+    """The backward pass over the spilled trace, newest chunk first, into ``smooth.f8`` (the moment
+    blended with the centre-of-pressure prior as the causal output:
+    :func:`lde.estimator.wind_moment_output`)."""
     n = spill.n
     xs, Ps, have = np.zeros(NX), np.zeros((NX, NX)), np.zeros(1, np.int64)
     bad = 0
@@ -504,9 +508,10 @@ def _backward(spill: TraceSpill, m_g: float, chunk: int = _BACK_ROWS) -> int:
             bad += int(rts_backward(tr, xs, Ps, have, ox, op, of))
             out = np.empty((b - a, NS))
             out[:, S_FW] = ox[:, E.IX_FA] + ox[:, E.IX_FB]
-            out[:, S_MW] = ox[:, E.IX_MA]
+            mw = (1.0 - w_cp) * ox[:, E.IX_MA] + w_cp * x_cp * ox[:, E.IX_FA]
+            out[:, S_MW] = mw
             out[:, S_FW_WIND] = ox[:, E.IX_FA]
-            out[:, S_MW_WIND] = ox[:, E.IX_MA]
+            out[:, S_MW_WIND] = mw
             out[:, S_BANK] = np.arcsin(np.clip(ox[:, E.IX_FB] / m_g, -1.0, 1.0))
             fh.seek(a * NS * 8)
             out.tofile(fh)
@@ -560,7 +565,8 @@ def smooth_run(
                 break
         spill.finish()
         t1 = time.perf_counter()
-        bad = _backward(spill, float(engine.est.info["m_g"]))
+        pv = engine.est.info["p"]
+        bad = _backward(spill, float(engine.est.info["m_g"]), float(pv[E.P_XCP]), float(pv[E.P_WCP]))
         (spill.dir / "trace.f8").unlink()
     except BaseException:
         spill.remove()

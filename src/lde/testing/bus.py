@@ -60,12 +60,18 @@ def unique_channel(label: str = "") -> str:
 def private_multicast(rng: random.Random | None = None) -> dict[str, Any]:
     """``can.Bus`` keyword arguments of a python-can ``udp_multicast`` bus on a group and port of
     its own (239.74.x.y, 40000-60000): tests and benches running at the same time on one host do
-    not hear each other. Two buses made from the same dict hear each other."""
+    not hear each other. Two buses made from the same dict hear each other.
+
+    ``hop_limit`` 0 (the IPv4 TTL): the datagrams stay on this host. They are delivered to the local
+    members by the multicast loopback and not handed to the network card as well, whose transmit
+    (on a VM a virtio queue kick, an exit to the hypervisor) cost about 20-45 us of the first send
+    after an idle period and doubled a step's four sends (docs/service.md, "The send cost")."""
     r = rng if rng is not None else random.Random()
     return {
         "interface": "udp_multicast",
         "channel": f"239.74.{r.randint(1, 254)}.{r.randint(1, 254)}",
         "port": r.randint(40000, 60000),
+        "hop_limit": 0,
     }
 
 
