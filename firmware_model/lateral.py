@@ -61,11 +61,20 @@ T_EX = (T_E_B, T_E_R, T_E_FA, T_E_MA, T_E_FB, T_E_T, T_E_A)
 
 # --- the coefficient set (cs), written by the slow task -------------------------------------------
 CS_POLY = 0  # per coefficient k, term j: raw at CS_POLY + 6k + 2j, right shift at + 1
-(CS_NT, CS_NTF, CS_CTB, CS_IFW, CS_A1, CS_A2, CS_DT, CS_BANK) = range(
+
+
+def _slots(*r: int) -> tuple[np.int64, ...]:
+    """Slot indices as int64 scalars: numba types a global int as a literal and compiles a helper
+    taking it (``sat32``, ``_cmul``) once per literal (18 compilations); an np.int64 global is
+    typed int64: one compilation each."""
+    return tuple(np.int64(k) for k in range(*r))
+
+
+(CS_NT, CS_NTF, CS_CTB, CS_IFW, CS_A1, CS_A2, CS_DT, CS_BANK) = _slots(
     6 * LC.N_K, 6 * LC.N_K + 16, 2
 )  # (raw, frac) pairs: N/s_T, N T_fric/s_T, c_tb, 1/w_fric, dt W^2, 2 Z W dt, dt, 2**e_FB/(m g)
 _S = 6 * LC.N_K + 16
-(CS_T0, CS_BR, CS_DSW, CS_RN_R, CS_RN_T, CS_RN_A) = range(_S, _S + 6)
+(CS_T0, CS_BR, CS_DSW, CS_RN_R, CS_RN_T, CS_RN_A) = _slots(_S, _S + 6)
 CS_QD = _S + 6  # 5 slots
 CS_P0 = _S + 11  # 5 slots
 CS_VMIN = _S + 16
@@ -108,7 +117,7 @@ SAT_NAMES = (
 )
 (S_IN_SPEED, S_IN_STEER, S_IN_YAW, S_IN_TORQUE, S_IN_ACCEL, S_COEF_SET, S_COEF,
  S_X0, S_X1, S_X2, S_X3, S_X4, S_COV, S_INNOV, S_GAIN, S_ACC64, S_P_FLOOR, S_S_NONPOS,
- S_OUTPUT, S_SVF) = range(20)  # fmt: skip
+ S_OUTPUT, S_SVF) = _slots(20)  # fmt: skip
 N_SAT = 20
 
 # --- input flags from the boundary -----------------------------------------------------------------

@@ -233,6 +233,11 @@ def run(args: argparse.Namespace) -> int:
     cold = not is_warm()
     if cold and not args.quiet:  # before the heavy imports: said within a second
         print(notice(), file=sys.stderr, flush=True)
+    helper = None
+    if cold and args.jobs is None and args.scheduler is None:
+        from ..coldstart import start_helper
+
+        helper = start_helper(args.backend)  # compiles part of the data path on the other core
 
     from ..fleet import ReplayJob, run_jobs, summary_table
     from ..logio import REORDER_WINDOW_NS
@@ -276,6 +281,10 @@ def run(args: argparse.Namespace) -> int:
         backend, _fn, note = resolve_backend(args.backend)
         if note and not args.quiet:
             print(f"lde replay: note: {note}", file=sys.stderr)
+        if helper is not None:
+            from ..coldstart import compile_split
+
+            compile_split(backend, helper, logs=logs)  # the step's kernels on both cores
         if args.smooth:
             from ..smoother import check_backend
 

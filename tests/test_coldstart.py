@@ -1,0 +1,108 @@
+"""lde.coldstart: a cold first run's compile split over two processes (docs/startup.md)."""
+
+from __future__ import annotations
+
+import ast
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from numba import typeof
+
+from lde import coldstart as C
+from lde.backends import DEFAULT_BACKEND, get_backend, make_backend_state
+from lde.params import load_vehicle
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("backend", sorted(C.HELPER))
+def test_the_written_out_state_types_are_the_real_states(backend: str) -> None:
+    """The signatures compiled ahead are built from these types: a layout change of a backend's
+    state must show here (else the run compiles the step a second time)."""
+    s = make_backend_state(backend, load_vehicle("reference"))
+    assert C.state_types(backend) == (typeof(s.params), typeof(s.state))
+
+
+def test_the_early_names_resolve_as_the_registry() -> None:
+    for given, name in C.EARLY_NAMES.items():
+        assert get_backend(DEFAULT_BACKEND if given is None else given).name == name
+    assert set(C.EARLY_NAMES.values()) == set(C.HELPER) == set(C.MAIN)
+
+
+def _fake(code: str) -> C._Helper:
+    return C._Helper("float", time.perf_counter(), [sys.executable, "-c", code])
+
+
+def test_a_helper_that_dies_is_not_waited_for() -> None:
+    h = _fake("import sys; print('ready csv', flush=True); sys.exit(3)")
+    t0 = time.perf_counter()
+    why = h.wait_for("learner", time.perf_counter() + 60)
+    assert why == "it ended (rc 3) before learner" and "csv" in h.ready
+    assert time.perf_counter() - t0 < 30  # bounded by the helper's exit, not the deadline
+
+
+def test_a_helper_that_hangs_is_ended_at_the_deadline() -> None:
+    h = _fake("import time; time.sleep(600)")
+    why = h.wait_for("learner", time.perf_counter() + 1.0)
+    assert why == "timed out" and h.proc.poll() is not None
+
+
+def test_a_ready_line_split_across_reads_is_heard() -> None:
+    h = _fake(
+        "import sys, time; sys.stdout.write('rea'); sys.stdout.flush(); time.sleep(0.3); print('dy learner')"
+    )
+    assert h.wait_for("learner", time.perf_counter() + 60) == ""
+    h.proc.wait()
+
+
+def test_the_split_goes_on_without_its_helper() -> None:
+    """A helper that fails at once: this process compiles (or loads) everything itself."""
+    from lde.backends import lateral_step
+
+    h = _fake("import sys; sys.exit(1)")
+    rep = C.compile_split("float", h)
+    assert rep.helper_failed in ("it ended (rc 1) before learner", "not needed (the cache was warm)")
+    assert len(lateral_step.signatures) == 1
+
+
+@pytest.mark.slow
+def test_on_an_empty_cache_each_kernel_is_compiled_once(tmp_path: Path) -> None:
+    """In a process with an empty cache, the split's groups, then the joining step and a backend
+    state: they find their callees compiled for exactly the signatures they call them with (no
+    second compilation)."""
+    code = """
+import collections, sys
+from numba.core import event
+from lde import coldstart as C
+names = collections.Counter()
+class L(event.Listener):
+    def on_start(self, ev): pass
+    def on_end(self, ev): names[ev.data["dispatcher"].py_func.__qualname__] += 1
+for g in ("fx-step", "float-step", "learner", "resets"):
+    C._GROUPS[g]()
+event.register("numba:compile", L())
+C._join("fixed")
+from lde.backends import make_backend_state
+from lde.params import load_vehicle
+make_backend_state("fixed", load_vehicle("reference"))
+print(dict(names))
+"""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "nb"), PYTHONPATH=f"{ROOT / 'src'}:{ROOT}")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    compiled = ast.literal_eval(out.stdout.strip().splitlines()[-1])
+    assert compiled.get("lateral_fixed_step") == 1
+    for callee in ("step_kernel", "learner_step", "quantise_kernel", "coef_set_kernel", "reset_kernel"):
+        assert callee not in compiled, compiled
+
+
+def test_no_helper_when_the_cache_dir_changed_after_numba_read_it(tmp_path: Path, monkeypatch) -> None:
+    """numba reads NUMBA_CACHE_DIR once, at import: a helper started with another value (a test's
+    monkeypatch) would compile into a cache this process never reads."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "elsewhere"))
+    assert C.start_helper("float") is None
+    assert C.start_helper("paper") is None  # no split for it at all
