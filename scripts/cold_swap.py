@@ -17,12 +17,11 @@ import argparse
 import csv
 import math
 from collections.abc import Sequence
-from multiprocessing import Pool
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tune_zoo import run_engine, score, simulated, spec_vehicle
+from tune_zoo import map_runs, run_engine, score, simulated, spec_vehicle
 
 TRUE_CSV = Path(__file__).resolve().parents[1] / "vcan_sim" / "zoo" / "true_values.csv"
 BIG = 1e12  # a measurement variance that switches the measurement off
@@ -137,12 +136,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         for pl in a.plants.split(",")
         for pr in a.profiles.split(",")
     ]
-    if a.jobs > 1:
-        with Pool(a.jobs) as pool:
-            res = pool.map(one, tasks, chunksize=1)
-    else:
-        res = [one(t) for t in tasks]
-    rows = [r for rs in res for r in rs]
+    rows = map_runs(one, tasks, a.jobs)
     report(rows, variants)
     if a.out:
         import json

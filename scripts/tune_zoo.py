@@ -178,6 +178,16 @@ def make_hook(spec: str) -> Hook | None:
     return hook
 
 
+def map_runs(fn: Callable[[Any], list[dict[str, Any]]], tasks: list[Any], jobs: int) -> list[dict[str, Any]]:
+    """``fn`` over ``tasks`` (in ``jobs`` processes when more than one), its row lists joined in order."""
+    if jobs > 1:
+        with Pool(jobs) as pool:
+            res = pool.map(fn, tasks, chunksize=1)
+    else:
+        res = [fn(t) for t in tasks]
+    return [r for rs in res for r in rs]
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     from lde.study.zoo import ZOO_SCENARIOS, plants
 
@@ -198,12 +208,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         for pr in a.profiles.split(",")
     ]
     t0 = time.time()
-    if a.jobs > 1:
-        with Pool(a.jobs) as pool:
-            res = pool.map(one, tasks, chunksize=1)
-    else:
-        res = [one(t) for t in tasks]
-    rows = [r for rs in res for r in rs]
+    rows = map_runs(one, tasks, a.jobs)
     print_table(rows)
     print(f"{len(rows)} runs in {time.time() - t0:.0f} s")
     if a.out:

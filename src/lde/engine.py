@@ -294,6 +294,18 @@ _NO_BOOL = np.zeros(0, np.bool_)
 _NO_U8 = np.zeros(0, np.uint8)
 
 
+def recorded_steps(
+    step_times_ns: np.ndarray, enable: np.ndarray | None, extra_status: np.ndarray | None
+) -> dict[str, Any]:
+    """:meth:`Engine.feed`'s keyword arguments for a recording's step times [ns]: its overlay
+    enables and extra status bits are passed only where they have one value per step time (a
+    recording cut short may hold fewer), else the defaults (enabled, no extra bits) apply."""
+    times = np.ascontiguousarray(step_times_ns, np.int64)
+    en = enable if enable is not None and len(enable) == len(times) else None
+    ex = extra_status if extra_status is not None and len(extra_status) == len(times) else None
+    return {"step_times": times, "enable": en, "extra_status": ex}
+
+
 class Engine:
     """Every state of the data path (receiver, grid, estimator, limiter, output counters) and the
     compiled loop over it.

@@ -35,7 +35,7 @@ import numpy as np
 
 from .backends import DEFAULT_BACKEND, get_backend
 from .e2e import ReceiverStats
-from .engine import OUTPUT_MESSAGES, Engine, StepBlock
+from .engine import OUTPUT_MESSAGES, Engine, StepBlock, recorded_steps
 from .errors import ConfigError, LogFormatError, OutputError
 from .frames import FrameBatch
 from .grid import MAX_GAP_NS, InputGrid
@@ -383,15 +383,8 @@ def run_replay(
                         input_gaps.append((int(t_rx[i]), int(d[i])))
                     last_rx = int(t_rx[-1])
             kw: dict[str, Any] = {}
-            if explicit and first:
-                times = np.ascontiguousarray(step_times_ns, np.int64)
-                en = (
-                    overlay_enable
-                    if overlay_enable is not None and len(overlay_enable) == len(times)
-                    else None
-                )
-                ex = extra_status if extra_status is not None and len(extra_status) == len(times) else None
-                kw = {"step_times": times, "enable": en, "extra_status": ex}
+            if step_times_ns is not None and first:
+                kw = recorded_steps(step_times_ns, overlay_enable, extra_status)
             first = False
             block = engine.feed(chunk, final=final, **kw)
             m = len(block)

@@ -59,7 +59,7 @@ from numba import njit
 from . import estimator as E
 from .backends import Backend, BackendState, lateral_step
 from .backends import _make_lateral as make_lateral_state
-from .engine import Engine, StepBlock
+from .engine import Engine, StepBlock, recorded_steps
 from .errors import ConfigError, LogFormatError
 from .frames import FrameBatch
 from .params import Vehicle
@@ -550,15 +550,8 @@ def smooth_run(
             chunk = next(it, None)
             final = chunk is None
             kw: dict[str, Any] = {}
-            if explicit and first:
-                times = np.ascontiguousarray(step_times_ns, np.int64)
-                en = (
-                    overlay_enable
-                    if overlay_enable is not None and len(overlay_enable) == len(times)
-                    else None
-                )
-                ex = extra_status if extra_status is not None and len(extra_status) == len(times) else None
-                kw = {"step_times": times, "enable": en, "extra_status": ex}
+            if step_times_ns is not None and first:
+                kw = recorded_steps(step_times_ns, overlay_enable, extra_status)
             first = False
             engine.feed(FrameBatch.empty() if chunk is None else chunk, final=final, **kw)
             if final:
