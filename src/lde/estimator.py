@@ -191,6 +191,14 @@ def _outputs(p, x, fs, out):  # pragma: no cover - compiled
     out[O_T_ALIGN] = fs[F_TALIGN]
 
 
+@njit(cache=True, inline="always")
+def blend_wind_moment(m_wind, f_wind, x_cp, w):  # pragma: no cover - compiled
+    """``(1 - w) m_wind + w x_cp f_wind`` [Nm]: the wind moment [Nm] blended with the moment of the
+    wind force [N] at the centre of pressure ``x_cp`` [m] ahead of the CG, weight ``w`` in 0..1
+    (scalars, or arrays: the smoother's)."""
+    return (1.0 - w) * m_wind + w * x_cp * f_wind
+
+
 @njit(cache=True)
 def wind_moment_output(p, out):  # pragma: no cover - compiled
     """The reported wind moment [Nm]: the filter's ``M_wind`` blended with the centre-of-pressure
@@ -207,7 +215,7 @@ def wind_moment_output(p, out):  # pragma: no cover - compiled
     is not near ``x_cp`` loses by it (the acceptance drive's wind has its centre 0.375 m behind the CG)."""
     w = p[P_WCP]
     if w > 0.0:
-        mw = (1.0 - w) * out[O_MW_WIND] + w * p[P_XCP] * out[O_FW_WIND]
+        mw = blend_wind_moment(out[O_MW_WIND], out[O_FW_WIND], p[P_XCP], w)
         out[O_MW] = mw
         out[O_MW_WIND] = mw
 

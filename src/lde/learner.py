@@ -42,8 +42,9 @@ Offsets (not identifiable from a steady state: a steady crosswind looks like the
   heading change are dropped); the windows are averaged over ~10 minutes;
 - angle offset ``d_sw``: the part of the filter's wind estimate that acts through the rear axle,
   (F, M) = o (s, -lr), split from a wind (F, M) = w (1, x_cp) with a generic centre of pressure
-  0.3 m ahead of the CG, only while the wind estimate is small, averaged over 30 minutes of such
-  driving (a 10-minute steady wind moves it by a fraction of its leak only).
+  (the vehicle file's ``wind_cp_m``, 0.3 m ahead of the CG), only while the wind estimate is small,
+  averaged over 30 minutes of such driving (a 10-minute steady wind moves it by a fraction of its
+  leak only).
 
 Learned state of the tire group (``ST_*``): not learned (prior only), learning (after 150 excited
 samples the values are pushed), learned (after 1000 excited samples, ~16 s of manoeuvres; it then
@@ -178,7 +179,6 @@ def init_state(p: np.ndarray, lp: np.ndarray, friction_prior: float = 0.3) -> np
     k0 = p[E.P_K]
     t0 = k0 / p[E.P_CF]
     # R1: L/t (30 %), intercept;  R2: 2 Cr (30 %), -2 Cr sigma (sigma 0.4 +- 0.4 m), intercept
-    x0 = 0.3  # generic wind centre of pressure ahead of the CG [m] (the angle-offset split only)
     ls[LS_T1 + 0] = L / t0
     _diag(ls, LS_P1, N1, ((0.3 * L / t0) ** 2, 2000.0**2))
     c2 = 2.0 * p[E.P_CR]
@@ -186,7 +186,7 @@ def init_state(p: np.ndarray, lp: np.ndarray, friction_prior: float = 0.3) -> np
     ls[LS_T2 + 0] = c2
     ls[LS_T2 + 1] = -c2 * 0.4
     _diag(ls, LS_P2, N2, ((0.3 * c2) ** 2, (rx * 0.4 * c2) ** 2, 3000.0**2))
-    ls[LS_CX] = x0
+    ls[LS_CX] = p[E.P_XCP]  # the vehicle file's wind centre of pressure (the angle-offset split only)
     # R3: s (0.08), s/K (30 %), s tau/K (tau 0.015 +- 0.015 s), s N Tfric/(2K) (0.3 +- 0.4 Nm),
     #     s c_tb (0.3 deg/Nm if the angle is above the torsion bar), intercept
     ls[LS_T3 + 0] = p[E.P_S]  # generic roll tilt 1.06 (a sedan's ~4 deg/g roll gradient)
@@ -446,7 +446,7 @@ def learner_step(
             ls[LS_HT] = -1.0  # too long to tell a bias from a curve: wait for the next anchor
         # angle offset: an offset d (steering wheel) shows in the filter as a 'wind' through the rear
         # axle, (F, M) = o (s, -lr) with o = 2 Cr d / N; a real wind has (F, M) = w (1, x) with x its
-        # centre of pressure (learned, prior 0.3 m ahead of the CG). Split the filter's wind estimate
+        # centre of pressure (learned; prior the vehicle file's wind_cp_m). Split the wind estimate
         # into the two, only while it is small (a strong wind's CoP error would leak), and learn d from
         # the offset part as a fixed-gain average over L_D_TAU of such driving (slow: a steady
         # 10-minute wind moves d by a fraction of its leak only).

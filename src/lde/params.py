@@ -157,8 +157,8 @@ class EstimatorTuning:
         q_bank: random-walk density of the bank force F_bank = m g sin(phi) [N^2/s], 5e4.
         r_lat_accel: lateral-acceleration measurement variance [(m/s^2)^2]: (0.10 m/s^2)^2.
         p0_bank: initial standard deviation of F_bank [N].
-        wind_cp: the wind's centre of pressure ahead of the CG [m] (a generic prior, 0.3; the learner's
-            angle-offset split assumes the same), for the reported moment's blend.
+        wind_cp: the wind's centre of pressure ahead of the CG [m] (a generic prior, 0.3): the
+            learner's starting value for its angle-offset split, and the reported moment's blend.
         wind_cp_weight: weight w of that prior in the reported moment,
             ``Mw = (1 - w) M_wind + w wind_cp F_wind``. 0 (shipped): the filter's M_wind alone; 0.7 is
             best on the zoo's tuning plants with spec-sheet tires (docs/estimator.md, "Cold: the wind's

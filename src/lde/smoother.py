@@ -508,7 +508,9 @@ def _backward(
             bad += int(rts_backward(tr, xs, Ps, have, ox, op, of))
             out = np.empty((b - a, NS))
             out[:, S_FW] = ox[:, E.IX_FA] + ox[:, E.IX_FB]
-            mw = (1.0 - w_cp) * ox[:, E.IX_MA] + w_cp * x_cp * ox[:, E.IX_FA]
+            mw = ox[:, E.IX_MA]
+            if w_cp > 0.0:  # as the causal output (lde.estimator.wind_moment_output)
+                mw = E.blend_wind_moment(mw, ox[:, E.IX_FA], x_cp, w_cp)
             out[:, S_MW] = mw
             out[:, S_FW_WIND] = ox[:, E.IX_FA]
             out[:, S_MW_WIND] = mw

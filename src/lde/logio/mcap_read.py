@@ -368,9 +368,8 @@ class McapLog:
             raise LogFormatError(f"{p}: corrupt MCAP file ({type(exc).__name__}: {exc})") from exc
 
     def _open(self, force_library: bool) -> None:
-        from mcap.reader import (
-            SeekingReader,
-        )  # the library only for MCAP files (a candump replay: not at all)
+        # the library only for MCAP files (a candump replay does not import it)
+        from mcap.reader import SeekingReader
 
         fh = self._fh
         size = os.fstat(fh.fileno()).st_size
