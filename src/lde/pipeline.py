@@ -173,7 +173,7 @@ def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cov
 # when it optimises the loop's module (numba links a callee's module into its caller's).
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def feed_frame(tb, st, g, t_ns, can_id, is_ext, dlc, w_le, anchor, used_since):  # pragma: no cover
     """One received frame (time ``t_ns`` [ns]): the receiver (:func:`lde.signals.rx_feed`), the
     count of accepted input frames since the previous step, the grid (:func:`lde.grid.grid_frame`;
@@ -185,7 +185,7 @@ def feed_frame(tb, st, g, t_ns, can_id, is_ext, dlc, w_le, anchor, used_since): 
     grid_frame(g, t_ns, m >= 0, m == anchor and accepted)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def sample_inputs(tb, st, tk, vin, age, prev_t):  # pragma: no cover - compiled
     """The inputs at step time ``tk`` [ns] into ``vin`` (SI) and ``age`` [ns]
     (:func:`lde.signals.rx_sample`). Returns (valid mask, fresh mask: the inputs that brought a new
@@ -199,7 +199,7 @@ def sample_inputs(tb, st, tk, vin, age, prev_t):  # pragma: no cover - compiled
     return mask, np.int64(fresh), bool(ok_m), bool(ok_e)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def step_outputs(
     lp, lsi, lsf, otab, counters, tk, est, status, enable, vin, encode, frames_row, vals, scratch
 ):  # pragma: no cover - compiled
