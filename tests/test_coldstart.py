@@ -106,7 +106,7 @@ names = collections.Counter()
 class L(event.Listener):
     def on_start(self, ev): pass
     def on_end(self, ev): names[ev.data["dispatcher"].py_func.__qualname__] += 1
-for g in ("fx-step", "float-step", "learner", "resets", "loop-args", "loop-parts"):
+for g in ("fx-step", "float-step", "learner", "resets", "loop-args", "loop-rx", "loop-out"):
     C._GROUPS[g]()
 event.register("numba:compile", L())
 C._join("fixed")

@@ -50,15 +50,24 @@ __all__ = [
 
 #: the helper's share per backend, in its order (each name is a group of :data:`_GROUPS`)
 HELPER: dict[str, tuple[str, ...]] = {
-    "fixed": ("fx-step", "loop-parts", "resets", "csv"),
-    "float": ("learner", "loop-parts", "resets", "csv"),
+    "fixed": ("fx-step", "loop-out", "resets", "csv"),
+    "float": ("learner", "loop-out", "resets", "csv"),
 }
 #: this process's share, in its order: groups of :data:`_GROUPS`, and ``wait NAME`` (wait for the
 #: helper's group NAME, which the next ones need: the joining step its callees, the loop's
 #: arguments and loop its parts)
 MAIN: dict[str, tuple[str, ...]] = {
-    "fixed": ("float-step", "learner", "parse", "wait fx-step", "join", "loop-args", "wait loop-parts"),
-    "float": ("float-step", "parse", "loop-args", "wait learner", "join", "wait loop-parts"),
+    "fixed": (
+        "float-step",
+        "learner",
+        "parse",
+        "loop-args",
+        "wait fx-step",
+        "join",
+        "loop-rx",
+        "wait loop-out",
+    ),
+    "float": ("float-step", "parse", "loop-args", "loop-rx", "wait learner", "join", "wait loop-out"),
 }
 #: ``--backend`` as given (None: the default) to the backend it names, for the backends with a split
 #: (checked against :func:`lde.backends.get_backend` by the tests; the CLI starts the helper before
@@ -202,18 +211,33 @@ def _loop_args() -> None:
     loopargs._new.compile(tuple(typeof(v) for v in loop_fields()))
 
 
-def _loop_parts() -> None:
-    """The loop's own parts (:func:`lde.pipeline.feed_frame`, ``sample_inputs``, ``step_outputs``),
-    for the argument types the loop (:func:`lde.pipeline.make_loop`) calls them with."""
+def _part_types() -> tuple[Any, ...]:
     from numba import typeof
+
+    return tuple(typeof(v) for v in loop_fields())
+
+
+def _loop_rx() -> None:
+    """The loop's receiver parts (:func:`lde.pipeline.feed_frame`, ``sample_inputs``), for the
+    argument types the loop (:func:`lde.pipeline.make_loop`) calls them with."""
     from numba import types as T
 
     from . import pipeline as P
 
-    tb, otab, st, prev_t, lp, lsi, lsf, counters, used_since = (typeof(v) for v in loop_fields())
+    tb, _, st, prev_t, _, _, _, _, used_since = _part_types()
     i8, b, f1, i1 = T.int64, T.boolean, T.float64[::1], T.int64[::1]
     P.feed_frame.compile((tb, st, i1, i8, i8, b, i8, T.uint64, i8, used_since))
     P.sample_inputs.compile((tb, st, i8, f1, i1, prev_t))
+
+
+def _loop_out() -> None:
+    """The loop's output part (:func:`lde.pipeline.step_outputs`: overlay, finalisation, encoders)."""
+    from numba import types as T
+
+    from . import pipeline as P
+
+    _, otab, _, _, lp, lsi, lsf, counters, _ = _part_types()
+    i8, b, f1 = T.int64, T.boolean, T.float64[::1]
     P.step_outputs.compile((lp, lsi, lsf, otab, counters, i8, f1, i8, b, f1, b, T.uint8[:, ::1], f1, f1))
 
 
@@ -225,7 +249,8 @@ _GROUPS: dict[str, Callable[[], None]] = {
     "parse": _parse,
     "csv": _csv,
     "loop-args": _loop_args,
-    "loop-parts": _loop_parts,
+    "loop-rx": _loop_rx,
+    "loop-out": _loop_out,
 }
 
 
