@@ -50,7 +50,7 @@ __all__ = [
 
 #: the helper's share per backend, in its order (each name is a group of :data:`_GROUPS`)
 HELPER: dict[str, tuple[str, ...]] = {
-    "fixed": ("fx-step", "loop-out", "resets", "csv"),
+    "fixed": ("fx-step", "loop-out", "loop-args", "resets", "csv"),
     "float": ("learner", "loop-out", "resets", "csv"),
 }
 #: this process's share, in its order: groups of :data:`_GROUPS`, and ``wait NAME`` (wait for the
@@ -58,14 +58,8 @@ HELPER: dict[str, tuple[str, ...]] = {
 #: arguments and loop its parts)
 MAIN: dict[str, tuple[str, ...]] = {
     "fixed": (
-        "float-step",
-        "learner",
-        "parse",
-        "loop-args",
-        "wait fx-step",
-        "join",
-        "loop-rx",
-        "wait loop-out",
+        *("float-step", "learner", "parse", "wait fx-step", "join", "loop-rx"),
+        *("wait loop-out", "wait loop-args"),
     ),
     "float": ("float-step", "parse", "loop-args", "loop-rx", "wait learner", "join", "wait loop-out"),
 }
