@@ -2,14 +2,17 @@
 
 numba compiles a kernel in the process that first calls it, one kernel after the other: a first
 ``lde replay`` on an empty cache (:mod:`lde.jitcache`) used one core for 20-35 s. The kernels of a
-backend's step are independent of one another until the step that joins them: :func:`compile_split`
-starts ``python -m lde.coldstart BACKEND`` (the helper), which compiles its share (:data:`HELPER`)
-into the on-disk cache and says so on its stdout (``ready NAME``), while this process compiles the
-rest (:data:`MAIN`); then this process waits for the helper's share, loads it from the cache (numba
-looks there before it compiles) and compiles the step that joins them. The loop of the data path
-(:mod:`lde.pipeline`), compiled next by the run itself, then finds its step compiled. After its
-share of the step the helper compiles the filters' resets and the CSV formatter
-(:mod:`lde.logio`), which the run needs later.
+backend's step are independent of one another until the step that joins them, and the data-path
+loop's own parts (:mod:`lde.pipeline`: ``feed_frame``, ``sample_inputs``, ``step_outputs``, and the
+constructor of its fixed arrays) do not depend on the step at all: :func:`compile_split` starts
+``python -m lde.coldstart BACKEND`` (the helper), which compiles its share (:data:`HELPER`) into
+the on-disk cache and says so on its stdout (``ready NAME``), while this process compiles the rest
+(:data:`MAIN`), waiting for a helper group just before the first of its own that needs it (numba
+then loads it from the cache: it looks there before it compiles). The loop, compiled next by the
+run itself, then finds its step and its parts compiled and only types their calls. After its
+share the helper compiles the filters' resets and the CSV formatter (:mod:`lde.logio`), which the
+run needs later. The shares are balanced by the CPU seconds of each group
+(``scripts/compile_profile.py``; docs/startup.md).
 
 The helper is a plain child process: when it fails, dies or takes longer than ``timeout_s`` this
 process stops waiting (and ends the helper), and numba compiles whatever is not in the cache here,
