@@ -152,6 +152,51 @@ class Phases:
         return w
 
 
+class RecvTrace:
+    """``--trace``: each MDPS frame's receive as the service saw it: its kernel stamp (bus time base),
+    when the receive call that returned it started and returned (monotonic), and whether that call
+    polled (timeout 0: the spin around the expected frame, or the step's drain) or blocked."""
+
+    def __init__(self, svc: Service, n_max: int) -> None:
+        self.cols = np.zeros((n_max, 4), np.int64)  # t_rx (bus), call start, return (mono), blocked
+        self.n = 0
+        anchor = svc.profile.messages[svc.profile.anchor_message].frame_id
+        recv = svc.io.recv
+        clock = time.monotonic_ns
+        cols = self.cols
+
+        def traced(timeout: float | None):
+            t0 = clock()
+            f = recv(timeout)
+            if f is not None and f[1] == anchor and self.n < n_max:
+                cols[self.n] = (f[0], t0, clock(), timeout is None or timeout > 0)
+                self.n += 1
+            return f
+
+        svc.io.recv = traced  # type: ignore[method-assign]
+
+
+def _schedstat_fd() -> int | None:
+    try:
+        return os.open("/proc/thread-self/schedstat", os.O_RDONLY)
+    except OSError:
+        return None
+
+
+def _run_delay_ns(fd: int | None) -> int:
+    """Time this thread has spent runnable but not running, in all [ns] (-1 where unknown)."""
+    if fd is None:
+        return -1
+    return int(os.pread(fd, 128, 0).split()[1])
+
+
+def _steal_ticks() -> int:
+    """The hypervisor's steal time over all CPUs so far [USER_HZ ticks] (``/proc/stat``)."""
+    with open("/proc/stat") as fh:
+        f = fh.readline().split()
+    return int(f[8]) if len(f) > 8 else -1
+
+
 def _pctl(a: np.ndarray, q: float) -> float:
     return round(float(np.percentile(a, q)) / 1e3, 1) if a.size else float("nan")
 
@@ -229,7 +274,12 @@ def main(argv: list[str] | None = None) -> int:
         "--no-fast-io", action="store_true", help="python-can's recv/send (lde.busio generic path)"
     )
     ap.add_argument("--cpu", type=int, action="append", help="pin the service to this CPU (repeatable)")
-    ap.add_argument("--spin-us", type=float, default=200.0, help="fixed grid: busy-wait before a deadline")
+    ap.add_argument(
+        "--spin-us",
+        type=float,
+        default=200.0,
+        help="the service's busy-wait: polls around the expected MDPS frame (fixed grid: before a deadline)",
+    )
     ap.add_argument("--busy", type=int, nargs="?", const=1, default=0, help="busy loops on the other core(s)")
     ap.add_argument("--sim-rt-priority", type=int, default=90, help="the simulator's SCHED_FIFO (0: normal)")
     ap.add_argument("--phases", action="store_true", help="time each part of the step (lde.busio I/O too)")
@@ -242,6 +292,19 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--sim-pythonpath", default=None, help="PYTHONPATH of the simulator (another checkout's)")
     ap.add_argument("--profile", action="store_true", help="sample the service with py-spy (30 s)")
+    ap.add_argument(
+        "--trace",
+        default=None,
+        metavar="F.npz",
+        help="decompose the period error: per-step stages, the MDPS receives, the simulator's send times",
+    )
+    ap.add_argument(
+        "--sim-spin-us",
+        type=float,
+        default=0.0,
+        help="the simulator sleeps until this long before each frame, then spins (lde sim --spin-us)",
+    )
+
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     ap.add_argument("--out", default=None, help="append the JSON object as one line to this file")
     ap.add_argument("--label", default="", help="a name for this run in the JSON")
@@ -307,6 +370,10 @@ def main(argv: list[str] | None = None) -> int:
         svc.step_once = timed_step  # type: ignore[method-assign]
     n = [0]
     off = svc.offset_ns
+    rtrace = RecvTrace(svc, 4 * n_max) if args.trace else None
+    sched_fd = _schedstat_fd() if args.trace else None
+    if args.trace:
+        cols["run_delay"] = np.zeros(n_max, np.int64)
 
     def on_step(r) -> None:
         i = n[0]
@@ -322,6 +389,8 @@ def main(argv: list[str] | None = None) -> int:
         cols["used"][i] = r.frames_used
         cols["io"][i] = bus.io_ns if isinstance(bus, TimedBus) else 0
         cols["skipped"][i] = svc.stats.skipped
+        if rtrace is not None:
+            cols["run_delay"][i] = _run_delay_ns(sched_fd)
         if phases is not None:
             for k, v in phases.acc.items():
                 cols[f"ph_{k}"][i] = v
@@ -333,7 +402,12 @@ def main(argv: list[str] | None = None) -> int:
     sim_cmd += ["--scenario", args.scenario, "--seed", "1", "--duration", str(args.seconds)]
     if args.sim_rt_priority:
         sim_cmd += ["--rt-priority", str(args.sim_rt_priority)]
+    if args.sim_spin_us:
+        sim_cmd += ["--spin-us", str(args.sim_spin_us)]
     tmp = Path(tempfile.mkdtemp(prefix="lde-bench-loop-"))
+    if args.trace:
+        sim_cmd += ["--send-trace", str(tmp / "send_trace.npy")]
+    steal0 = _steal_ticks()
     sim_err = (tmp / "sim.err").open("w")
     env = dict(os.environ)
     if args.sim_pythonpath:
@@ -379,6 +453,7 @@ def main(argv: list[str] | None = None) -> int:
         sim_err.close()
     wall = time.perf_counter() - t_wall
     load_after = os.getloadavg()
+    steal = _steal_ticks() - steal0
     m = n[0]
     c = {k: v[:m] for k, v in cols.items()}
     # the simulator's traffic window: steps that used an MDPS frame, from the first to the last
@@ -441,7 +516,22 @@ def main(argv: list[str] | None = None) -> int:
         "recording_failed": bool(rec.failed) if rec is not None else None,
         "recording_dropped": list(getattr(rec, "dropped", ())) if rec is not None else None,
         "sim": sim_line[-1] if sim_line else "",
+        "sim_spin_us": args.sim_spin_us,
+        "spin_us": args.spin_us,
+        "steal_s": round(steal / os.sysconf("SC_CLK_TCK"), 2),
     }
+    if rtrace is not None:
+        from loop_trace import decompose
+
+        sent = tmp / "send_trace.npy"
+        arrays = {f"step_{k}": v for k, v in c.items()}
+        arrays["recv"] = rtrace.cols[: rtrace.n]
+        arrays["send"] = np.load(sent) if sent.exists() else np.zeros((0, 4), np.int64)
+        arrays["window"] = np.array([a, b], np.int64)
+        arrays["offset_ns"] = np.array([off], np.int64)
+        arrays["anchor_id"] = np.array([svc.profile.messages[svc.profile.anchor_message].frame_id])
+        np.savez_compressed(args.trace, **arrays)
+        out["trace"] = decompose(arrays)
     if phases is not None:
         out["phases_p50_p99_us"] = {
             k: [_pctl(w[f"ph_{k}"], 50), _pctl(w[f"ph_{k}"], 99)] for k in Phases.NAMES
