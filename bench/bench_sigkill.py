@@ -1,8 +1,9 @@
 """How much of a live recording a SIGKILL loses (issue 13 item 3: at most 1 s).
 
 Each run starts ``lde sim`` (real time) and ``lde run --record F.mcap`` as two processes on
-python-can's ``udp_multicast`` bus (a multicast group and port of their own, `hop_limit` 0: on this host only), waits until the
-recording holds steps, waits a random 1-3 s more, then SIGKILLs ``lde run``:
+python-can's ``udp_multicast`` bus (a multicast group and port of their own, ``hop_limit`` 0: on
+this host only), waits until the recording holds steps, waits a random 1-3 s more, then SIGKILLs
+``lde run``:
 
 * ``--target group``: the service *and* its recorder's writer process (its process group): the
   file keeps what the writer had flushed; the loss is the kill time minus the newest frame and
