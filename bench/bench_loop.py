@@ -299,6 +299,12 @@ def main(argv: list[str] | None = None) -> int:
         help="decompose the period error: per-step stages, the MDPS receives, the simulator's send times",
     )
     ap.add_argument(
+        "--slice-us",
+        type=float,
+        default=0.0,
+        help="without --realtime: the service's EEVDF slice (lde.clock.request_slice; 0: the kernel's)",
+    )
+    ap.add_argument(
         "--sim-spin-us",
         type=float,
         default=0.0,
@@ -335,6 +341,11 @@ def main(argv: list[str] | None = None) -> int:
             rt_note += f", cpu_dma_latency {res.cpu_latency_us} us"
     elif args.cpu:
         os.sched_setaffinity(0, set(args.cpu))
+    if args.slice_us and not args.realtime:
+        from lde.clock import request_slice
+
+        why = request_slice(int(args.slice_us * 1e3))
+        rt_note += f", slice {args.slice_us:g} us" if why is None else f", slice refused: {why}"
 
     raw_bus = can.Bus(**bus_kw)
     bus = TimedBus(raw_bus) if args.io_split else raw_bus
