@@ -168,10 +168,18 @@ class RecvTrace:
         clock = time.monotonic_ns
         cols = self.cols
 
+        self.empty = np.zeros(1 << 16, np.int64)  # durations of the last empty polls (a ring) [ns]
+        self.n_empty = 0
+        empty = self.empty
+
         def traced(timeout: float | None):
             t0 = clock()
             f = recv(timeout)
-            if f is not None and f[1] == anchor and self.n < n_max:
+            if f is None:
+                if timeout == 0:
+                    empty[self.n_empty & 0xFFFF] = clock() - t0
+                    self.n_empty += 1
+            elif f[1] == anchor and self.n < n_max:
                 cols[self.n] = (f[0], t0, clock(), timeout is None or timeout > 0)
                 self.n += 1
             return f
@@ -542,6 +550,7 @@ def main(argv: list[str] | None = None) -> int:
         sent = tmp / "send_trace.npy"
         arrays = {f"step_{k}": v for k, v in c.items()}
         arrays["recv"] = rtrace.cols[: rtrace.n]
+        arrays["empty_poll"] = rtrace.empty[: min(rtrace.n_empty, rtrace.empty.size)]
         arrays["send"] = np.load(sent) if sent.exists() else np.zeros((0, 4), np.int64)
         arrays["window"] = np.array([a, b], np.int64)
         arrays["offset_ns"] = np.array([off], np.int64)

@@ -82,6 +82,11 @@ def decompose(d: dict[str, np.ndarray]) -> dict[str, object]:
     prev_trig[1:] = trig[:-1]
     both = trig & prev_trig
     arr = t_k[both] - (t_k[np.flatnonzero(both) - 1] + STEP_NS)
+    pol = r[:, 3] == 0
+    out["poll_call_with_frame"] = _q(r[pol, 2] - r[pol, 1])
+    out["poll_call_start_minus_stamp"] = _q(r[pol, 1] - (r[pol, 0] - off))
+    if "empty_poll" in d:
+        out["poll_call_empty"] = _q(d["empty_poll"])
     out["arrival_vs_expected"] = _q(np.abs(arr))
     out["arrival_outside_200us"] = int(np.count_nonzero(np.abs(arr) > 200_000))
     # the misses, by what they are made of
