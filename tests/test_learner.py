@@ -79,17 +79,31 @@ def _sense(x, delta, body, tires, s, n_ratio, rng, wind=0.0):
     return ay, yaw, tcol, tast
 
 
-def _learn(scale_f, scale_r, scale_k, steer=_weave, seconds=60.0, seed=0, started=False, sigma=0.0):
+def _learn(
+    scale_f,
+    scale_r,
+    scale_k,
+    steer=_weave,
+    seconds=60.0,
+    seed=0,
+    started=False,
+    sigma=0.0,
+    wind=0.0,
+    lp_set=None,
+):
     """Run filter + learner on a truth whose Cf, Cr, K are the prior's times the scales; returns the
     filter's parameter vector at the end, the prior's and the learner state. ``started``: R3 and R1
     already past the cascade's start (as in a drive after a prior one), their values the prior's.
-    ``sigma``: the truth's tire relaxation length [m] (both axles)."""
+    ``sigma``: the truth's tire relaxation length [m] (both axles); ``wind``: a steady crosswind
+    force [N] through the CG; ``lp_set``: learner constants to set ({slot: value})."""
     veh = load_vehicle("reference")
     b, t = veh.body, veh.tires
     n_ratio = veh.steering.ratio
     p = E.params_vector(veh)
     p0 = p.copy()
     lp = Ln.default_lp()
+    for slot, value in (lp_set or {}).items():
+        lp[slot] = value
     ls = Ln.init_state(p, lp, friction_prior=p[E.P_TFRIC])
     if started:
         ls[Ln.LS_N] = ls[Ln.LS_N + 1] = ls[Ln.LS_N + 2] = 0.2 * lp[Ln.L_MIN_SAMPLES]
@@ -105,7 +119,7 @@ def _learn(scale_f, scale_r, scale_k, steer=_weave, seconds=60.0, seed=0, starte
     for i in range(int(seconds / STEP_S)):
         ti = i * STEP_S
         delta = steer(ti) / n_ratio
-        ay, yaw, tcol, tast = _sense(x, delta, b, (cf, cr, k), s, n_ratio, rng)
+        ay, yaw, tcol, tast = _sense(x, delta, b, (cf, cr, k), s, n_ratio, rng, wind=wind)
         st = E.step_kernel(
             p, xs, P, fs, ints, h, ph, 10**9 + i * STEP_NS, VX, steer(ti), yaw, tcol, tast, ay,
             True, True, True, True, True, out,
@@ -114,6 +128,8 @@ def _learn(scale_f, scale_r, scale_k, steer=_weave, seconds=60.0, seed=0, starte
             lp, ls, ws, p, out, VX, steer(ti), yaw, tcol, tast, ay, fs[E.F_ZFRIC], bool(st & VALID)
         )
         x = ad @ x + bd * delta
+        if wind:  # the wind's force through the CG: beta_dot += F / (m vx), as a step's increment
+            x[0] += wind / (b.mass * VX) * STEP_S
     return p, p0, ls
 
 
@@ -179,3 +195,15 @@ def test_rear_relaxation_is_a_lag():
     sigma = ls[Ln.LS_T2 + 1] / ls[Ln.LS_T2 + 0]
     assert 0.3 < sigma < 0.9, sigma
     assert p[E.P_CR] == pytest.approx(0.85 * p0[E.P_CR], rel=0.03)
+
+
+def test_the_wind_gate_holds_the_tires_in_a_crosswind():
+    """A steady 600 N crosswind while weaving: with the wind gate (``L_WIND_MAX``, off by default) at
+    150 N no tire sample is taken and no tire value moves; with it off the tires are learned."""
+    on = {Ln.L_WIND_MAX: 150.0}
+    p, p0, ls = _learn(1.2, 1.2, 1.2, wind=600.0, seconds=30.0, lp_set=on)
+    assert ls[Ln.LS_N] == 0 and Ln.tire_state(ls) == Ln.ST_NOT
+    for slot in (E.P_CF, E.P_CR, E.P_K):
+        assert p[slot] == p0[slot]
+    p, p0, ls = _learn(1.2, 1.2, 1.2, wind=600.0, seconds=30.0)
+    assert ls[Ln.LS_N] > 0 and p[E.P_K] > 1.05 * p0[E.P_K]
