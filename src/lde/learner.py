@@ -39,7 +39,9 @@ The regressions start in cascade (R1 once R3 has samples, R2 once R1 has): witho
 off. They learn only when the drive is excited (lateral-force variation > 150 N; for R3 and R1 also
 road-wheel rate RMS > 0.5 deg/s, not for R2: on the fast ends of the manoeuvres alone it learned Cr
 8-16 % low) and disturbance-quiet (the filter's wind estimate varies less than half as much as
-m a_y): a steady crosswind or a long bank gives no excitation and is never learned as a tire value.
+m a_y): a steady crosswind or a long bank gives no excitation and is never learned as a tire value. A
+change of the wind is a step in R1's and R2's intercepts: their process noise grows with the change
+the filter's wind estimate shows (``L_WIND_Q``), or the slopes take what the intercepts cannot follow.
 
 Offsets (not identifiable from a steady state: a steady crosswind looks like them):
 
@@ -192,9 +194,11 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     lp[L_WIND_SIG] = math.inf
     # a change of the wind moves R1's and R2's intercepts (c1 = lr F_wind/s + M_wind, c2 = -M_wind/lr
     # + ...) far faster than their random walks (L_QI1, L_QI2) allow, and what an intercept does not
-    # follow is fitted into the slopes: their process noise grows by this x the square of the change
-    # the filter's wind estimate shows (its 0.05 s minus its 3 s low-pass); off (0)
-    lp[L_WIND_Q] = 0.0
+    # follow is fitted into the slopes (a crosswind slalom moved Cf -11 % in 40 s): their process
+    # noise grows by this x the square of the change the filter's wind estimate shows (its 0.05 s
+    # minus its 3 s low-pass); 1-16 alike on the zoo, 0 is the learner before (docs/estimator.md,
+    # "The wind's onset")
+    lp[L_WIND_Q] = 4.0
     return lp
 
 
