@@ -94,9 +94,8 @@ def _learn(
     """Run filter + learner on a truth whose Cf, Cr, K are the prior's times the scales; returns the
     filter's parameter vector at the end, the prior's and the learner state. ``started``: R3 and R1
     already past the cascade's start (as in a drive after a prior one), their values the prior's.
-    ``sigma``: the truth's tire relaxation length [m] (both axles); ``wind``: a crosswind force [N]
-    through the CG, steady or a function of time [s]; ``lp_set``: learner constants to set
-    ({slot: value})."""
+    ``sigma``: the truth's tire relaxation length [m] (both axles); ``wind``: a steady crosswind
+    force [N] through the CG; ``lp_set``: learner constants to set ({slot: value})."""
     veh = load_vehicle("reference")
     b, t = veh.body, veh.tires
     n_ratio = veh.steering.ratio
@@ -120,8 +119,7 @@ def _learn(
     for i in range(int(seconds / STEP_S)):
         ti = i * STEP_S
         delta = steer(ti) / n_ratio
-        fw = wind(ti) if callable(wind) else wind
-        ay, yaw, tcol, tast = _sense(x, delta, b, (cf, cr, k), s, n_ratio, rng, wind=fw)
+        ay, yaw, tcol, tast = _sense(x, delta, b, (cf, cr, k), s, n_ratio, rng, wind=wind)
         st = E.step_kernel(
             p, xs, P, fs, ints, h, ph, 10**9 + i * STEP_NS, VX, steer(ti), yaw, tcol, tast, ay,
             True, True, True, True, True, out,
@@ -130,8 +128,8 @@ def _learn(
             lp, ls, ws, p, out, VX, steer(ti), yaw, tcol, tast, ay, fs[E.F_ZFRIC], bool(st & VALID)
         )
         x = ad @ x + bd * delta
-        if fw:  # the wind's force through the CG: beta_dot += F / (m vx), as a step's increment
-            x[0] += fw / (b.mass * VX) * STEP_S
+        if wind:  # the wind's force through the CG: beta_dot += F / (m vx), as a step's increment
+            x[0] += wind / (b.mass * VX) * STEP_S
     return p, p0, ls
 
 
