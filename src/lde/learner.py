@@ -39,7 +39,9 @@ The regressions start in cascade (R1 once R3 has samples, R2 once R1 has): witho
 off. They learn only when the drive is excited (lateral-force variation > 150 N; for R3 and R1 also
 road-wheel rate RMS > 0.5 deg/s, not for R2: on the fast ends of the manoeuvres alone it learned Cr
 8-16 % low) and disturbance-quiet (the filter's wind estimate varies less than half as much as
-m a_y): a steady crosswind or a long bank gives no excitation and is never learned as a tire value.
+m a_y): a steady crosswind or a long bank gives no excitation and is never learned as a tire value. A
+change of the wind is a step in R1's and R2's intercepts: their process noise grows with the change
+the filter's wind estimate shows (``L_WIND_Q``), or the slopes take what the intercepts cannot follow.
 
 Offsets (not identifiable from a steady state: a steady crosswind looks like them):
 
@@ -91,8 +93,9 @@ N_SIG = 7
  L_EXC_TAU, L_EXC_RDOT, L_SIG1, L_SIG2, L_SIG3, L_QI1, L_QI2, L_QI3, L_QPHYS,
  L_TORSION, L_B_TAU, L_B_GATE, L_D_TAU, L_D_GATE_F, L_D_GATE_M, L_RATE,
  L_LEARNED_REL, L_MIN_SAMPLES, L_SIG_B, L_ENABLE, L_RELAX, L_EXC_SW, L_SLIDE, L_SLOW,
- L_QUIET, L_EXC_F, L_SIG_CTB, L_SIGMA0, L_WIND_MAX) = range(36)  # fmt: skip
-N_LP = 36
+ L_QUIET, L_EXC_F, L_SIG_CTB, L_SIGMA0, L_WIND_MAX, L_WIND_REL, L_WIND_SIG,
+ L_WIND_Q) = range(39)  # fmt: skip
+N_LP = 39
 
 # --- learner state (ls, float) -----------------------------------------------------------------------
 # svf: 3 * N_SIG (value, derivative, second derivative); then regression blocks
@@ -182,6 +185,20 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     # better on the zoo (a crosswind slalom moved Cf -11 % in 40 s) but stops the learning in a steady
     # crosswind that tests/test_learner_long.py requires (docs/estimator.md, "The wind gate")
     lp[L_WIND_MAX] = math.inf
+    # the same, relative: learn only while |wind, 3 s mean| < this x the band RMS of m a_y (the
+    # manoeuvre's force excitation); off (inf) (docs/estimator.md, "Gates that tell a slalom from lane
+    # changes")
+    lp[L_WIND_REL] = math.inf
+    # the regressions' noise variance grows by (wind, 3 s mean / this [N])^2: slower, not stopped,
+    # in a strong wind; off (inf)
+    lp[L_WIND_SIG] = math.inf
+    # a change of the wind moves R1's and R2's intercepts (c1 = lr F_wind/s + M_wind, c2 = -M_wind/lr
+    # + ...) far faster than their random walks (L_QI1, L_QI2) allow, and what an intercept does not
+    # follow is fitted into the slopes (a crosswind slalom moved Cf -11 % in 40 s): their process
+    # noise grows by this x the square of the change the filter's wind estimate shows (its 0.05 s
+    # minus its 3 s low-pass); 1-16 alike on the zoo, 0 is the learner before (docs/estimator.md,
+    # "The wind's onset")
+    lp[L_WIND_Q] = 4.0
     return lp
 
 
@@ -372,6 +389,14 @@ def learner_step(
         # R3's intercept carries the bank (and the gyro bias): a random walk
         s = p[E.P_S]
         ls[LS_P3 + N3 * N3 - 1] += lp[L_QI3] * tdec
+        if lp[L_WIND_Q] > 0.0:
+            # a step A in the wind leaves e2 = A exp(-t/3 s) in the band: int e2^2 dt = 1.5 s A^2, so
+            # the intercepts' variance grows by L_WIND_Q x the step's square over the event; the
+            # moment through the generic centre of pressure (the vehicle file's, LS_CX)
+            xc = ls[LS_CX]
+            dq = lp[L_WIND_Q] * e2 * e2 * tdec / 1.5
+            ls[LS_P1 + N1 * N1 - 1] += dq * (lr / s + xc) ** 2
+            ls[LS_P2 + N2 * N2 - 1] += dq * (xc / lr) ** 2
         linear = abs(ay_f) < lp[L_AYMAX] and abs(a_f) < lp[L_DSWMAX]
         # R3 and R1 need the steering to move (R3 works on its rate, R1 on the aligning torque's
         # variation); R2 needs the lateral force to vary only: a steering-rate gate left it the fast
@@ -379,11 +404,14 @@ def learner_step(
         # indep_twin, long_trail, tires_plus25; docs/estimator.md, "R2's own bias")
         force_exc = ls[LS_BP + 4] > lp[L_EXC_F] ** 2 and ls[LS_BP + 5] < (lp[L_QUIET] ** 2) * ls[LS_BP + 4]
         force_exc = force_exc and abs(ls[LS_BP + 3]) < lp[L_WIND_MAX]
+        if lp[L_WIND_REL] < math.inf:
+            force_exc = force_exc and abs(ls[LS_BP + 3]) < lp[L_WIND_REL] * math.sqrt(ls[LS_BP + 4])
         excited = force_exc and ls[LS_EXC] > lp[L_EXC_SW] ** 2
         xr = ws[0]
         ph = ws[1]
         sliding = abs(a_d) > lp[L_SLIDE]
         slow = lp[L_SLOW] if ls[LS_STATE] == ST_LEARNED else 1.0
+        slow *= 1.0 + (ls[LS_BP + 3] / lp[L_WIND_SIG]) ** 2
         if linear and force_exc and sliding:
             tfric = p[E.P_TFRIC]
             # R3: a_y = s X0 - (s/K) X1 - (s tau/K) X2 + (s N Tfric/(2K)) Xz - (s c_tb) Xtb + c3
