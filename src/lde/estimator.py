@@ -238,7 +238,7 @@ def propagation_coefficients(m, iz, lf, lr, cf, cr, vx):  # pragma: no cover - c
     return a00, a01, a0f, a10, a11, a13, b0, b1
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def step_kernel(p, x, P, fs, ints, h, ph, t_ns, vx, angle, yaw, tcol, tast, ay,
                 fresh_r, fresh_t, fresh_a, mdps_ok, esc_ok, out):  # fmt: skip  # pragma: no cover - compiled
     """One step (module docstring): update with the fresh measurements at vx, output the
