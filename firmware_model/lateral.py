@@ -39,6 +39,7 @@ import numpy as np
 from numba import njit
 
 from lde import estimator as E
+from lde.refcount import NO_REFCOUNT
 from lde.status import DEGRADED, ESC_FAULT, LOW_SPEED, MDPS_FAULT, NOT_CONVERGED, VALID
 
 from . import lat_coefs as LC
@@ -192,7 +193,7 @@ def msb(a):  # pragma: no cover - compiled
     return n
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def recip(tv, ft, a):  # pragma: no cover - compiled
     """The normalised reciprocal of an integer 1 <= a < 2**62: (m, n) with 1/a = m 2**-(30 + n),
     m in Q1.30 (2**29 <= m <= 2**30). Normalise a to A in [1, 2) (Q1.30; rounded), a seed for A's
@@ -214,7 +215,7 @@ def recip(tv, ft, a):  # pragma: no cover - compiled
     return y, n
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def tanh_q(tv, ft, u):  # pragma: no cover - compiled
     """tanh of u (Q F_U) in Q F_Z: the table with linear interpolation, odd; 1 beyond its end."""
     fu = tv[T_F_U]
@@ -232,7 +233,7 @@ def tanh_q(tv, ft, u):  # pragma: no cover - compiled
     return -z if u < 0 else z
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def isqrt(v):  # pragma: no cover - compiled
     """floor(sqrt(v)) of an integer v >= 0 (Newton from above)."""
     if v <= 0:
@@ -245,7 +246,7 @@ def isqrt(v):  # pragma: no cover - compiled
         x = y
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def _asin_poly(tv, ft, a):  # pragma: no cover - compiled
     f = tv[T_F_Z]
     off = tv[T_OFF_ASIN]
@@ -257,7 +258,7 @@ def _asin_poly(tv, ft, a):  # pragma: no cover - compiled
     return a + shr(a * shr(a2 * acc, f), f)
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def asin_q(tv, ft, x):  # pragma: no cover - compiled
     """asin of x (Q F_Z, clamped to [-1, 1]) in Q F_Z rad: the series for |x| <= 1/2, else
     pi/2 - 2 asin(sqrt((1 - |x|)/2)); odd."""
@@ -521,7 +522,7 @@ def _predict(tv, cs, x, P, sat, c, delta, t):  # pragma: no cover - compiled
         P[6 * i] = sat32(sat, P[6 * i] + cs[CS_QD + i], S_COV)
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def _friction_sign(tv, ft, cs, aux, sat, pinion):  # pragma: no cover - compiled
     """z = tanh(pinion_rate / w_fric) in Q F_Z, the pinion rate (Q F_RATE) from the 10 Hz
     state-variable filter of the pinion angle (Q F_STEER; semi-implicit Euler, as the float step):
@@ -554,7 +555,7 @@ def _sat_total(sat):  # pragma: no cover - compiled
     return n
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def _outputs(tv, ft, cs, x, aux, sat, iout):  # pragma: no cover - compiled
     for i in range(5):
         iout[i] = x[i]
@@ -570,7 +571,7 @@ def _outputs(tv, ft, cs, x, aux, sat, iout):  # pragma: no cover - compiled
     iout[IO_Z] = aux[A_Z]
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def step_kernel(
     tv, ft, cs, x, P, aux, sat, ws, t_ns, v, steer, yaw, tcol, tas, ay, flags,
     fresh_r, fresh_t, fresh_a, mdps_ok, esc_ok, iout,
