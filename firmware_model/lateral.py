@@ -416,7 +416,7 @@ def reset_kernel(cs, x, P, aux, sat):  # pragma: no cover - compiled
         sat[k] = 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, **NO_REFCOUNT)
 def _coef(cs, sat, k, w, w2):  # pragma: no cover - compiled
     """Coefficient k at w (Q F_W) and w2 = w^2 (Q F_W), in its group's format."""
     o = CS_POLY + 6 * k
@@ -436,7 +436,7 @@ def _cmul(cs, slot, v, f_in, f_out):  # pragma: no cover - compiled
     return shr(cs[slot] * v, cs[slot + 1] + f_in - f_out)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, **NO_REFCOUNT)
 def _update(tv, ft, x, P, sat, h, unit, z, d, r, ph, g):  # pragma: no cover - compiled
     """One scalar measurement update in normalised units: ph = Pn h (h in Q F_H, or the unit vector
     of r when ``unit``), s = h ph + r, innovation z - h X - d, gains ph/s by one reciprocal,
@@ -483,7 +483,7 @@ def _update(tv, ft, x, P, sat, h, unit, z, d, r, ph, g):  # pragma: no cover - c
             sat[S_P_FLOOR] += 1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, **NO_REFCOUNT)
 def _predict(tv, cs, x, P, sat, c, delta, t):  # pragma: no cover - compiled
     """X = Phi_n X + E_n delta, Pn = Phi_n Pn Phi_n' + Qd_n (rows and columns 0, 1 change)."""
     fp = tv[T_F_PHI]
