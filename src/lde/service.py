@@ -75,7 +75,7 @@ from .diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummar
 from .engine import Engine, StepBlock
 from .errors import BusError, ConfigError
 from .frames import FrameBatch, seconds_to_ns
-from .grid import L_REF, lock_anchor, lock_deadline, lock_timeout, new_lock
+from .grid import L_REF, lock_anchor, lock_deadline, lock_frame, lock_timeout, new_lock
 from .handoff import (
     I_DIAG_CTR,
     I_DIAG_SLOT,
@@ -290,7 +290,9 @@ class Service:
         self._pcols: tuple[np.ndarray, ...] = ()
         self._alloc_pending(_PENDING_CAP)
         self._unsorted = False
-        self._anchor = (self.profile.messages[self.profile.anchor_message].frame_id, False)
+        self._anchor_id = self.profile.messages[self.profile.anchor_message].frame_id  # 11-bit
+        #: input frames taken and not yet handed to the input watch and the recorder (_settle_rx)
+        self._backlog: list[tuple[int, int, int, int]] = []
         self._lock: np.ndarray | None = None  # the MDPS-locked grid while run(grid="mdps") runs
         self._due: deque[int] = deque()  # step times the locked grid has made due, not run yet
         self._input_ids = frozenset(m.frame_id for m in self.profile.messages.values())
@@ -406,6 +408,7 @@ class Service:
         lock_deadline(lock)
         lock_timeout(lock, 2 * STEP_NS)
         lock_anchor(lock, 3 * STEP_NS)
+        self._lock_frame = _resolved(lock_frame, new_lock(0), 0)
 
     @property
     def receiver(self) -> Receiver:
@@ -436,26 +439,23 @@ class Service:
         self._recv_error = str(exc)
 
     def _take(self, f: RxFrame) -> None:
-        """One received frame (:mod:`lde.busio`'s five numbers) into the pending columns (and the
-        recording, and the locked grid); frames of other messages are dropped (counted in ``foreign``),
-        error frames counted (``error_frames``, the last one's class kept for the bus check)."""
+        """One received frame (:mod:`lde.busio`'s five numbers) into the pending columns and, when it
+        is the MDPS frame, the locked grid; frames of other messages are dropped (counted in
+        ``foreign``), error frames counted (``error_frames``, the last one's class kept for the bus
+        check). This runs between the MDPS frame and its step, so it does only what the step needs:
+        the input watch and the recorder get the frame after the step's outputs are sent
+        (:meth:`_settle_rx`)."""
         t_rx, can_id, ext, dlc, word = f
         self.received += 1
-        if can_id < 0:
-            if can_id == ERROR_FRAME:
-                self.error_frames += 1
-                self._error_id = word
-            return
         if ext or can_id not in self._input_ids:
-            self.foreign += 1
-            self.watch.saw(can_id, 0)  # counted, for the blind warning's list of ids
+            self._take_other(can_id, word)
             return
-        if self._restamp is None:
-            self._decide_restamp(t_rx)
-        if self._restamp:
-            t_rx = seconds_to_ns(self.now_ns() / 1e9)
-        self.watch.saw(can_id, t_rx)
-        anchor = can_id == self._anchor[0] and ext == self._anchor[1]
+        if self._restamp is not False:  # None: the first frame decides; True: stamped on receipt
+            if self._restamp is None:
+                self._decide_restamp(t_rx)
+            if self._restamp:
+                t_rx = seconds_to_ns(self.now_ns() / 1e9)
+        anchor = can_id == self._anchor_id
         last = self._last_t_k
         if anchor and self._last_due is not None and (last is None or self._last_due > last):
             last = self._last_due
@@ -474,23 +474,55 @@ class Service:
             self._unsorted = True
         self._pt[n] = t_rx
         self._pid[n] = can_id
-        self._pext[n] = ext
+        self._pext[n] = False
         self._pdlc[n] = dlc
         self._pword[n] = word
         self._np = n + 1
-        if self._recorder is not None:
-            self._recorder.frame(t_rx, can_id, ext, dlc, word, True)
+        self._backlog.append((t_rx, can_id, dlc, word))
         if anchor and self._lock is not None:
             self._on_anchor(t_rx)
 
+    def _take_other(self, can_id: int, word: int) -> None:
+        """A frame that is not one of the profile's inputs: an error frame, a remote frame, another
+        message (dropped, counted; its id kept for the blind warning's list)."""
+        if can_id < 0:
+            if can_id == ERROR_FRAME:
+                self.error_frames += 1
+                self._error_id = word
+            return
+        self.foreign += 1
+        self.watch.saw(can_id, 0)
+
+    def _settle_rx(self) -> None:
+        """The input frames taken since the last call into the input watch and the recorder (after a
+        step's sends: off the path from the MDPS frame to the step). The recorder gets them in the
+        order they were taken, before the step's sent frames, as when they were handed over in
+        :meth:`_take`."""
+        bl = self._backlog
+        if not bl:
+            return
+        saw = self.watch.saw
+        rec = self._recorder
+        for t_rx, can_id, dlc, word in bl:
+            saw(can_id, t_rx)
+            if rec is not None:
+                rec.frame(t_rx, can_id, False, dlc, word, True)
+        bl.clear()
+
     def _on_anchor(self, t_rx: int) -> None:
-        """An MDPS frame for the locked grid: the timeout steps before it, then maybe its own step."""
+        """An MDPS frame for the locked grid: the timeout steps before it, then maybe its own step
+        (one compiled call when no timeout step is due: :func:`lde.grid.lock_frame`)."""
         lock = self._lock
         assert lock is not None
-        while (tk := int(lock_timeout(lock, t_rx))) >= 0:
-            self._make_due(tk)
-        if lock_anchor(lock, t_rx):
-            self._make_due(t_rx)
+        r = self._lock_frame(lock, t_rx)
+        if r < 0:
+            while (tk := int(lock_timeout(lock, t_rx))) >= 0:
+                self._make_due(tk)
+            r = lock_anchor(lock, t_rx)
+        if r:
+            self._due.append(t_rx)
+            if self._last_due is None or t_rx > self._last_due:
+                self._last_due = t_rx
 
     def _make_due(self, t_k: int) -> None:
         self._due.append(t_k)
@@ -595,6 +627,7 @@ class Service:
         ints[I_T_SENT] = t_sent
         ints[I_NEWEST] = self._newest_input_ns
         tx_t[-1] = seconds_to_ns(t_diag)
+        self._settle_rx()
         self._after_send(*self._handoff_args)
         ring = self._ring
         diag_sent = self._send(diag, t_diag, ring is None) >= 0
@@ -734,6 +767,7 @@ class Service:
                         break
                 self._idle()
         finally:
+            self._settle_rx()
             self._lock = None
             if was_enabled:
                 gc.enable()
@@ -876,9 +910,10 @@ class Service:
                 if msg is not None:
                     self._take(msg)
             t_k = due.popleft()
-            if t_k > clock.now_ns() + off:  # a simulated clock: move it to the frame
-                clock.sleep_until(t_k - off)
             now = clock.now_ns() + off
+            if t_k > now:  # a simulated clock: move it to the frame
+                clock.sleep_until(t_k - off)
+                now = clock.now_ns() + off
             if due and now - t_k >= _SKIP_AFTER_NS:
                 self.stats.record_skipped(1)
                 continue
