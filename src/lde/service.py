@@ -229,6 +229,8 @@ class Service:
         self._tk = np.zeros(1, np.int64)
         self._enable = np.ones(1, np.bool_)
         self._extra = np.zeros(1, np.uint8)
+        # per-step scalars go through memoryviews of these arrays (half a numpy item store each)
+        self._tk_mv, self._enable_mv, self._extra_mv = (memoryview(a) for a in (self._tk, self._enable, self._extra))
         # frame I/O: raw on the socket for the buses lde knows, python-can's recv/send otherwise
         self.io = bus_io(bus, fast=fast_io)
         # the output frames, built once and refilled in place (numpy views of their data bytes)
@@ -239,6 +241,20 @@ class Service:
             for fid, n in zip(self.engine.outputs.frame_id, self.engine.outputs.length, strict=True)
         ]
         self._out_views = [tx.view for tx in self._tx]
+        # the encoded output frames' bytes (the StepBlock's) into each prebuilt frame: slice copies
+        # between memoryviews, (destination, its slice, source slice) per output
+        frames_mv = memoryview(self._block.frames).cast("B")
+        self._out_copy = [
+            (tx.data, slice(tx.data_at, tx.data_at + tx.dlc), frames_mv[8 * j : 8 * j + tx.dlc])
+            for j, tx in enumerate(self._tx)
+        ]
+        # the step's values for StepResult, read through memoryviews (a numpy item read and its float()
+        # cost about three times as much)
+        b = self._block
+        self._est_mv = memoryview(b.est).cast("B").cast("d")
+        self._row_mvs = tuple(
+            memoryview(a) for a in (b.status, b.overlay_state, b.frames_used, b.t_overlay)
+        )
         dc = MessageCodec(self.profile, "LDE_Diag")
         self._diag_tx = self.io.tx(
             can.Message(
@@ -251,6 +267,7 @@ class Service:
         slots = [dc.index[n] for n in ("PeriodError", "StepTime", "Latency", "DeadlineMisses", "E2ERejects")]
         rejects_at = self._block.e2e_rejects.ctypes.data - self._block_mem.ctypes.data
         self._ints = np.zeros(N_INTS, np.int64)
+        self._ints_mv = memoryview(self._ints)
         self._tx_t = np.full(n_out + 1, -1, np.int64)
         self._ints[I_N_SENT] = n_out
         self.stats = TimingStats()
@@ -389,6 +406,8 @@ class Service:
                 dst[:n] = src[:n]
         self._pcols = new
         self._pt, self._pid, self._pext, self._pdlc, self._pword = new
+        # _take stores through memoryviews of the columns (half a numpy item store each)
+        self._pmv = tuple(memoryview(a) for a in new)
         self._prx = np.ones(cap, np.bool_)
         #: n -> the engine's live arguments with the columns' first n rows (views)
         self._heads: dict[int, tuple] = {}
@@ -470,13 +489,14 @@ class Service:
         n = self._np
         if n == self._pt.shape[0]:
             self._alloc_pending(2 * n)
-        elif n and t_rx < self._pt[n - 1]:
+        pt, pid, pext, pdlc, pword = self._pmv
+        if n and t_rx < pt[n - 1]:
             self._unsorted = True
-        self._pt[n] = t_rx
-        self._pid[n] = can_id
-        self._pext[n] = False
-        self._pdlc[n] = dlc
-        self._pword[n] = word
+        pt[n] = t_rx
+        pid[n] = can_id
+        pext[n] = False
+        pdlc[n] = dlc
+        pword[n] = word
         self._np = n + 1
         self._backlog.append((t_rx, can_id, dlc, word))
         if anchor and self._lock is not None:
@@ -555,9 +575,9 @@ class Service:
         number of frames it fed (those with receive time <= t_k), which leave the pending buffer."""
         self._sort_pending()
         n = self._np
-        self._tk[0] = t_k
-        self._enable[0] = enable
-        self._extra[0] = DEADLINE_MISS if miss else 0
+        self._tk_mv[0] = t_k
+        self._enable_mv[0] = enable
+        self._extra_mv[0] = DEADLINE_MISS if miss else 0
         eng = self.engine
         args = self._heads.get(n)
         # the arguments are made once per count of pending frames (a step sees 0 to a few)
@@ -613,54 +633,58 @@ class Service:
         if self._last_t_k is None or t_k > self._last_t_k:
             self._last_t_k = t_k
         b = self._block
-        out = b.frames[0]
         tx_t = self._tx_t
-        for j, tx in enumerate(self._tx):
-            tx.view[:] = out[j, : tx.dlc]
-            tx_t[j] = self._send(tx)
+        send = self._send
+        for j, (dst, at, src) in enumerate(self._out_copy):
+            dst[at] = src
+            tx_t[j] = send(self._tx[j])
         t_sent = self.now_ns()
         diag = self._diag_tx
         t_diag = t_sent / 1e9  # LDE_Diag is stamped with the time its step time ends
-        ints = self._ints
+        ints = self._ints_mv
         ints[I_T_K] = t_k
         ints[I_T_START] = t_start
         ints[I_T_SENT] = t_sent
-        ints[I_NEWEST] = self._newest_input_ns
+        newest = self._newest_input_ns
+        ints[I_NEWEST] = newest
         tx_t[-1] = seconds_to_ns(t_diag)
         self._settle_rx()
         self._after_send(*self._handoff_args)
         ring = self._ring
-        diag_sent = self._send(diag, t_diag, ring is None) >= 0
+        diag_sent = send(diag, t_diag, ring is None) >= 0
         if ring is not None:
-            ring.published(int(ints[I_F_HEAD]) + (diag_sent and bool(ints[I_DIAG_SLOT])), int(ints[I_S_HEAD]))
+            ring.published(ints[I_F_HEAD] + (diag_sent and ints[I_DIAG_SLOT] != 0), ints[I_S_HEAD])
 
         step_time = t_sent - t_start
-        latency = t_sent - self._newest_input_ns if self._newest_input_ns >= 0 else -1
-        timing = StepTiming(period_error, step_time, latency, miss, self.stats.deadline_misses)
+        latency = t_sent - newest if newest >= 0 else -1
+        misses = self.stats.deadline_misses
+        timing = StepTiming(period_error, step_time, latency, miss, misses)
         self.steps += 1
-        status = int(b.status[0])
-        state = int(b.overlay_state[0])
+        m_status, m_state, m_used, m_overlay = self._row_mvs
+        status = m_status[0]
+        state = m_state[0]
         if status & VALID:
             self.valid_steps += 1
         if self.learned is not None and self.learned.due(t_k):
             self.learned.offer(self.learned_snapshot())
+        est = self._est_mv
         res = StepResult(
             t_ns=t_k,
-            fw=float(b.est[0, 0]),
-            mw=float(b.est[0, 1]),
-            t_align=float(b.est[0, 2]),
-            t_overlay=float(b.t_overlay[0]),
+            fw=est[0],
+            mw=est[1],
+            t_align=est[2],
+            t_overlay=m_overlay[0],
             overlay_state=state,
             overlay_active=state in (1, 2),
             status=status,
-            frames_used=int(b.frames_used[0]),
+            frames_used=m_used[0],
             timing=timing,
             overlay_enable=enable,
         )
         self.last = res
         rec = self._recorder
         if rec is not None and ring is None:  # a recorder without rings: called
-            row = (period_error, step_time, latency, int(miss), timing.deadline_misses, self.stats.skipped)
+            row = (period_error, step_time, latency, int(miss), misses, self.stats.skipped)
             rec.step(b, 0, row)
         return res
 
