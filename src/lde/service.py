@@ -230,7 +230,7 @@ class Service:
         self._enable = np.ones(1, np.bool_)
         self._extra = np.zeros(1, np.uint8)
         # per-step scalars go through memoryviews of these arrays (half a numpy item store each)
-        self._tk_mv, self._enable_mv, self._extra_mv = (memoryview(a) for a in (self._tk, self._enable, self._extra))
+        self._tk_mv, self._enable_mv, self._extra_mv = self._tk.data, self._enable.data, self._extra.data
         # frame I/O: raw on the socket for the buses lde knows, python-can's recv/send otherwise
         self.io = bus_io(bus, fast=fast_io)
         # the output frames, built once and refilled in place (numpy views of their data bytes)
@@ -243,7 +243,7 @@ class Service:
         self._out_views = [tx.view for tx in self._tx]
         # the encoded output frames' bytes (the StepBlock's) into each prebuilt frame: slice copies
         # between memoryviews, (destination, its slice, source slice) per output
-        frames_mv = memoryview(self._block.frames).cast("B")
+        frames_mv = self._block.frames.data.cast("B")
         self._out_copy = [
             (tx.data, slice(tx.data_at, tx.data_at + tx.dlc), frames_mv[8 * j : 8 * j + tx.dlc])
             for j, tx in enumerate(self._tx)
@@ -251,10 +251,8 @@ class Service:
         # the step's values for StepResult, read through memoryviews (a numpy item read and its float()
         # cost about three times as much)
         b = self._block
-        self._est_mv = memoryview(b.est).cast("B").cast("d")
-        self._row_mvs = tuple(
-            memoryview(a) for a in (b.status, b.overlay_state, b.frames_used, b.t_overlay)
-        )
+        self._est_mv = b.est.data.cast("B").cast("d")
+        self._row_mvs = tuple(a.data for a in (b.status, b.overlay_state, b.frames_used, b.t_overlay))
         dc = MessageCodec(self.profile, "LDE_Diag")
         self._diag_tx = self.io.tx(
             can.Message(
@@ -267,7 +265,7 @@ class Service:
         slots = [dc.index[n] for n in ("PeriodError", "StepTime", "Latency", "DeadlineMisses", "E2ERejects")]
         rejects_at = self._block.e2e_rejects.ctypes.data - self._block_mem.ctypes.data
         self._ints = np.zeros(N_INTS, np.int64)
-        self._ints_mv = memoryview(self._ints)
+        self._ints_mv = self._ints.data
         self._tx_t = np.full(n_out + 1, -1, np.int64)
         self._ints[I_N_SENT] = n_out
         self.stats = TimingStats()
@@ -407,7 +405,7 @@ class Service:
         self._pcols = new
         self._pt, self._pid, self._pext, self._pdlc, self._pword = new
         # _take stores through memoryviews of the columns (half a numpy item store each)
-        self._pmv = tuple(memoryview(a) for a in new)
+        self._pmv = tuple(a.data for a in new)
         self._prx = np.ones(cap, np.bool_)
         #: n -> the engine's live arguments with the columns' first n rows (views)
         self._heads: dict[int, tuple] = {}
