@@ -664,6 +664,12 @@ def test_the_compiled_hand_off_sends_and_records_what_the_python_path_does(tmp_p
     sent_py = [(t, i, int(w).to_bytes(8, "little")[:n]) for t, i, n, w, is_rx in calls.frames if not is_rx]
     assert sent == sent_py
     assert [s[2] for s in sent] == [bytes(m.data) for m in out]
+    # the received frames: handed to the ring by the compiled hand-off after the sends, the same
+    rx = got.rx
+    rcols = zip(rx.t_ns, rx.can_id, rx.data, rx.dlc, strict=True)
+    received = [(int(t), int(i), bytes(d[:n])) for t, i, d, n in rcols]
+    received_py = [(t, i, int(w).to_bytes(8, "little")[:n]) for t, i, n, w, is_rx in calls.frames if is_rx]
+    assert received == received_py and len(received) > 120
     np.testing.assert_array_equal(got.estimate["Fw"], [row[0] for row in calls.rows])
     timing = np.array([row[2] for row in calls.rows])
     np.testing.assert_array_equal(got.diag["deadline_misses"], timing[:, 4])

@@ -80,6 +80,7 @@ from .handoff import (
     I_DIAG_CTR,
     I_DIAG_SLOT,
     I_F_HEAD,
+    I_N_RX,
     I_N_SENT,
     I_NEWEST,
     I_S_HEAD,
@@ -118,6 +119,8 @@ GRIDS = ("mdps", "fixed")
 _PENDING_CAP = 4096
 #: a young generation this large is collected in the idle time after a step (gc is off in the loop)
 _GC_YOUNG = 700
+#: received frames per step handed to the compiled hand-off for the recorder (more: from Python)
+_RX_CAP = 256
 
 
 _WATCH_PERIOD_NS = 250_000_000  # how often the input watch looks (its warnings repeat every 30 s)
@@ -297,7 +300,11 @@ class Service:
             np.zeros(0, np.uint8),  # the recorder's rings (recorder setter)
             np.zeros((0, 3), np.int64),
             np.zeros(len(RING_LAY), np.int64),
+            np.zeros((_RX_CAP, 3), np.int64),  # the received frames to record: time, id, dlc
+            np.zeros(_RX_CAP, np.uint64),  # and their data words
         ]
+        self._rx_mv = self._handoff_args[17].data.cast("B").cast("q")
+        self._rxw_mv = self._handoff_args[18].data
         self._ring: StepRing | None = None
         self._recorder: Any = None
         self._after_send = _resolved(after_send, *self._handoff_args)  # no recorder yet: stores nothing
@@ -518,20 +525,31 @@ class Service:
         self.foreign += 1
         self.watch.saw(can_id, 0)
 
-    def _settle_rx(self) -> None:
+    def _settle_rx(self, handoff: bool = True) -> None:
         """The input frames taken since the last call into the input watch and the recorder (after a
         step's sends: off the path from the MDPS frame to the step). The recorder gets them in the
         order they were taken, before the step's sent frames, as when they were handed over in
-        :meth:`_take`."""
+        :meth:`_take`. ``handoff``: the compiled hand-off follows and writes them into a
+        :class:`lde.recording.Recorder`'s ring; else they are handed over from here."""
         bl = self._backlog
         if not bl:
             return
         saw = self.watch.saw
         rec = self._recorder
-        for t_rx, can_id, dlc, word in bl:
-            saw(can_id, t_rx)
-            if rec is not None:
-                rec.frame(t_rx, can_id, False, dlc, word, True)
+        if handoff and self._ring is not None and len(bl) <= _RX_CAP:  # recorded by the compiled hand-off
+            rx, rxw = self._rx_mv, self._rxw_mv
+            for k, (t_rx, can_id, dlc, word) in enumerate(bl):
+                saw(can_id, t_rx)
+                rx[3 * k] = t_rx
+                rx[3 * k + 1] = can_id
+                rx[3 * k + 2] = dlc
+                rxw[k] = word
+            self._ints_mv[I_N_RX] = len(bl)
+        else:
+            for t_rx, can_id, dlc, word in bl:
+                saw(can_id, t_rx)
+                if rec is not None:
+                    rec.frame(t_rx, can_id, False, dlc, word, True)
         bl.clear()
 
     def _on_anchor(self, t_rx: int) -> None:
@@ -810,7 +828,7 @@ class Service:
                         break
                 self._idle()
         finally:
-            self._settle_rx()
+            self._settle_rx(handoff=False)
             self._lock = None
             if was_enabled:
                 gc.enable()
