@@ -623,7 +623,8 @@ class Service:
         """The engine's live call with no frame and no step time (nothing runs, nothing changes),
         made when the service starts polling for the MDPS frame: it brings the call's code, its
         unboxing and the loop's arrays back into the caches that the idle period cooled, so the
-        step after the frame does not pay for them (``docs/service.md``, "Fifth pass")."""
+        step after the frame does not pay for them (``docs/service.md``, "The frame-to-step path, the
+        step's glue and an engine pre-warm")."""
         args = self._heads.get(-1)
         if args is None or not self.engine.live_args_valid(args):
             cols = (*(a[:0] for a in self._pcols), self._prx[:0])
