@@ -284,6 +284,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--no-fast-io", action="store_true", help="python-can's recv/send (lde.busio generic path)"
     )
+    ap.add_argument(
+        "--no-prewarm",
+        action="store_true",
+        help="no engine pre-warm when the spin before the MDPS frame starts (Service(prewarm=False))",
+    )
     ap.add_argument("--cpu", type=int, action="append", help="pin the service to this CPU (repeatable)")
     ap.add_argument(
         "--spin-us",
@@ -368,6 +373,8 @@ def main(argv: list[str] | None = None) -> int:
     kw: dict[str, object] = {"grid": args.grid}
     if args.no_fast_io:
         kw["fast_io"] = False
+    if args.no_prewarm:
+        kw["prewarm"] = False
     try:
         svc = Service(bus, profile, vehicle, clock, backend=args.backend, recorder=rec, log_period_s=0, **kw)
         grid = args.grid
