@@ -42,7 +42,7 @@ FT = (1 << I_COLUMN_TORQUE) | (1 << I_ASSIST_TORQUE)
 FA = 1 << I_LAT_ACCEL
 
 
-@njit
+@njit(cache=True)
 def _integer(p, tv, ft, t, inp, fresh, ok, step):  # pragma: no cover - compiled
     cs = np.zeros(FX.N_CS, np.int64)
     FX.coef_set_kernel(p, tv, cs)
@@ -73,7 +73,7 @@ def _integer(p, tv, ft, t, inp, fresh, ok, step):  # pragma: no cover - compiled
     return acc
 
 
-@njit
+@njit(cache=True)
 def _float(p, t, inp, fresh, ok):  # pragma: no cover - compiled
     x, P = np.zeros(E.NX), np.zeros((E.NX, E.NX))
     fs, ints = np.zeros(E.N_F), np.zeros(E.N_I, np.int64)
@@ -90,15 +90,12 @@ def _float(p, t, inp, fresh, ok):  # pragma: no cover - compiled
     return acc
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("log", type=Path)
-    ap.add_argument("--minutes", type=float, default=10.0)
-    ap.add_argument("--repeat", type=int, default=5)
-    args = ap.parse_args()
+def measure(log: Path, minutes: float = 10.0, repeat: int = 5) -> dict:
+    """ns per step (median, min, max of ``repeat`` after a warm-up, CPU) of the boundary, the boundary
+    and the integer step, and the float step, over the first ``minutes`` of ``log``."""
     vehicle = load_vehicle("reference")
-    frames = read_log(args.log).frames
-    frames = frames.select(frames.t_ns < frames.t_ns[0] + int(args.minutes * 60e9))
+    frames = read_log(log).frames
+    frames = frames.select(frames.t_ns < frames.t_ns[0] + int(minutes * 60e9))
     blk = Engine(load_profile("lde"), vehicle, "float", encode_outputs=False).feed(frames, final=True)
     t, inp, ok, ages = blk.t_ns, np.ascontiguousarray(blk.inputs), blk.ok.copy(), blk.ages
     prev = np.concatenate([[np.iinfo(np.int64).min], t[:-1]])
@@ -111,16 +108,30 @@ def main() -> None:
     def per_step(fn) -> tuple[float, float, float]:
         fn()
         xs = []
-        for _ in range(args.repeat):
+        for _ in range(repeat):
             c = time.process_time()
             fn()
             xs.append((time.process_time() - c) / n * 1e9)
         return statistics.median(xs), min(xs), max(xs)
 
-    q = per_step(lambda: _integer(p, tv, ft, t, inp, fresh, ok, False))
-    i = per_step(lambda: _integer(p, tv, ft, t, inp, fresh, ok, True))
-    f = per_step(lambda: _float(p.copy(), t, inp, fresh, ok))
-    print(f"{n} steps of {args.log} ({args.minutes:g} min); ns per step, median (min-max) of {args.repeat}:")
+    return {
+        "steps": n,
+        "quantise_ns": per_step(lambda: _integer(p, tv, ft, t, inp, fresh, ok, False)),
+        "integer_ns": per_step(lambda: _integer(p, tv, ft, t, inp, fresh, ok, True)),
+        "float_ns": per_step(lambda: _float(p.copy(), t, inp, fresh, ok)),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("log", type=Path)
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args()
+    r = measure(args.log, args.minutes, args.repeat)
+    q, i, f = r["quantise_ns"], r["integer_ns"], r["float_ns"]
+    head = f"{r['steps']} steps of {args.log} ({args.minutes:g} min)"
+    print(f"{head}; ns per step, median (min-max) of {args.repeat}:")
     print(f"  boundary (quantise)          {q[0]:6.0f} ({q[1]:.0f}-{q[2]:.0f})")
     print(f"  boundary + integer step      {i[0]:6.0f} ({i[1]:.0f}-{i[2]:.0f})")
     print(f"  float step (the shadow)      {f[0]:6.0f} ({f[1]:.0f}-{f[2]:.0f})")

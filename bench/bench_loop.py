@@ -32,7 +32,10 @@ reads from it, plus ``step_cost_*``, ``grid``, ``busy``, ``load_avg``, ``outputs
 simulator's own summary line and, for ``--profile``, py-spy's top functions.
 
 The simulator runs at SCHED_FIFO 90 where permitted (``--sim-rt-priority``; it stands for the other
-ECUs, which have CPUs of their own: its frames must not wait behind the service). ``--busy`` starts
+ECUs, which have CPUs of their own: its frames must not wait behind the service), and sends on time:
+it sleeps until 300 us before each frame and spins the rest (``--sim-spin-us``; the MDPS-locked grid
+follows its frames, so its sleep's wake-up jitter, 30 us p50 and 300 us-2.5 ms p99 here, was the grid's
+input). ``--trace F.npz`` takes the period error apart (``bench/loop_trace.py``). ``--busy`` starts
 ``--busy`` busy loops pinned to the CPUs the service is not pinned to (or unpinned). Run with
 ``PYTHONPATH`` pointing at another checkout to measure that one on the same harness (a ``Service``
 without ``grid`` runs its fixed grid).
@@ -152,6 +155,59 @@ class Phases:
         return w
 
 
+class RecvTrace:
+    """``--trace``: each MDPS frame's receive as the service saw it: its kernel stamp (bus time base),
+    when the receive call that returned it started and returned (monotonic), and whether that call
+    polled (timeout 0: the spin around the expected frame, or the step's drain) or blocked."""
+
+    def __init__(self, svc: Service, n_max: int) -> None:
+        self.cols = np.zeros((n_max, 4), np.int64)  # t_rx (bus), call start, return (mono), blocked
+        self.n = 0
+        anchor = svc.profile.messages[svc.profile.anchor_message].frame_id
+        recv = svc.io.recv
+        clock = time.monotonic_ns
+        cols = self.cols
+
+        self.empty = np.zeros(1 << 16, np.int64)  # durations of the last empty polls (a ring) [ns]
+        self.n_empty = 0
+        empty = self.empty
+
+        def traced(timeout: float | None):
+            t0 = clock()
+            f = recv(timeout)
+            if f is None:
+                if timeout == 0:
+                    empty[self.n_empty & 0xFFFF] = clock() - t0
+                    self.n_empty += 1
+            elif f[1] == anchor and self.n < n_max:
+                cols[self.n] = (f[0], t0, clock(), timeout is None or timeout > 0)
+                self.n += 1
+            return f
+
+        svc.io.recv = traced  # type: ignore[method-assign]
+
+
+def _schedstat_fd() -> int | None:
+    try:
+        return os.open("/proc/thread-self/schedstat", os.O_RDONLY)
+    except OSError:
+        return None
+
+
+def _run_delay_ns(fd: int | None) -> int:
+    """Time this thread has spent runnable but not running, in all [ns] (-1 where unknown)."""
+    if fd is None:
+        return -1
+    return int(os.pread(fd, 128, 0).split()[1])
+
+
+def _steal_ticks() -> int:
+    """The hypervisor's steal time over all CPUs so far [USER_HZ ticks] (``/proc/stat``)."""
+    with open("/proc/stat") as fh:
+        f = fh.readline().split()
+    return int(f[8]) if len(f) > 8 else -1
+
+
 def _pctl(a: np.ndarray, q: float) -> float:
     return round(float(np.percentile(a, q)) / 1e3, 1) if a.size else float("nan")
 
@@ -228,8 +284,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--no-fast-io", action="store_true", help="python-can's recv/send (lde.busio generic path)"
     )
+    ap.add_argument(
+        "--no-prewarm",
+        action="store_true",
+        help="no engine pre-warm when the spin before the MDPS frame starts (Service(prewarm=False))",
+    )
     ap.add_argument("--cpu", type=int, action="append", help="pin the service to this CPU (repeatable)")
-    ap.add_argument("--spin-us", type=float, default=200.0, help="fixed grid: busy-wait before a deadline")
+    ap.add_argument(
+        "--spin-us",
+        type=float,
+        default=200.0,
+        help="the service's busy-wait: polls around the expected MDPS frame (fixed grid: before a deadline)",
+    )
     ap.add_argument("--busy", type=int, nargs="?", const=1, default=0, help="busy loops on the other core(s)")
     ap.add_argument("--sim-rt-priority", type=int, default=90, help="the simulator's SCHED_FIFO (0: normal)")
     ap.add_argument("--phases", action="store_true", help="time each part of the step (lde.busio I/O too)")
@@ -242,6 +308,27 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--sim-pythonpath", default=None, help="PYTHONPATH of the simulator (another checkout's)")
     ap.add_argument("--profile", action="store_true", help="sample the service with py-spy (30 s)")
+    ap.add_argument(
+        "--trace",
+        default=None,
+        metavar="F.npz",
+        help="decompose the period error: per-step stages, the MDPS receives, the simulator's send times",
+    )
+    ap.add_argument(
+        "--slice-us",
+        type=float,
+        default=0.0,
+        help="without --realtime: the service's EEVDF slice (lde.clock.request_slice; 0: the kernel's)",
+    )
+    ap.add_argument(
+        "--sim-spin-us",
+        type=float,
+        default=300.0,
+        help="the simulator sleeps until this long before each frame, then spins (lde sim --spin-us; "
+        "default 300: an ECU's frames come on its clock, not 30-300 us late like a timed sleep's wake-up; "
+        "0: sleep only, as before)",
+    )
+
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     ap.add_argument("--out", default=None, help="append the JSON object as one line to this file")
     ap.add_argument("--label", default="", help="a name for this run in the JSON")
@@ -272,6 +359,11 @@ def main(argv: list[str] | None = None) -> int:
             rt_note += f", cpu_dma_latency {res.cpu_latency_us} us"
     elif args.cpu:
         os.sched_setaffinity(0, set(args.cpu))
+    if args.slice_us and not args.realtime:
+        from lde.clock import request_slice
+
+        why = request_slice(int(args.slice_us * 1e3))
+        rt_note += f", slice {args.slice_us:g} us" if why is None else f", slice refused: {why}"
 
     raw_bus = can.Bus(**bus_kw)
     bus = TimedBus(raw_bus) if args.io_split else raw_bus
@@ -281,6 +373,8 @@ def main(argv: list[str] | None = None) -> int:
     kw: dict[str, object] = {"grid": args.grid}
     if args.no_fast_io:
         kw["fast_io"] = False
+    if args.no_prewarm:
+        kw["prewarm"] = False
     try:
         svc = Service(bus, profile, vehicle, clock, backend=args.backend, recorder=rec, log_period_s=0, **kw)
         grid = args.grid
@@ -307,6 +401,10 @@ def main(argv: list[str] | None = None) -> int:
         svc.step_once = timed_step  # type: ignore[method-assign]
     n = [0]
     off = svc.offset_ns
+    rtrace = RecvTrace(svc, 4 * n_max) if args.trace else None
+    sched_fd = _schedstat_fd() if args.trace else None
+    if args.trace:
+        cols["run_delay"] = np.zeros(n_max, np.int64)
 
     def on_step(r) -> None:
         i = n[0]
@@ -322,6 +420,8 @@ def main(argv: list[str] | None = None) -> int:
         cols["used"][i] = r.frames_used
         cols["io"][i] = bus.io_ns if isinstance(bus, TimedBus) else 0
         cols["skipped"][i] = svc.stats.skipped
+        if rtrace is not None:
+            cols["run_delay"][i] = _run_delay_ns(sched_fd)
         if phases is not None:
             for k, v in phases.acc.items():
                 cols[f"ph_{k}"][i] = v
@@ -333,7 +433,12 @@ def main(argv: list[str] | None = None) -> int:
     sim_cmd += ["--scenario", args.scenario, "--seed", "1", "--duration", str(args.seconds)]
     if args.sim_rt_priority:
         sim_cmd += ["--rt-priority", str(args.sim_rt_priority)]
+    if args.sim_spin_us:
+        sim_cmd += ["--spin-us", str(args.sim_spin_us)]
     tmp = Path(tempfile.mkdtemp(prefix="lde-bench-loop-"))
+    if args.trace:
+        sim_cmd += ["--send-trace", str(tmp / "send_trace.npy")]
+    steal0 = _steal_ticks()
     sim_err = (tmp / "sim.err").open("w")
     env = dict(os.environ)
     if args.sim_pythonpath:
@@ -379,6 +484,7 @@ def main(argv: list[str] | None = None) -> int:
         sim_err.close()
     wall = time.perf_counter() - t_wall
     load_after = os.getloadavg()
+    steal = _steal_ticks() - steal0
     m = n[0]
     c = {k: v[:m] for k, v in cols.items()}
     # the simulator's traffic window: steps that used an MDPS frame, from the first to the last
@@ -441,7 +547,23 @@ def main(argv: list[str] | None = None) -> int:
         "recording_failed": bool(rec.failed) if rec is not None else None,
         "recording_dropped": list(getattr(rec, "dropped", ())) if rec is not None else None,
         "sim": sim_line[-1] if sim_line else "",
+        "sim_spin_us": args.sim_spin_us,
+        "spin_us": args.spin_us,
+        "steal_s": round(steal / os.sysconf("SC_CLK_TCK"), 2),
     }
+    if rtrace is not None:
+        from loop_trace import decompose
+
+        sent = tmp / "send_trace.npy"
+        arrays = {f"step_{k}": v for k, v in c.items()}
+        arrays["recv"] = rtrace.cols[: rtrace.n]
+        arrays["empty_poll"] = rtrace.empty[: min(rtrace.n_empty, rtrace.empty.size)]
+        arrays["send"] = np.load(sent) if sent.exists() else np.zeros((0, 4), np.int64)
+        arrays["window"] = np.array([a, b], np.int64)
+        arrays["offset_ns"] = np.array([off], np.int64)
+        arrays["anchor_id"] = np.array([svc.profile.messages[svc.profile.anchor_message].frame_id])
+        np.savez_compressed(args.trace, **arrays)
+        out["trace"] = decompose(arrays)
     if phases is not None:
         out["phases_p50_p99_us"] = {
             k: [_pctl(w[f"ph_{k}"], 50), _pctl(w[f"ph_{k}"], 99)] for k in Phases.NAMES

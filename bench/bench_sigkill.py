@@ -1,8 +1,9 @@
 """How much of a live recording a SIGKILL loses (issue 13 item 3: at most 1 s).
 
 Each run starts ``lde sim`` (real time) and ``lde run --record F.mcap`` as two processes on
-python-can's ``udp_multicast`` bus (a multicast group and port of their own), waits until the
-recording holds steps, waits a random 1-3 s more, then SIGKILLs ``lde run``:
+python-can's ``udp_multicast`` bus (a multicast group and port of their own, ``hop_limit`` 0: on
+this host only), waits until the recording holds steps, waits a random 1-3 s more, then SIGKILLs
+``lde run``:
 
 * ``--target group``: the service *and* its recorder's writer process (its process group): the
   file keeps what the writer had flushed; the loss is the kill time minus the newest frame and
@@ -66,10 +67,16 @@ def _wait_steps(path: Path, n: int, timeout: float) -> bool:
     return False
 
 
+def _bus_args(kw: dict) -> list[str]:
+    """The command-line bus options of ``private_multicast``'s keywords, ``hop_limit`` included (0:
+    the datagrams stay on this host; python-can's default 1 also puts each one on the network card)."""
+    out = ["--interface", kw["interface"], "--channel", kw["channel"], "--bus-kwarg", f"port={kw['port']}"]
+    return out + ["--bus-kwarg", f"hop_limit={kw['hop_limit']}"]
+
+
 def one_run(tmp: Path, k: int, target: str, rng: random.Random) -> dict:
     kw = private_multicast(rng)
-    port, channel = kw["port"], kw["channel"]
-    bus = ["--interface", "udp_multicast", "--channel", channel, "--bus-kwarg", f"port={port}"]
+    bus = _bus_args(kw)
     path = tmp / f"killed_{k}.mcap"
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     sim = subprocess.Popen(
@@ -160,10 +167,9 @@ def one_sim_run(tmp: Path, k: int, rng: random.Random) -> dict:
     from vcan_sim.truth import read_truth_csv
 
     kw = private_multicast(rng)
-    port, channel = kw["port"], kw["channel"]
-    bus = ["--interface", "udp_multicast", "--channel", channel, "--bus-kwarg", f"port={port}"]
+    bus = _bus_args(kw)
     log, csv, mcap = (tmp / f"sim_{k}.{ext}" for ext in ("log", "csv", "mcap"))
-    listener = _Listener({"interface": "udp_multicast", "channel": channel, "port": port})
+    listener = _Listener(kw)
     cmd = [sys.executable, "-m", "lde", "sim", *bus, "--scenario", "heavy_load", "--duration", "120"]
     cmd += ["--open-loop", "--log", str(log), "--truth", str(csv), "--mcap", str(mcap)]
     sim = subprocess.Popen(cmd, stderr=subprocess.DEVNULL, env=dict(os.environ, PYTHONUNBUFFERED="1"))

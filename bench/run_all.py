@@ -152,6 +152,21 @@ def bench_kalman(vehicle, grid, repeat: int) -> dict:
     }
 
 
+def bench_lateral(log: Path, repeat: int) -> dict:
+    """The `fixed` backend's own step: the boundary + the integer lateral step
+    (:mod:`firmware_model.lateral`) and its float shadow (:func:`lde.estimator.step_kernel`) alone,
+    per step, on the first 10 minutes of the hour's inputs (``bench/bench_lateral_kernels.py``)."""
+    from bench_lateral_kernels import measure
+
+    r = measure(log, 10.0, repeat)
+    return {
+        k.replace("_ns", "_us"): {"median": v[0] / 1e3, "min": v[1] / 1e3, "max": v[2] / 1e3}
+        if k.endswith("_ns")
+        else v
+        for k, v in r.items()
+    }
+
+
 def _per(s: dict, n: int, scale: float) -> dict:
     return {
         k: (v * scale / n if k in ("median", "min", "max") else v) for k, v in s.items() if k != "samples"
@@ -549,6 +564,22 @@ def table(r: dict) -> str:
         k = r["kalman"]
         row("float estimator step", k["float_us_per_step"], k["filterpy_us_per_step"], fp, "us/step")
         row("fixed-point step", k["fixed_us_per_step"], k["filterpy_us_per_step"], fp, "us/step")
+        if "lateral" in r:  # the default backend's steps, on the hour's real inputs
+            la = r["lateral"]
+            row(
+                "lateral float step (`float`; `fixed`'s shadow)",
+                la["float_us"],
+                k["filterpy_us_per_step"],
+                fp,
+                "us/step",
+            )
+            row(
+                "lateral integer step + boundary (`fixed`)",
+                la["integer_us"],
+                k["filterpy_us_per_step"],
+                fp,
+                "us/step",
+            )
     for what, ours, anchor, name in (
         ("receiver: E2E check + decode to SI", "lde_decode", "cantools_decode", "cantools decode_message"),
         ("output encoder (counter, CRC)", "lde_encode", "cantools_encode", "cantools encode_message"),
@@ -680,6 +711,7 @@ def main() -> int:
         grid = build_grid(decode_batch(profile, frames), profile)
         steps = [
             ("kalman", lambda: bench_kalman(vehicle, grid, rep)),
+            ("lateral", lambda: bench_lateral(one["log"], rep)),
             ("codec", lambda: bench_codec(profile, frames, rep)),
             ("readers", lambda: bench_readers(one["log"], one["mcap"], rep, tmp)),
             (

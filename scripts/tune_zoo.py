@@ -69,7 +69,13 @@ Hook = Callable[[np.ndarray, np.ndarray], None]  # (p, lp) modified in place bef
 
 
 def run_engine(
-    frames: Any, profile: str, vehicle: Any, learned: Path | None, save: Path | None, hook: Hook | None
+    frames: Any,
+    profile: str,
+    vehicle: Any,
+    learned: Path | None,
+    save: Path | None,
+    hook: Hook | None,
+    after_load: Hook | None = None,
 ):
     from lde.engine import Engine
     from lde.learner import init_state
@@ -84,6 +90,8 @@ def run_engine(
         info["learner"][:] = init_state(info["p"], info["lp"], friction_prior=fr)
     if learned is not None:
         eng.load_learned(learned)
+    if after_load is not None:  # e.g. the learner off in a warm run: the prior drive's values frozen
+        after_load(info["p"], info["lp"])
     block = eng.feed(frames.sort(), final=True)
     if save is not None:
         eng.save_learned(save, 1.0)
@@ -113,8 +121,9 @@ def score(block: Any, truth: dict[str, np.ndarray], scenario: str) -> dict[str, 
 
 
 def one(args: tuple) -> list[dict[str, Any]]:
-    plant, profile, scenarios, seed, warm, hook_name, prior_scenario = args
+    plant, profile, scenarios, seed, warm, hook_name, prior_scenario, eval_hook_name = args
     hook = make_hook(hook_name)
+    eval_hook = make_hook(eval_hook_name)
     vehicle = spec_vehicle(plant)
     rows = []
     learned = None
@@ -129,7 +138,7 @@ def one(args: tuple) -> list[dict[str, Any]]:
         if not bool(truth["ok"]):
             rows.append({"plant": plant, "profile": profile, "scenario": sc, "lost": 1.0})
             continue
-        block, info = run_engine(frames, profile, vehicle, learned, None, hook)
+        block, info = run_engine(frames, profile, vehicle, learned, None, hook, eval_hook)
         r = {"plant": plant, "profile": profile, "scenario": sc, "seed": seed, "warm": warm}
         r.update(score(block, truth, sc))
         r.update(p_after if warm else _learned_summary(info))
@@ -199,11 +208,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--warm", action="store_true")
     ap.add_argument("--prior", default="prior_drive")
     ap.add_argument("--hook", default="")
+    ap.add_argument(
+        "--eval-hook", default="", help="constants set only on the scored drives, after --learned is read"
+    )
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="")
     a = ap.parse_args(argv)
     tasks = [
-        (pl, pr, a.scenarios.split(","), a.seed, a.warm, a.hook, a.prior)
+        (pl, pr, a.scenarios.split(","), a.seed, a.warm, a.hook, a.prior, a.eval_hook)
         for pl in a.plants.split(",")
         for pr in a.profiles.split(",")
     ]

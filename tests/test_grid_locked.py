@@ -12,6 +12,7 @@ from lde.grid import (
     L_TRIGGERED,
     lock_anchor,
     lock_deadline,
+    lock_frame,
     lock_timeout,
     locked_step_times,
     new_lock,
@@ -90,3 +91,32 @@ def test_deadline_counters_and_unsorted_input() -> None:
     assert s[L_TRIGGERED] == 1 and s[L_TIMEOUTS] == 1
     with pytest.raises(ValueError):
         locked_step_times(np.array([T0 + P, T0]), T0, T0 + 2 * P)
+
+
+def test_lock_frame_is_the_timeout_check_and_the_anchor_in_one_call() -> None:
+    """The live service's one call per MDPS frame (lde.grid.lock_frame) gives the same steps and the
+    same lock state as lock_timeout then lock_anchor, and leaves the state alone when a timeout is due."""
+    rng = np.random.default_rng(11)
+    t = T0 + 300_000 + np.arange(300) * P + rng.integers(-2_500_000, 2_500_000, 300)
+    t = np.sort(t[rng.random(300) > 0.1])  # lost frames: timeouts due before some frames
+    a, b = new_lock(T0), new_lock(T0)
+    got, want = [], []
+    n_neg = 0
+    for x in t.tolist():
+        while (tk := int(lock_timeout(a, x))) >= 0:
+            want.append(tk)
+        if lock_anchor(a, x):
+            want.append(x)
+        before = b.copy()
+        r = int(lock_frame(b, x))
+        if r < 0:
+            n_neg += 1
+            np.testing.assert_array_equal(b, before)
+            while (tk := int(lock_timeout(b, x))) >= 0:
+                got.append(tk)
+            r = int(lock_anchor(b, x))
+        if r:
+            got.append(x)
+        np.testing.assert_array_equal(b, a)
+    assert got == want
+    assert n_neg > 0 and len(got) > len(t) // 2

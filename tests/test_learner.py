@@ -25,18 +25,34 @@ from lde.units import DEG, STEP_NS, STEP_S
 VX = 100.0 / 3.6
 
 
-def _truth(m, iz, lf, lr, cf, cr, vx):
-    a = np.array(
-        [
-            [-2 * (cf + cr) / (m * vx), -1 - 2 * (lf * cf - lr * cr) / (m * vx**2)],
-            [-2 * (lf * cf - lr * cr) / iz, -2 * (lf**2 * cf + lr**2 * cr) / (iz * vx)],
-        ]
-    )
-    b = np.array([[2 * cf / (m * vx)], [2 * lf * cf / iz]])
-    big = np.zeros((3, 3))
-    big[:2, :2], big[:2, 2:] = a, b
+def _truth(m, iz, lf, lr, cf, cr, vx, sigma=0.0):
+    """Exact discretisation of the linear bicycle model, state ``[beta, r]``; with a relaxation
+    length ``sigma`` [m] > 0 the state is ``[beta, r, alpha_f, alpha_r]``, the slips that make the
+    forces, each lagging its kinematic slip: ``alpha' = (vx / sigma) (alpha_kin - alpha)``."""
+    if sigma > 0.0:
+        w = vx / sigma
+        a = np.array(
+            [
+                [0.0, -1.0, 2 * cf / (m * vx), 2 * cr / (m * vx)],
+                [0.0, 0.0, 2 * lf * cf / iz, -2 * lr * cr / iz],
+                [-w, -w * lf / vx, -w, 0.0],
+                [-w, w * lr / vx, 0.0, -w],
+            ]
+        )
+        b = np.array([[0.0], [0.0], [w], [0.0]])
+    else:
+        a = np.array(
+            [
+                [-2 * (cf + cr) / (m * vx), -1 - 2 * (lf * cf - lr * cr) / (m * vx**2)],
+                [-2 * (lf * cf - lr * cr) / iz, -2 * (lf**2 * cf + lr**2 * cr) / (iz * vx)],
+            ]
+        )
+        b = np.array([[2 * cf / (m * vx)], [2 * lf * cf / iz]])
+    nx = a.shape[0]
+    big = np.zeros((nx + 1, nx + 1))
+    big[:nx, :nx], big[:nx, nx:] = a, b
     e = expm(big * STEP_S)
-    return e[:2, :2], e[:2, 2]
+    return e[:nx, :nx], e[:nx, nx]
 
 
 def _weave(t):
@@ -50,9 +66,11 @@ def _sense(x, delta, body, tires, s, n_ratio, rng, wind=0.0):
     (Cf, Cr, K); the aligning torque 2 K alpha_f splits 1:3 between driver and assist; ``wind``
     [N] acts on the body, so the accelerometer (roll-tilt scale ``s`` on the tire forces) feels it."""
     cf, cr, k = tires
-    beta, r = x
+    beta, r = x[:2]
     af = delta - beta - body.lf * r / VX
     ar = -beta + body.lr * r / VX
+    if len(x) == 4:  # the lagged slips make the forces and the aligning torque
+        af, ar = x[2], x[3]
     t_align = 2 * k * af
     ay = (s * (2 * cf * af + 2 * cr * ar) + wind) / body.mass + rng.normal(0, 0.02)
     yaw = r + rng.normal(0, 0.05 * DEG)
@@ -61,24 +79,39 @@ def _sense(x, delta, body, tires, s, n_ratio, rng, wind=0.0):
     return ay, yaw, tcol, tast
 
 
-def _learn(scale_f, scale_r, scale_k, steer=_weave, seconds=60.0, seed=0, started=False):
+def _learn(
+    scale_f,
+    scale_r,
+    scale_k,
+    steer=_weave,
+    seconds=60.0,
+    seed=0,
+    started=False,
+    sigma=0.0,
+    wind=0.0,
+    lp_set=None,
+):
     """Run filter + learner on a truth whose Cf, Cr, K are the prior's times the scales; returns the
     filter's parameter vector at the end, the prior's and the learner state. ``started``: R3 and R1
-    already past the cascade's start (as in a drive after a prior one), their values the prior's."""
+    already past the cascade's start (as in a drive after a prior one), their values the prior's.
+    ``sigma``: the truth's tire relaxation length [m] (both axles); ``wind``: a steady crosswind
+    force [N] through the CG; ``lp_set``: learner constants to set ({slot: value})."""
     veh = load_vehicle("reference")
     b, t = veh.body, veh.tires
     n_ratio = veh.steering.ratio
     p = E.params_vector(veh)
     p0 = p.copy()
     lp = Ln.default_lp()
+    for slot, value in (lp_set or {}).items():
+        lp[slot] = value
     ls = Ln.init_state(p, lp, friction_prior=p[E.P_TFRIC])
     if started:
         ls[Ln.LS_N] = ls[Ln.LS_N + 1] = ls[Ln.LS_N + 2] = 0.2 * lp[Ln.L_MIN_SAMPLES]
     p[E.P_TFRIC] = 0.0  # the truth has no friction; the prior is left as a vehicle file gives it
     cf, cr, k = t.cf * scale_f, t.cr * scale_r, t.align_rate * scale_k
     s = p[E.P_S]
-    ad, bd = _truth(b.mass, b.yaw_inertia, b.lf, b.lr, cf, cr, VX)
-    x, xs, P = np.zeros(2), np.zeros(E.NX), np.zeros((E.NX, E.NX))
+    ad, bd = _truth(b.mass, b.yaw_inertia, b.lf, b.lr, cf, cr, VX, sigma)
+    x, xs, P = np.zeros(len(bd)), np.zeros(E.NX), np.zeros((E.NX, E.NX))
     fs, ints = np.zeros(E.N_F), np.zeros(E.N_I, np.int64)
     E.reset_kernel(p, xs, P, fs, ints)
     h, ph, out, ws = np.zeros(E.NX), np.zeros(E.NX), np.zeros(N_OUT), np.zeros((2, Ln.N3))
@@ -86,7 +119,7 @@ def _learn(scale_f, scale_r, scale_k, steer=_weave, seconds=60.0, seed=0, starte
     for i in range(int(seconds / STEP_S)):
         ti = i * STEP_S
         delta = steer(ti) / n_ratio
-        ay, yaw, tcol, tast = _sense(x, delta, b, (cf, cr, k), s, n_ratio, rng)
+        ay, yaw, tcol, tast = _sense(x, delta, b, (cf, cr, k), s, n_ratio, rng, wind=wind)
         st = E.step_kernel(
             p, xs, P, fs, ints, h, ph, 10**9 + i * STEP_NS, VX, steer(ti), yaw, tcol, tast, ay,
             True, True, True, True, True, out,
@@ -95,6 +128,8 @@ def _learn(scale_f, scale_r, scale_k, steer=_weave, seconds=60.0, seed=0, starte
             lp, ls, ws, p, out, VX, steer(ti), yaw, tcol, tast, ay, fs[E.F_ZFRIC], bool(st & VALID)
         )
         x = ad @ x + bd * delta
+        if wind:  # the wind's force through the CG: beta_dot += F / (m vx), as a step's increment
+            x[0] += wind / (b.mass * VX) * STEP_S
     return p, p0, ls
 
 
@@ -150,3 +185,25 @@ def test_defaults_are_the_tuned_gates():
     assert lp[Ln.L_EXC_F] == 150.0
     assert lp[Ln.L_MIN_SAMPLES] == 1000
     assert lp[Ln.L_SLOW] == 1000.0
+
+
+def test_rear_relaxation_is_a_lag():
+    """A truth whose tires lag their slips by a relaxation length of 0.6 m: R2's relaxation
+    coefficient comes out as a positive length near it (a lag of the rear slip behind D, not a lead)
+    and Cr near the truth. A regressor of the other sign fits a negative length."""
+    p, p0, ls = _learn(1.0, 0.85, 1.0, sigma=0.6, seconds=60.0)
+    sigma = ls[Ln.LS_T2 + 1] / ls[Ln.LS_T2 + 0]
+    assert 0.3 < sigma < 0.9, sigma
+    assert p[E.P_CR] == pytest.approx(0.85 * p0[E.P_CR], rel=0.03)
+
+
+def test_the_wind_gate_holds_the_tires_in_a_crosswind():
+    """A steady 600 N crosswind while weaving: with the wind gate (``L_WIND_MAX``, off by default) at
+    150 N no tire sample is taken and no tire value moves; with it off the tires are learned."""
+    on = {Ln.L_WIND_MAX: 150.0}
+    p, p0, ls = _learn(1.2, 1.2, 1.2, wind=600.0, seconds=30.0, lp_set=on)
+    assert ls[Ln.LS_N] == 0 and Ln.tire_state(ls) == Ln.ST_NOT
+    for slot in (E.P_CF, E.P_CR, E.P_K):
+        assert p[slot] == p0[slot]
+    p, p0, ls = _learn(1.2, 1.2, 1.2, wind=600.0, seconds=30.0)
+    assert ls[Ln.LS_N] > 0 and p[E.P_K] > 1.05 * p0[E.P_K]

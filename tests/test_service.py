@@ -664,6 +664,12 @@ def test_the_compiled_hand_off_sends_and_records_what_the_python_path_does(tmp_p
     sent_py = [(t, i, int(w).to_bytes(8, "little")[:n]) for t, i, n, w, is_rx in calls.frames if not is_rx]
     assert sent == sent_py
     assert [s[2] for s in sent] == [bytes(m.data) for m in out]
+    # the received frames: handed to the ring by the compiled hand-off after the sends, the same
+    rx = got.rx
+    rcols = zip(rx.t_ns, rx.can_id, rx.data, rx.dlc, strict=True)
+    received = [(int(t), int(i), bytes(d[:n])) for t, i, d, n in rcols]
+    received_py = [(t, i, int(w).to_bytes(8, "little")[:n]) for t, i, n, w, is_rx in calls.frames if is_rx]
+    assert received == received_py and len(received) > 120
     np.testing.assert_array_equal(got.estimate["Fw"], [row[0] for row in calls.rows])
     timing = np.array([row[2] for row in calls.rows])
     np.testing.assert_array_equal(got.diag["deadline_misses"], timing[:, 4])
@@ -681,3 +687,86 @@ def test_the_engine_call_built_once_follows_a_reset_of_the_engine(rig) -> None:
     assert not any(svc.engine.live_args_valid(a) for a in svc._heads.values())
     _lockstep(svc, feeder, clock, 3, k0=5)
     assert svc.engine.steps == 3  # the reset engine ran them
+
+
+class _SpinningClock(SimulatedClock):
+    """A simulated clock that spins like MonotonicClock (``spin_ns``: the service's engine pre-warm
+    runs) and puts the feeder's frames on the bus when the service waits past their time."""
+
+    spin_ns = 200_000
+
+    def __init__(self, start_ns: int, fd: InputFeeder) -> None:
+        super().__init__(start_ns)
+        self.fd = fd
+
+    def recv_until(self, bus, t_ns: int, expect_ns: int | None = None):
+        msg = bus.recv(0.0)
+        if msg is None:
+            self.fd.send_until(t_ns)
+            msg = bus.recv(0.0)
+            if msg is None:
+                self.sleep_until(t_ns)
+        return msg
+
+
+@pytest.mark.parametrize("lost", [(), (9, 20, 21)])
+def test_the_engine_prewarm_before_the_mdps_frame_changes_nothing(lost) -> None:
+    """``Service(prewarm=True)`` (the default) makes the engine's empty call when the spin before an
+    expected MDPS frame starts: the same step times, the same frames on the bus and the same engine
+    state as without it, with and without lost MDPS frames."""
+    runs = []
+    for prewarm in (True, False):
+        ch = f"lde-test-service-{next(_channels)}"
+        feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+        svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+        tap = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+        profile = load_profile("lde")
+        fd = feeder(feed_bus, profile, mdps_offset_ns=-(STEP_NS + 700_000))
+        n_mdps = [0]
+        real_send = feed_bus.send
+
+        def send(msg: can.Message, timeout: float | None = None, real_send=real_send, n_mdps=n_mdps) -> None:
+            if msg.arbitration_id == 0x2A0:
+                n_mdps[0] += 1
+                if n_mdps[0] in lost:
+                    return
+            real_send(msg)
+
+        feed_bus.send = send  # type: ignore[method-assign]
+        clock = _SpinningClock(T0, fd)
+        svc = Service(
+            svc_bus,
+            profile,
+            load_vehicle("reference"),
+            clock,
+            backend="fixed",
+            log_period_s=0,
+            grid="mdps",
+            prewarm=prewarm,
+        )
+        seen: list = []
+        try:
+            svc.run(max_steps=40, on_step=seen.append, t0_ns=T0 + STEP_NS)
+        finally:
+            feed_bus.shutdown()
+            svc_bus.shutdown()
+        ours = {profile.output_id(n) for n in ("LDE_Estimate", "LDE_Overlay", "LDE_Disturbance", "LDE_Diag")}
+        out = [(m.arbitration_id, bytes(m.data)) for m in _outputs(tap) if m.arbitration_id in ours]
+        tap.shutdown()
+        rows = [(r.t_ns, r.fw, r.mw, r.status, r.t_overlay, r.frames_used) for r in seen]
+        info = svc.engine.est.info  # the filter's, its shadow's and the learner's state, the limiter's
+        kept = [
+            *info["state"],
+            *info["shadow_state"],
+            info["learner"],
+            info["p"],
+            svc.engine.lsf,
+            svc.engine.lsi,
+        ]
+        runs.append((rows, out, [np.copy(a) for a in kept], svc.prewarms))
+    (rows_w, out_w, state_w, n_w), (rows, out, state, n) = runs
+    assert n == 0 and n_w >= 30  # a pre-warm before (nearly) every expected frame
+    assert len(rows) == 40 and rows_w == rows
+    assert out_w == out and len(out) == 4 * 40
+    for a, b in zip(state_w, state, strict=True):
+        np.testing.assert_array_equal(a, b)

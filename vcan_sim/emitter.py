@@ -266,6 +266,8 @@ def pump(
     keep_frames: bool = False,
     stop: Callable[[], bool] | None = None,
     after_step: Callable[[], None] | None = None,
+    spin_s: float = 0.0,
+    send_trace: list[tuple[int, int, int, int]] | None = None,
 ) -> PumpStats:
     """Run ``sim`` (a :class:`vcan_sim.run.Simulation`) to its end, sending its frames on ``bus``.
 
@@ -284,6 +286,13 @@ def pump(
     burst of stale frames. ``stop`` is asked before each step (True ends the run); ``after_step`` is
     called once a step's frames are sent, before the wait for the next one (the streaming writer's
     flush goes there: into the time the pump would sleep).
+
+    ``spin_s`` [s] (real time): sleep until this long before a frame's time, then busy-wait to it: a
+    timed sleep alone wakes 50-150 us late on this project's VM, and a service whose grid follows the
+    MDPS frames takes that jitter as its input. Only where the simulator has a CPU of its own (it
+    spins up to ``spin_s`` per frame). ``send_trace``: a list to which each frame's (scheduled time,
+    time before its send, time after it, CAN id) is appended, ``time.monotonic_ns`` [ns] (the
+    benchmark's decomposition of the live loop's period error, ``bench/bench_loop.py --trace``).
     """
     st = PumpStats()
     # what exists now (modules, DBC objects, the schedules) leaves the collector's view: a full
@@ -327,9 +336,13 @@ def pump(
                 wall0 = wall_first - t_rel
             if realtime:
                 now = time.monotonic()
-                wait = wall0 + t_rel - now
+                due = wall0 + t_rel
+                wait = due - now
                 if wait > 0:
-                    time.sleep(wait)  # a timed sleep: no frame on the bus wakes it
+                    if wait > spin_s:
+                        time.sleep(wait - spin_s)  # a timed sleep: no frame on the bus wakes it
+                    while time.monotonic() < due:  # the last spin_s: the sleep's wake-up is too coarse
+                        pass
                 elif -wait > MAX_LAG_S:  # move the schedule: no burst of stale frames
                     st.slips += 1
                     st.slipped_s += -wait
@@ -337,6 +350,7 @@ def pump(
                 else:
                     st.max_late_s = max(st.max_late_s, -wait)
                     st.late_frames += -wait > LATE_S
+            t_before = time.monotonic_ns() if send_trace is not None else 0
             try:
                 bus.send(msg, timeout=send_timeout)
                 st.sent += 1
@@ -344,6 +358,9 @@ def pump(
                 st.send_errors += 1
                 if st.send_errors == 1 or st.send_errors % 1000 == 0:
                     log.warning("send failed (%d so far): %s", st.send_errors, exc)
+            if send_trace is not None and wall0 is not None:
+                t_due = int(round((wall0 + t_rel) * 1e9))
+                send_trace.append((t_due, t_before, time.monotonic_ns(), msg.arbitration_id))
         if after_step is not None:
             after_step()
         if realtime and wall0 is not None and len(frames) == 0:  # a silent step (faults): keep the pace

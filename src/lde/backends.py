@@ -61,6 +61,7 @@ from .errors import ConfigError
 from .model import params_vector
 from .params import Vehicle
 from .pipeline import make_loop
+from .refcount import NO_REFCOUNT
 from .signals import (
     I_ASSIST_TORQUE,
     I_COLUMN_TORQUE,
@@ -278,7 +279,7 @@ FRESH_T = (1 << I_COLUMN_TORQUE) | (1 << I_ASSIST_TORQUE)
 FRESH_A = 1 << I_LAT_ACCEL
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def lateral_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
     """:func:`lde.estimator.step_kernel` and :func:`lde.learner.learner_step` after it (the learner
     writes its pushes into the filter's parameter vector ``p``)."""
@@ -345,7 +346,7 @@ run_lateral = make_loop(lateral_step, "run_lateral")
 # -------------------------------------------------------------------- the lateral filter, fixed
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def lateral_fixed_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
     """Quantise the SI inputs, run the integer lateral step (:func:`firmware_model.lateral.step_kernel`)
     on the current coefficient set, convert its estimate to SI (exact power-of-two scalings); run the

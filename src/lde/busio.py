@@ -60,9 +60,10 @@ class TxFrame:
         is_extended: 29-bit id.
         dlc: data length [bytes].
         view: uint8 array over the frame's data bytes in the buffer that is sent.
+        data, data_at: that buffer (a ``bytearray``) and the data bytes' offset in it.
     """
 
-    __slots__ = ("can_id", "is_extended", "dlc", "view", "buf", "msg", "ts_at")
+    __slots__ = ("can_id", "is_extended", "dlc", "view", "buf", "msg", "ts_at", "data", "data_at")
 
     def __init__(self, msg: can.Message, buf: bytearray | None = None, data_at: int = 0, ts_at: int = -1):
         self.can_id = int(msg.arbitration_id)
@@ -71,10 +72,11 @@ class TxFrame:
         self.msg = msg
         self.buf = buf
         self.ts_at = ts_at
-        if buf is None:
-            self.view = np.frombuffer(msg.data, np.uint8)
-        else:
-            self.view = np.frombuffer(buf, np.uint8, count=self.dlc, offset=data_at)
+        #: the bytearray that holds the data bytes, and their offset in it (``view``'s memory; a
+        #: slice assignment to it costs half a numpy copy into ``view``)
+        self.data: bytearray = msg.data if buf is None else buf
+        self.data_at = 0 if buf is None else data_at
+        self.view = np.frombuffer(self.data, np.uint8, count=self.dlc, offset=self.data_at)
 
     def word(self) -> int:
         """The data bytes as a little-endian integer (what the recorder stores)."""

@@ -41,6 +41,7 @@ __all__ = [
     "Tick",
     "RealtimeResult",
     "enable_realtime",
+    "request_slice",
     "DEFAULT_SPIN_NS",
 ]
 
@@ -334,6 +335,46 @@ def enable_realtime(
     return RealtimeResult(
         fifo=fifo, memory_locked=locked, cpus=pinned, cpu_latency_us=latency, warnings=warnings
     )
+
+
+class _SchedAttr(ctypes.Structure):
+    # struct sched_attr (include/uapi/linux/sched/types.h), SCHED_ATTR_SIZE_VER0
+    _fields_ = [
+        ("size", ctypes.c_uint32),
+        ("policy", ctypes.c_uint32),
+        ("flags", ctypes.c_uint64),
+        ("nice", ctypes.c_int32),
+        ("priority", ctypes.c_uint32),
+        ("runtime", ctypes.c_uint64),
+        ("deadline", ctypes.c_uint64),
+        ("period", ctypes.c_uint64),
+    ]
+
+
+_SYS_SCHED_SETATTR = {"x86_64": 314, "aarch64": 274}
+#: the kernel's bounds of a normal task's custom slice (kernel/sched/syscalls.c) [ns]
+SLICE_MIN_NS, SLICE_MAX_NS = 100_000, 100_000_000
+
+
+def request_slice(slice_ns: int) -> str | None:
+    """Ask the normal scheduler (Linux >= 6.12, EEVDF) for a time slice of ``slice_ns`` [ns] for the
+    calling thread: a short slice gives the thread an early virtual deadline, so when it wakes up
+    (a frame arrived) it preempts the task running on its CPU instead of waiting for that task's
+    slice to end. Needs no privilege. Returns None when the call succeeded (a kernel before 6.12
+    takes it and keeps its own slice), else why not (never raises for what the system refuses)."""
+    if not SLICE_MIN_NS <= int(slice_ns) <= SLICE_MAX_NS:
+        raise ConfigError(f"slice must be {SLICE_MIN_NS}..{SLICE_MAX_NS} ns, got {slice_ns}")
+    nr = _SYS_SCHED_SETATTR.get(os.uname().machine) if hasattr(os, "uname") else None
+    libc = _libc()
+    if nr is None or libc is None or sys.platform != "linux":
+        return f"sched_setattr not available on {sys.platform}"
+    if os.sched_getscheduler(0) != os.SCHED_OTHER:
+        return "not on the normal scheduler"
+    attr = _SchedAttr(ctypes.sizeof(_SchedAttr), os.SCHED_OTHER, 0, os.getpriority(os.PRIO_PROCESS, 0))
+    attr.runtime = int(slice_ns)
+    if libc.syscall(nr, 0, ctypes.byref(attr), 0) != 0:
+        return f"sched_setattr refused: {os.strerror(ctypes.get_errno())}"
+    return None
 
 
 _QOS_PATH = "/dev/cpu_dma_latency"

@@ -53,6 +53,7 @@ import numpy as np
 from numba import njit
 
 from .params import Vehicle
+from .refcount import NO_REFCOUNT
 from .status import DEGRADED, ESC_FAULT, LOW_SPEED, MDPS_FAULT, NOT_CONVERGED, VALID
 from .step import O_BANK, O_BETA, O_FW, O_FW_WIND, O_MW, O_MW_WIND, O_T_ALIGN, O_YAW
 from .units import DEG, STEP_S, G
@@ -238,7 +239,7 @@ def propagation_coefficients(m, iz, lf, lr, cf, cr, vx):  # pragma: no cover - c
     return a00, a01, a0f, a10, a11, a13, b0, b1
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def step_kernel(p, x, P, fs, ints, h, ph, t_ns, vx, angle, yaw, tcol, tast, ay,
                 fresh_r, fresh_t, fresh_a, mdps_ok, esc_ok, out):  # fmt: skip  # pragma: no cover - compiled
     """One step (module docstring): update with the fresh measurements at vx, output the

@@ -71,6 +71,7 @@ __all__ = [
     "new_lock",
     "lock_anchor",
     "lock_timeout",
+    "lock_frame",
     "lock_deadline",
     "locked_step_times",
     "L_REF",
@@ -231,6 +232,17 @@ def lock_timeout(s, t_ns):  # pragma: no cover - compiled
         s[L_TIMEOUTS] += 1
         return end
     return np.int64(-1)
+
+
+@njit(cache=True)
+def lock_frame(s, t_ns):  # pragma: no cover - compiled
+    """:func:`lock_timeout` then :func:`lock_anchor` for an anchor frame at ``t_ns``, in one call when
+    no timeout step is due before it (the live service's common case): returns 1 when the frame
+    triggers a step at ``t_ns``, 0 when it does not, and -1 (the state unchanged) when a window
+    ended before ``t_ns``: the caller takes the timeout steps first (:func:`lock_timeout`)."""
+    if lock_deadline(s) < t_ns:
+        return np.int64(-1)
+    return np.int64(1) if lock_anchor(s, t_ns) else np.int64(0)
 
 
 @njit(cache=True)

@@ -10,6 +10,9 @@ caches: docs/service.md, "The compiled hand-off"); here they are one call of 5-9
 crosses from Python into compiled code twice (the engine's loop, then this) instead of once per
 store.
 
+The received input frames of the step (taken by the service before it, handed over as columns) go
+into the frame ring first, in the order they were taken, then the sent frames.
+
 The rings' heads are not advanced here: the call returns them and the caller publishes them after it
 returns (a function boundary: every store of the rows is done before a head that makes them visible
 to the writer process; x86 keeps stores in program order). The ``LDE_Diag`` frame's ring slot is
@@ -44,7 +47,8 @@ I_MISS = 10  # this step started more than 1 ms late (0/1)
 I_F_HEAD = 11  # the frame ring's head after the sent outputs (LDE_Diag not included)
 I_S_HEAD = 12  # the step ring's head after this step's row
 I_DIAG_SLOT = 13  # 1: LDE_Diag's frame is in the frame ring's slot at I_F_HEAD (publish after its send)
-N_INTS = 14
+I_N_RX = 14  # in: received frames in ``rx`` / ``rx_word`` to record before the sent ones; out: 0
+N_INTS = 15
 
 #: ``stats_ctr`` (int64): steps recorded, deadline misses (late steps + skipped), skipped grid points
 N_STATS = 3
@@ -66,15 +70,16 @@ def _sat(x, lo, hi):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def _put_frame(mem, lay, ctl, h, t_ns, can_id, dlc, word):  # pragma: no cover - compiled
-    """One sent frame into the frame ring's slot of head ``h`` (the caller checked for room)."""
+def _put_frame(mem, lay, ctl, h, t_ns, can_id, dlc, word, is_rx=0):  # pragma: no cover - compiled
+    """One frame (sent, or received: ``is_rx`` 1; 11-bit id) into the frame ring's slot of head ``h``
+    (the caller checked for room)."""
     i = h & (lay[_NF] - 1)
     mem[lay[_FT] + 8 * i : lay[_FT] + 8 * i + 8].view(np.int64)[0] = t_ns
     mem[lay[_FW] + 8 * i : lay[_FW] + 8 * i + 8].view(np.uint64)[0] = word
     mem[lay[_FID] + 4 * i : lay[_FID] + 4 * i + 4].view(np.uint32)[0] = can_id
     mem[lay[_FEXT] + i] = 0
     mem[lay[_FDLC] + i] = dlc
-    mem[lay[_FRX] + i] = 0
+    mem[lay[_FRX] + i] = is_rx
 
 
 @njit(cache=True)
@@ -96,6 +101,8 @@ def after_send(
     ring_mem,
     ring_tab,
     ring_lay,
+    rx,
+    rx_word,
 ):  # pragma: no cover - compiled
     """The step's timing, ``LDE_Diag`` and the recorder hand-off (module docstring).
 
@@ -120,6 +127,9 @@ def after_send(
         ring_tab: int64 (k, 3): per step-row column its offset in ``block_mem``, its offset in
             ``ring_mem`` and its bytes per row.
         ring_lay: int64 (``RING_LAY``).
+        rx: int64 (capacity, 3): the input frames received since the previous call, in the order
+            they were taken (receive time [ns], 11-bit id, dlc); ``ints[I_N_RX]`` rows of it.
+        rx_word: uint64 (capacity): their first 8 data bytes, little-endian.
     """
     t_start = ints[I_T_START]
     t_sent = ints[I_T_SENT]
@@ -173,12 +183,20 @@ def after_send(
         diag_out[b] = np.uint8((w >> np.uint64(8 * b)) & np.uint64(0xFF))
 
     ints[I_DIAG_SLOT] = 0
+    n_rx = ints[I_N_RX]
+    ints[I_N_RX] = 0
     if ring_mem.shape[0] == 0:
         return
     lay = ring_lay
     ctl = ring_mem[lay[_CTL] : lay[_CTL] + 64].view(np.int64)
     nf = lay[_NF]
     fh = ctl[_F_HEAD]
+    for r in range(n_rx):  # the received frames first, as they were taken
+        if fh - ctl[_F_TAIL] >= nf:
+            ctl[_F_DROPPED] += 1
+            continue
+        _put_frame(ring_mem, lay, ctl, fh, rx[r, 0], rx[r, 1], rx[r, 2], rx_word[r], 1)
+        fh += 1
     n_out = ints[I_N_SENT]
     for j in range(n_out + 1):
         if j < n_out and tx_t[j] < 0:

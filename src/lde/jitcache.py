@@ -18,12 +18,18 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["cache_dirs", "is_warm", "notice", "NOTICE"]
+__all__ = ["cache_dirs", "drop_stale", "is_warm", "notice", "NOTICE"]
 
 NOTICE = (
     "lde: compiling the numba kernels of the data path (first run after an install or an upgrade: "
     "25-35 s of CPU per backend, once; cached in {where}; `lde warmup --background` does it ahead of time)"
 )
+
+
+#: the packages whose numba kernels call each other across files (a data-path loop inlines the
+#: firmware model's step, the learner, the codec ...)
+KERNEL_PACKAGES = ("lde", "firmware_model", "vcan_sim")
+STAMP_NAME = "lde-sources.stamp"
 
 
 def _subpath(src_dir: Path) -> str:
@@ -34,12 +40,97 @@ def _subpath(src_dir: Path) -> str:
 
 def cache_dirs() -> list[Path]:
     """Where numba keeps (or would keep) the kernels of ``lde`` itself, in numba's order."""
-    pkg = Path(__file__).resolve().parent
+    return _dir_cache_dirs(Path(__file__).resolve().parent)
+
+
+def _dir_cache_dirs(src_dir: Path) -> list[Path]:
+    """Where numba keeps (or would keep) the kernels of the sources in ``src_dir``."""
     env = os.environ.get("NUMBA_CACHE_DIR")
     if env:
-        return [Path(env) / _subpath(pkg)]
+        return [Path(env) / _subpath(src_dir)]
     xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return [pkg / "__pycache__", Path(xdg) / "numba" / _subpath(pkg)]
+    return [src_dir / "__pycache__", Path(xdg) / "numba" / _subpath(src_dir)]
+
+
+def _package_dirs(names: tuple[str, ...]) -> list[Path]:
+    """The installed directories of the packages ``names`` (found without importing them)."""
+    import importlib.util
+
+    out: list[Path] = []
+    for name in names:
+        try:
+            spec = importlib.util.find_spec(name)
+        except (ImportError, ValueError):
+            continue
+        if spec is not None and spec.submodule_search_locations:
+            out.extend(Path(p) for p in spec.submodule_search_locations)
+    return out
+
+
+def _source_dirs(pkg: Path) -> list[Path]:
+    """``pkg`` and its subdirectories that hold ``.py`` files (``__pycache__`` not entered)."""
+    out = []
+    for root, dirs, files in os.walk(pkg):
+        dirs[:] = [d for d in dirs if d != "__pycache__"]
+        if any(f.endswith(".py") for f in files):
+            out.append(Path(root))
+    return out
+
+
+def sources_stamp(packages: list[Path]) -> str:
+    """One digest of every ``.py`` file below ``packages``: path, size and mtime, the same fields
+    numba's own index compares for a kernel's file."""
+    h = hashlib.sha1()
+    for pkg in sorted(packages):
+        for src in sorted(_source_dirs(pkg)):
+            with os.scandir(src) as it:
+                for e in sorted(it, key=lambda e: e.name):
+                    if e.name.endswith(".py") and e.is_file():
+                        st = e.stat()
+                        h.update(f"{e.path}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()
+
+
+def drop_stale(packages: list[Path] | None = None) -> int:
+    """Delete the cached kernels of ``packages`` (default: :data:`KERNEL_PACKAGES`) when any of
+    their sources changed since the cache was written; returns how many files were removed.
+
+    numba checks a cached kernel only against its own source file, so a kernel that calls (and
+    inlines) a function of another file keeps the old callee after that file changes: a replay
+    would silently run yesterday's learner (numba PRs #8396 and #9563, which would track such
+    dependencies, were not merged). lde's kernels call across files, so one stamp over all their
+    sources (:func:`sources_stamp`) decides for all of them, in every cache directory numba
+    would use. A directory that cannot be written is left alone (numba then uses the next)."""
+    pkgs = _package_dirs(KERNEL_PACKAGES) if packages is None else packages
+    stamp = sources_stamp(pkgs)
+    removed = 0
+    for pkg in pkgs:
+        for src in _source_dirs(pkg):
+            for cache in _dir_cache_dirs(src):
+                removed += _drop_dir(cache, stamp)
+    return removed
+
+
+def _drop_dir(cache: Path, stamp: str) -> int:
+    if not cache.is_dir():
+        return 0
+    mark = cache / STAMP_NAME
+    try:
+        if mark.read_text() == stamp:
+            return 0
+    except OSError:
+        pass
+    removed = 0
+    try:
+        for f in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
+            f.unlink(missing_ok=True)
+            removed += 1
+        tmp = cache / f"{STAMP_NAME}.{os.getpid()}"
+        tmp.write_text(stamp)
+        os.replace(tmp, mark)
+    except OSError:
+        pass
+    return removed
 
 
 #: the compiled data-path loops, one per backend (:data:`lde.backends.BACKENDS`, named by

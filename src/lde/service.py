@@ -75,11 +75,12 @@ from .diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummar
 from .engine import Engine, StepBlock
 from .errors import BusError, ConfigError
 from .frames import FrameBatch, seconds_to_ns
-from .grid import L_REF, lock_anchor, lock_deadline, lock_timeout, new_lock
+from .grid import L_REF, lock_anchor, lock_deadline, lock_frame, lock_timeout, new_lock
 from .handoff import (
     I_DIAG_CTR,
     I_DIAG_SLOT,
     I_F_HEAD,
+    I_N_RX,
     I_N_SENT,
     I_NEWEST,
     I_S_HEAD,
@@ -118,6 +119,8 @@ GRIDS = ("mdps", "fixed")
 _PENDING_CAP = 4096
 #: a young generation this large is collected in the idle time after a step (gc is off in the loop)
 _GC_YOUNG = 700
+#: received frames per step handed to the compiled hand-off for the recorder (more: from Python)
+_RX_CAP = 256
 
 
 _WATCH_PERIOD_NS = 250_000_000  # how often the input watch looks (its warnings repeat every 30 s)
@@ -187,6 +190,9 @@ class Service:
         learned_period_s: period of the learned-state writes [s] (SPEC: 60 s).
         flood_hz: frames of other messages on the bus above this rate [1/s] are logged as a flood
             (:mod:`lde.busfaults`).
+        prewarm: on the MDPS grid with a clock that spins before the expected frame
+            (``spin_ns`` > 0), make the engine's call once with no frame when the spin starts, so the
+            step's call finds warm caches (:meth:`_prewarm`); False: not.
     """
 
     def __init__(
@@ -207,6 +213,7 @@ class Service:
         learned: str | Path | None = None,
         learned_period_s: float = 60.0,
         flood_hz: float = FLOOD_FOREIGN_HZ,
+        prewarm: bool = True,
     ) -> None:
         if grid not in GRIDS:
             raise ConfigError(f"unknown grid {grid!r}: {' or '.join(GRIDS)}")
@@ -217,6 +224,7 @@ class Service:
         self.clock = clock
         self.backend = backend
         self.overlay_enabled = overlay_enabled
+        self.prewarm = prewarm
         if timebase_offset_ns is None:
             simulated = isinstance(clock, SimulatedClock)
             timebase_offset_ns = 0 if simulated else time.time_ns() - clock.now_ns()
@@ -229,6 +237,8 @@ class Service:
         self._tk = np.zeros(1, np.int64)
         self._enable = np.ones(1, np.bool_)
         self._extra = np.zeros(1, np.uint8)
+        # per-step scalars go through memoryviews of these arrays (half a numpy item store each)
+        self._tk_mv, self._enable_mv, self._extra_mv = self._tk.data, self._enable.data, self._extra.data
         # frame I/O: raw on the socket for the buses lde knows, python-can's recv/send otherwise
         self.io = bus_io(bus, fast=fast_io)
         # the output frames, built once and refilled in place (numpy views of their data bytes)
@@ -239,6 +249,18 @@ class Service:
             for fid, n in zip(self.engine.outputs.frame_id, self.engine.outputs.length, strict=True)
         ]
         self._out_views = [tx.view for tx in self._tx]
+        # the encoded output frames' bytes (the StepBlock's) into each prebuilt frame: slice copies
+        # between memoryviews, (destination, its slice, source slice) per output
+        frames_mv = self._block.frames.data.cast("B")
+        self._out_copy = [
+            (tx.data, slice(tx.data_at, tx.data_at + tx.dlc), frames_mv[8 * j : 8 * j + tx.dlc])
+            for j, tx in enumerate(self._tx)
+        ]
+        # the step's values for StepResult, read through memoryviews (a numpy item read and its float()
+        # cost about three times as much)
+        b = self._block
+        self._est_mv = b.est.data.cast("B").cast("d")
+        self._row_mvs = tuple(a.data for a in (b.status, b.overlay_state, b.frames_used, b.t_overlay))
         dc = MessageCodec(self.profile, "LDE_Diag")
         self._diag_tx = self.io.tx(
             can.Message(
@@ -251,6 +273,7 @@ class Service:
         slots = [dc.index[n] for n in ("PeriodError", "StepTime", "Latency", "DeadlineMisses", "E2ERejects")]
         rejects_at = self._block.e2e_rejects.ctypes.data - self._block_mem.ctypes.data
         self._ints = np.zeros(N_INTS, np.int64)
+        self._ints_mv = self._ints.data
         self._tx_t = np.full(n_out + 1, -1, np.int64)
         self._ints[I_N_SENT] = n_out
         self.stats = TimingStats()
@@ -277,7 +300,11 @@ class Service:
             np.zeros(0, np.uint8),  # the recorder's rings (recorder setter)
             np.zeros((0, 3), np.int64),
             np.zeros(len(RING_LAY), np.int64),
+            np.zeros((_RX_CAP, 3), np.int64),  # the received frames to record: time, id, dlc
+            np.zeros(_RX_CAP, np.uint64),  # and their data words
         ]
+        self._rx_mv = self._handoff_args[17].data.cast("B").cast("q")
+        self._rxw_mv = self._handoff_args[18].data
         self._ring: StepRing | None = None
         self._recorder: Any = None
         self._after_send = _resolved(after_send, *self._handoff_args)  # no recorder yet: stores nothing
@@ -290,7 +317,9 @@ class Service:
         self._pcols: tuple[np.ndarray, ...] = ()
         self._alloc_pending(_PENDING_CAP)
         self._unsorted = False
-        self._anchor = (self.profile.messages[self.profile.anchor_message].frame_id, False)
+        self._anchor_id = self.profile.messages[self.profile.anchor_message].frame_id  # 11-bit
+        #: input frames taken and not yet handed to the input watch and the recorder (_settle_rx)
+        self._backlog: list[tuple[int, int, int, int]] = []
         self._lock: np.ndarray | None = None  # the MDPS-locked grid while run(grid="mdps") runs
         self._due: deque[int] = deque()  # step times the locked grid has made due, not run yet
         self._input_ids = frozenset(m.frame_id for m in self.profile.messages.values())
@@ -324,6 +353,8 @@ class Service:
         self._send_error = ""  # the last failed send's text
         self._recv_error = ""  # the last failed receive's text
         self.gc_collections = 0  # young-generation collections run in the idle time of run()
+        self.prewarms = 0  # the engine's empty calls before an expected MDPS frame (_prewarm)
+        self._warmed_for: int | None = None  # the expected MDPS time [ns, clock] of the last one
         self.last: StepResult | None = None
         self.valid_steps = 0  # steps with status VALID: the driving time the learner saw
         self.learned: LearnedKeeper | None = None
@@ -387,6 +418,8 @@ class Service:
                 dst[:n] = src[:n]
         self._pcols = new
         self._pt, self._pid, self._pext, self._pdlc, self._pword = new
+        # _take stores through memoryviews of the columns (half a numpy item store each)
+        self._pmv = tuple(a.data for a in new)
         self._prx = np.ones(cap, np.bool_)
         #: n -> the engine's live arguments with the columns' first n rows (views)
         self._heads: dict[int, tuple] = {}
@@ -406,6 +439,7 @@ class Service:
         lock_deadline(lock)
         lock_timeout(lock, 2 * STEP_NS)
         lock_anchor(lock, 3 * STEP_NS)
+        self._lock_frame = _resolved(lock_frame, new_lock(0), 0)
 
     @property
     def receiver(self) -> Receiver:
@@ -436,26 +470,23 @@ class Service:
         self._recv_error = str(exc)
 
     def _take(self, f: RxFrame) -> None:
-        """One received frame (:mod:`lde.busio`'s five numbers) into the pending columns (and the
-        recording, and the locked grid); frames of other messages are dropped (counted in ``foreign``),
-        error frames counted (``error_frames``, the last one's class kept for the bus check)."""
+        """One received frame (:mod:`lde.busio`'s five numbers) into the pending columns and, when it
+        is the MDPS frame, the locked grid; frames of other messages are dropped (counted in
+        ``foreign``), error frames counted (``error_frames``, the last one's class kept for the bus
+        check). This runs between the MDPS frame and its step, so it does only what the step needs:
+        the input watch and the recorder get the frame after the step's outputs are sent
+        (:meth:`_settle_rx`)."""
         t_rx, can_id, ext, dlc, word = f
         self.received += 1
-        if can_id < 0:
-            if can_id == ERROR_FRAME:
-                self.error_frames += 1
-                self._error_id = word
-            return
         if ext or can_id not in self._input_ids:
-            self.foreign += 1
-            self.watch.saw(can_id, 0)  # counted, for the blind warning's list of ids
+            self._take_other(can_id, word)
             return
-        if self._restamp is None:
-            self._decide_restamp(t_rx)
-        if self._restamp:
-            t_rx = seconds_to_ns(self.now_ns() / 1e9)
-        self.watch.saw(can_id, t_rx)
-        anchor = can_id == self._anchor[0] and ext == self._anchor[1]
+        if self._restamp is not False:  # None: the first frame decides; True: stamped on receipt
+            if self._restamp is None:
+                self._decide_restamp(t_rx)
+            if self._restamp:
+                t_rx = seconds_to_ns(self.now_ns() / 1e9)
+        anchor = can_id == self._anchor_id
         last = self._last_t_k
         if anchor and self._last_due is not None and (last is None or self._last_due > last):
             last = self._last_due
@@ -470,27 +501,71 @@ class Service:
         n = self._np
         if n == self._pt.shape[0]:
             self._alloc_pending(2 * n)
-        elif n and t_rx < self._pt[n - 1]:
+        pt, pid, pext, pdlc, pword = self._pmv
+        if n and t_rx < pt[n - 1]:
             self._unsorted = True
-        self._pt[n] = t_rx
-        self._pid[n] = can_id
-        self._pext[n] = ext
-        self._pdlc[n] = dlc
-        self._pword[n] = word
+        pt[n] = t_rx
+        pid[n] = can_id
+        pext[n] = False
+        pdlc[n] = dlc
+        pword[n] = word
         self._np = n + 1
-        if self._recorder is not None:
-            self._recorder.frame(t_rx, can_id, ext, dlc, word, True)
+        self._backlog.append((t_rx, can_id, dlc, word))
         if anchor and self._lock is not None:
             self._on_anchor(t_rx)
 
+    def _take_other(self, can_id: int, word: int) -> None:
+        """A frame that is not one of the profile's inputs: an error frame, a remote frame, another
+        message (dropped, counted; its id kept for the blind warning's list)."""
+        if can_id < 0:
+            if can_id == ERROR_FRAME:
+                self.error_frames += 1
+                self._error_id = word
+            return
+        self.foreign += 1
+        self.watch.saw(can_id, 0)
+
+    def _settle_rx(self, handoff: bool = True) -> None:
+        """The input frames taken since the last call into the input watch and the recorder (after a
+        step's sends: off the path from the MDPS frame to the step). The recorder gets them in the
+        order they were taken, before the step's sent frames, as when they were handed over in
+        :meth:`_take`. ``handoff``: the compiled hand-off follows and writes them into a
+        :class:`lde.recording.Recorder`'s ring; else they are handed over from here."""
+        bl = self._backlog
+        if not bl:
+            return
+        saw = self.watch.saw
+        rec = self._recorder
+        if handoff and self._ring is not None and len(bl) <= _RX_CAP:  # recorded by the compiled hand-off
+            rx, rxw = self._rx_mv, self._rxw_mv
+            for k, (t_rx, can_id, dlc, word) in enumerate(bl):
+                saw(can_id, t_rx)
+                rx[3 * k] = t_rx
+                rx[3 * k + 1] = can_id
+                rx[3 * k + 2] = dlc
+                rxw[k] = word
+            self._ints_mv[I_N_RX] = len(bl)
+        else:
+            for t_rx, can_id, dlc, word in bl:
+                saw(can_id, t_rx)
+                if rec is not None:
+                    rec.frame(t_rx, can_id, False, dlc, word, True)
+        bl.clear()
+
     def _on_anchor(self, t_rx: int) -> None:
-        """An MDPS frame for the locked grid: the timeout steps before it, then maybe its own step."""
+        """An MDPS frame for the locked grid: the timeout steps before it, then maybe its own step
+        (one compiled call when no timeout step is due: :func:`lde.grid.lock_frame`)."""
         lock = self._lock
         assert lock is not None
-        while (tk := int(lock_timeout(lock, t_rx))) >= 0:
-            self._make_due(tk)
-        if lock_anchor(lock, t_rx):
-            self._make_due(t_rx)
+        r = self._lock_frame(lock, t_rx)
+        if r < 0:
+            while (tk := int(lock_timeout(lock, t_rx))) >= 0:
+                self._make_due(tk)
+            r = lock_anchor(lock, t_rx)
+        if r:
+            self._due.append(t_rx)
+            if self._last_due is None or t_rx > self._last_due:
+                self._last_due = t_rx
 
     def _make_due(self, t_k: int) -> None:
         self._due.append(t_k)
@@ -523,9 +598,9 @@ class Service:
         number of frames it fed (those with receive time <= t_k), which leave the pending buffer."""
         self._sort_pending()
         n = self._np
-        self._tk[0] = t_k
-        self._enable[0] = enable
-        self._extra[0] = DEADLINE_MISS if miss else 0
+        self._tk_mv[0] = t_k
+        self._enable_mv[0] = enable
+        self._extra_mv[0] = DEADLINE_MISS if miss else 0
         eng = self.engine
         args = self._heads.get(n)
         # the arguments are made once per count of pending frames (a step sees 0 to a few)
@@ -543,6 +618,21 @@ class Service:
                     a[:rest] = a[fed:n].copy()
             self._np = rest
         return fed
+
+    def _prewarm(self) -> None:
+        """The engine's live call with no frame and no step time (nothing runs, nothing changes),
+        made when the service starts polling for the MDPS frame: it brings the call's code, its
+        unboxing and the loop's arrays back into the caches that the idle period cooled, so the
+        step after the frame does not pay for them (``docs/service.md``, "The frame-to-step path, the
+        step's glue and an engine pre-warm")."""
+        args = self._heads.get(-1)
+        if args is None or not self.engine.live_args_valid(args):
+            cols = (*(a[:0] for a in self._pcols), self._prx[:0])
+            args = self._heads[-1] = self.engine.live_args(
+                cols, self._block, self._tk[:0], self._enable[:0], self._extra[:0]
+            )
+        self.engine.run_live(args)
+        self.prewarms += 1
 
     def _run_engine_empty(self) -> None:
         """The live call with no frame and no step time: nothing runs, nothing changes, but the
@@ -581,53 +671,58 @@ class Service:
         if self._last_t_k is None or t_k > self._last_t_k:
             self._last_t_k = t_k
         b = self._block
-        out = b.frames[0]
         tx_t = self._tx_t
-        for j, tx in enumerate(self._tx):
-            tx.view[:] = out[j, : tx.dlc]
-            tx_t[j] = self._send(tx)
+        send = self._send
+        for j, (dst, at, src) in enumerate(self._out_copy):
+            dst[at] = src
+            tx_t[j] = send(self._tx[j])
         t_sent = self.now_ns()
         diag = self._diag_tx
         t_diag = t_sent / 1e9  # LDE_Diag is stamped with the time its step time ends
-        ints = self._ints
+        ints = self._ints_mv
         ints[I_T_K] = t_k
         ints[I_T_START] = t_start
         ints[I_T_SENT] = t_sent
-        ints[I_NEWEST] = self._newest_input_ns
+        newest = self._newest_input_ns
+        ints[I_NEWEST] = newest
         tx_t[-1] = seconds_to_ns(t_diag)
+        self._settle_rx()
         self._after_send(*self._handoff_args)
         ring = self._ring
-        diag_sent = self._send(diag, t_diag, ring is None) >= 0
+        diag_sent = send(diag, t_diag, ring is None) >= 0
         if ring is not None:
-            ring.published(int(ints[I_F_HEAD]) + (diag_sent and bool(ints[I_DIAG_SLOT])), int(ints[I_S_HEAD]))
+            ring.published(ints[I_F_HEAD] + (diag_sent and ints[I_DIAG_SLOT] != 0), ints[I_S_HEAD])
 
         step_time = t_sent - t_start
-        latency = t_sent - self._newest_input_ns if self._newest_input_ns >= 0 else -1
-        timing = StepTiming(period_error, step_time, latency, miss, self.stats.deadline_misses)
+        latency = t_sent - newest if newest >= 0 else -1
+        misses = self.stats.deadline_misses
+        timing = StepTiming(period_error, step_time, latency, miss, misses)
         self.steps += 1
-        status = int(b.status[0])
-        state = int(b.overlay_state[0])
+        m_status, m_state, m_used, m_overlay = self._row_mvs
+        status = m_status[0]
+        state = m_state[0]
         if status & VALID:
             self.valid_steps += 1
         if self.learned is not None and self.learned.due(t_k):
             self.learned.offer(self.learned_snapshot())
+        est = self._est_mv
         res = StepResult(
             t_ns=t_k,
-            fw=float(b.est[0, 0]),
-            mw=float(b.est[0, 1]),
-            t_align=float(b.est[0, 2]),
-            t_overlay=float(b.t_overlay[0]),
+            fw=est[0],
+            mw=est[1],
+            t_align=est[2],
+            t_overlay=m_overlay[0],
             overlay_state=state,
             overlay_active=state in (1, 2),
             status=status,
-            frames_used=int(b.frames_used[0]),
+            frames_used=m_used[0],
             timing=timing,
             overlay_enable=enable,
         )
         self.last = res
         rec = self._recorder
         if rec is not None and ring is None:  # a recorder without rings: called
-            row = (period_error, step_time, latency, int(miss), timing.deadline_misses, self.stats.skipped)
+            row = (period_error, step_time, latency, int(miss), misses, self.stats.skipped)
             rec.step(b, 0, row)
         return res
 
@@ -734,6 +829,7 @@ class Service:
                         break
                 self._idle()
         finally:
+            self._settle_rx(handoff=False)
             self._lock = None
             if was_enabled:
                 gc.enable()
@@ -847,6 +943,7 @@ class Service:
         assert lock is not None
         due = self._due
         recv_until = getattr(clock, "recv_until", None)
+        spin = int(getattr(clock, "spin_ns", 0)) if self.prewarm else 0
         while True:
             while not due:
                 end = int(lock_deadline(lock))
@@ -864,7 +961,16 @@ class Service:
                     break
                 try:
                     if recv_until is not None:  # the MDPS frame is expected one period after t_ref
-                        msg = recv_until(self.io, end + 1 - off, int(lock[L_REF]) + STEP_NS - off)
+                        expect = int(lock[L_REF]) + STEP_NS - off
+                        warm_at = expect - spin
+                        if spin and self._warmed_for != expect and now - off < warm_at:
+                            # blocked until the spin starts, then the engine's empty call (_prewarm)
+                            msg = recv_until(self.io, min(end + 1 - off, warm_at))
+                            if msg is None:
+                                self._prewarm()
+                                self._warmed_for = expect
+                        else:
+                            msg = recv_until(self.io, end + 1 - off, expect)
                     else:  # a clock without it: poll, then sleep to the window's end
                         msg = self.io.recv(0.0)
                         if msg is None:
@@ -876,9 +982,10 @@ class Service:
                 if msg is not None:
                     self._take(msg)
             t_k = due.popleft()
-            if t_k > clock.now_ns() + off:  # a simulated clock: move it to the frame
-                clock.sleep_until(t_k - off)
             now = clock.now_ns() + off
+            if t_k > now:  # a simulated clock: move it to the frame
+                clock.sleep_until(t_k - off)
+                now = clock.now_ns() + off
             if due and now - t_k >= _SKIP_AFTER_NS:
                 self.stats.record_skipped(1)
                 continue

@@ -85,6 +85,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "without blocking)",
     )
     p.add_argument(
+        "--spin-us",
+        type=float,
+        default=0.0,
+        metavar="US",
+        help="live bus, real time: sleep until US microseconds before each frame's time, then busy-wait "
+        "(a precise sender where the simulator has a CPU of its own; default 0: sleep only)",
+    )
+    p.add_argument(
+        "--send-trace",
+        metavar="OUT.npy",
+        help="live bus: write each frame's scheduled, before-send and after-send times (monotonic ns) "
+        "and CAN id, one int64 row per frame (the live loop's benchmark)",
+    )
+    p.add_argument(
         "--nice",
         type=int,
         metavar="N",
@@ -132,7 +146,8 @@ def _check_outputs(args: argparse.Namespace) -> None:
         raise ConfigError(
             f"--log-channel {args.log_channel!r}: need a channel name without blanks, e.g. vcan0"
         )
-    for opt, value in (("--log", args.log), ("--truth", args.truth), ("--mcap", args.mcap)):
+    outs = (("--log", args.log), ("--truth", args.truth), ("--mcap", args.mcap))
+    for opt, value in (*outs, ("--send-trace", getattr(args, "send_trace", None))):
         if not value:
             continue
         path = Path(value)
@@ -219,6 +234,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("nothing to do: give --log/--truth/--mcap, or a bus (--interface/--channel)")
     _check_outputs(args)
     realtime = True if args.realtime is None else args.realtime
+    if not args.spin_us >= 0:
+        raise ConfigError(f"--spin-us {args.spin_us}: need >= 0")
     if live:
         if args.rt_priority is not None and not realtime:
             # --fast never sleeps: at a real-time priority it would starve everything below it
@@ -294,6 +311,7 @@ def _run_live(args: argparse.Namespace, sim, realtime: bool, streamer) -> None:
     kw.setdefault("can_filters", _overlay_filter(sim.profile))
     bus = open_bus(**kw)
     st: PumpStats | None = None
+    trace: list[tuple[int, int, int, int]] | None = [] if args.send_trace else None
     print(
         f"lde sim: {args.scenario} on {getattr(bus, 'channel_info', 'the bus')} "
         f"({'real time' if realtime else 'fast'}, {sim.duration:.0f} s); SIGINT/SIGTERM stop it",
@@ -310,9 +328,15 @@ def _run_live(args: argparse.Namespace, sim, realtime: bool, streamer) -> None:
                 receiver=receiver,
                 stop=lambda: bool(stopped),
                 after_step=streamer.poll,
+                spin_s=args.spin_us * 1e-6,
+                send_trace=trace,
             )
     finally:
         bus.shutdown()
+        if trace is not None:
+            import numpy as np
+
+            np.save(args.send_trace, np.array(trace, np.int64).reshape(-1, 4))
     if stopped:
         print(f"lde sim: stopped by {stopped[0]}; closing what was simulated", file=sys.stderr)
         return
