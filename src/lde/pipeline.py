@@ -57,6 +57,7 @@ from .grid import (
     grid_step_done,
 )
 from .overlay import LP_GAIN, LS_STATE, overlay_kernel
+from .refcount import NO_REFCOUNT
 from .signals import (
     I_COLUMN_TORQUE,
     I_SPEED,
@@ -175,13 +176,12 @@ def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cov
 # compiles them in its helper process (lde.coldstart) while this process compiles the step; the
 # loop then only types three calls (its own compile: about a third). LLVM still sees their code
 # when it optimises the loop's module (numba links a callee's module into its caller's).
-# ``_nrt=False``: numba otherwise increfs and decrefs every array argument of a call (about 30 here,
-# the tables are tuples of arrays) on each call: +13 % (fixed) / +30 % (float) engine CPU per hour
-# measured. They allocate nothing and return scalars; the caller holds the arrays during the call.
-_part: Any = njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # numba's option, not in its stubs
+# Without numba's reference counting (lde.refcount): it would incref and decref every array
+# argument of a call (about 30 here, the tables are tuples of arrays) on each call: +13 % (fixed) /
+# +30 % (float) engine CPU per hour measured with them as plain calls (docs/startup.md).
 
 
-@_part
+@njit(cache=True, **NO_REFCOUNT)
 def feed_frame(tb, st, g, t_ns, can_id, is_ext, dlc, w_le, anchor, used_since):  # pragma: no cover
     """One received frame (time ``t_ns`` [ns]): the receiver (:func:`lde.signals.rx_feed`), the
     count of accepted input frames since the previous step, the grid (:func:`lde.grid.grid_frame`;
@@ -193,7 +193,7 @@ def feed_frame(tb, st, g, t_ns, can_id, is_ext, dlc, w_le, anchor, used_since): 
     grid_frame(g, t_ns, m >= 0, m == anchor and accepted)
 
 
-@_part
+@njit(cache=True, **NO_REFCOUNT)
 def sample_inputs(tb, st, tk, vin, age, prev_t):  # pragma: no cover - compiled
     """The inputs at step time ``tk`` [ns] into ``vin`` (SI) and ``age`` [ns]
     (:func:`lde.signals.rx_sample`). Returns (valid mask, fresh mask: the inputs that brought a new
@@ -207,7 +207,7 @@ def sample_inputs(tb, st, tk, vin, age, prev_t):  # pragma: no cover - compiled
     return mask, np.int64(fresh), bool(ok_m), bool(ok_e)
 
 
-@_part
+@njit(cache=True, **NO_REFCOUNT)
 def step_outputs(
     lp, lsi, lsf, otab, counters, tk, est, status, enable, vin, encode, frames_row, vals, scratch
 ):  # pragma: no cover - compiled
