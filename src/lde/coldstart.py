@@ -53,7 +53,7 @@ __all__ = [
 
 #: the helper's share per backend, in its order (each name is a group of :data:`_GROUPS`)
 HELPER: dict[str, tuple[str, ...]] = {
-    "fixed": ("fx-step", "loop-out", "loop-args", "resets", "csv"),
+    "fixed": ("fx-step", "loop-out", "resets", "csv"),
     "float": ("learner", "loop-out", "resets", "csv"),
 }
 #: this process's share, in its order: groups of :data:`_GROUPS`, and ``wait NAME`` (wait for the
@@ -61,8 +61,14 @@ HELPER: dict[str, tuple[str, ...]] = {
 #: arguments and loop its parts)
 MAIN: dict[str, tuple[str, ...]] = {
     "fixed": (
-        *("float-step", "learner", "parse", "wait fx-step", "join", "loop-rx"),
-        *("wait loop-out", "wait loop-args"),
+        "float-step",
+        "learner",
+        "parse",
+        "loop-rx",
+        "loop-args",
+        "wait fx-step",
+        "join",
+        "wait loop-out",
     ),
     "float": ("float-step", "parse", "loop-args", "loop-rx", "wait learner", "join", "wait loop-out"),
 }
