@@ -9,7 +9,8 @@ compiles::
 
 It prints the command's wall and CPU seconds, then the compilations (numba's ``numba:compile``
 events) with the longest own time first: ``own`` excludes the compilations a kernel's typing set off
-(a kernel compiles the kernels it calls), ``incl`` includes them. A kernel listed twice was compiled
+(a kernel compiles the kernels it calls), ``incl`` includes them; ``own CPU``: this process's CPU
+seconds in it (what a loaded machine changes least). A kernel listed twice was compiled
 for two signatures; ``--args`` shows them (``Literal[int](0)`` and the like: a call numba typed
 while the caller's types were still partial, see :mod:`lde.pipeline`). ``--passes NAME,...`` adds
 numba's pass times and LLVM time of those kernels.
@@ -33,6 +34,7 @@ class Compile:
     args: str  # the argument types it was compiled for
     incl_s: float  # wall seconds of the compilation, with the ones it set off
     own_s: float  # without them
+    own_cpu: float  # CPU seconds of this process without them (the load does not change it much)
     depth: int  # how many compilations were under way around it
 
 
@@ -45,14 +47,16 @@ class _Timer(event.Listener):
     def on_start(self, ev: event.Event) -> None:
         d = ev.data["dispatcher"]
         self.dispatchers[d.py_func.__qualname__] = d
-        self.stack.append([d.py_func.__qualname__, str(ev.data["args"]), time.perf_counter(), 0.0])
+        now, cpu = time.perf_counter(), time.process_time()
+        self.stack.append([d.py_func.__qualname__, str(ev.data["args"]), now, 0.0, cpu, 0.0])
 
     def on_end(self, ev: event.Event) -> None:
-        name, args, t0, inner = self.stack.pop()
-        dt = time.perf_counter() - t0
+        name, args, t0, inner, c0, inner_cpu = self.stack.pop()
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
         if self.stack:
             self.stack[-1][3] += dt
-        self.done.append(Compile(name, args, dt, dt - inner, len(self.stack)))
+            self.stack[-1][5] += dc
+        self.done.append(Compile(name, args, dt, dt - inner, dc - inner_cpu, len(self.stack)))
 
 
 def _split_line() -> str:
@@ -98,14 +102,19 @@ def main() -> int:
     rows = sorted(timer.done, key=lambda c: -c.own_s)
     print(
         f"lde {' '.join(a.lde_args)}: rc {rc}, {wall:.1f} s wall, {ru.ru_utime + ru.ru_stime:.1f} s CPU "
-        f"(process), {len(rows)} compilations, {sum(c.own_s for c in rows):.1f} s in them",
+        f"(process), {len(rows)} compilations, {sum(c.own_s for c in rows):.1f} s in them "
+        f"({sum(c.own_cpu for c in rows):.1f} s CPU)",
         file=sys.stderr,
     )
     if split:
         print(split, file=sys.stderr)
     for c in rows[: a.top]:
         extra = f" {c.args[-300:]}" if a.args else ""
-        print(f"  {c.own_s:6.2f} own {c.incl_s:6.2f} incl  {'  ' * c.depth}{c.name}{extra}", file=sys.stderr)
+        print(
+            f"  {c.own_s:6.2f} own {c.incl_s:6.2f} incl {c.own_cpu:6.2f} own CPU  "
+            f"{'  ' * c.depth}{c.name}{extra}",
+            file=sys.stderr,
+        )
     for name in filter(None, a.passes.split(",")):
         d = timer.dispatchers.get(name)
         for cres in d.overloads.values() if d is not None else []:

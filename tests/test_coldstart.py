@@ -14,7 +14,10 @@ from numba import typeof
 
 from lde import coldstart as C
 from lde.backends import DEFAULT_BACKEND, get_backend, make_backend_state
+from lde.engine import Engine
+from lde.loopargs import FIELDS, LoopArraysType
 from lde.params import load_vehicle
+from lde.profiles import PROFILE_NAMES, load_profile
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -27,10 +30,31 @@ def test_the_written_out_state_types_are_the_real_states(backend: str) -> None:
     assert C.state_types(backend) == (typeof(s.params), typeof(s.state))
 
 
+@pytest.mark.parametrize("profile", PROFILE_NAMES)
+@pytest.mark.parametrize("vehicle", ["reference", "est3"])
+def test_the_loop_fields_have_the_types_of_a_real_engines(profile: str, vehicle: str) -> None:
+    """The loop's arguments and parts are compiled ahead for these types: an engine of any shipped
+    profile and vehicle must give the same (else its loop compiles them again)."""
+    e = Engine(load_profile(profile), load_vehicle(vehicle), "float")
+    assert typeof(e._la) == LoopArraysType(
+        [(n, typeof(v)) for n, v in zip(FIELDS, C.loop_fields(), strict=True)]
+    )
+
+
 def test_the_early_names_resolve_as_the_registry() -> None:
     for given, name in C.EARLY_NAMES.items():
         assert get_backend(DEFAULT_BACKEND if given is None else given).name == name
     assert set(C.EARLY_NAMES.values()) == set(C.HELPER) == set(C.MAIN)
+
+
+@pytest.mark.parametrize("backend", sorted(C.HELPER))
+def test_every_wait_names_a_helper_group_compiled_before_it_is_needed(backend: str) -> None:
+    helper, main = C.HELPER[backend], C.MAIN[backend]
+    waits = [m.removeprefix("wait ") for m in main if m.startswith("wait ")]
+    assert waits == [h for h in helper if h in waits]  # in the helper's order: no wait blocks a later one
+    assert "join" in main and main.index("join") > main.index("wait " + helper[0])
+    for g in (*helper, *main):
+        assert g.startswith("wait ") or g == "join" or g in C._GROUPS
 
 
 def _fake(code: str) -> C._Helper:
@@ -71,9 +95,9 @@ def test_the_split_goes_on_without_its_helper() -> None:
 
 @pytest.mark.slow
 def test_on_an_empty_cache_each_kernel_is_compiled_once(tmp_path: Path) -> None:
-    """In a process with an empty cache, the split's groups, then the joining step and a backend
-    state: they find their callees compiled for exactly the signatures they call them with (no
-    second compilation)."""
+    """In a process with an empty cache, the split's groups, then the joining step and an engine's
+    run (its loop): they find their callees compiled for exactly the signatures they call them
+    with (no second compilation)."""
     code = """
 import collections, sys
 from numba.core import event
@@ -82,13 +106,16 @@ names = collections.Counter()
 class L(event.Listener):
     def on_start(self, ev): pass
     def on_end(self, ev): names[ev.data["dispatcher"].py_func.__qualname__] += 1
-for g in ("fx-step", "float-step", "learner", "resets"):
+for g in ("fx-step", "float-step", "learner", "resets", "loop-args", "loop-rx", "loop-out"):
     C._GROUPS[g]()
 event.register("numba:compile", L())
 C._join("fixed")
-from lde.backends import make_backend_state
+from lde.engine import Engine
 from lde.params import load_vehicle
-make_backend_state("fixed", load_vehicle("reference"))
+from lde.profiles import load_profile
+from vcan_sim.run import simulate
+e = Engine(load_profile("lde"), load_vehicle("reference"), "fixed", shadow_thread=False)
+e.feed(simulate("straight", seed=0, duration=0.3).frames, final=True)
 print(dict(names))
 """
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "nb"), PYTHONPATH=f"{ROOT / 'src'}:{ROOT}")
@@ -96,7 +123,11 @@ print(dict(names))
     assert out.returncode == 0, out.stderr[-2000:]
     compiled = ast.literal_eval(out.stdout.strip().splitlines()[-1])
     assert compiled.get("lateral_fixed_step") == 1
-    for callee in ("step_kernel", "learner_step", "quantise_kernel", "coef_set_kernel", "reset_kernel"):
+    assert compiled.get("run_lateral_fixed") == 1
+    for callee in (
+        *("step_kernel", "learner_step", "quantise_kernel", "coef_set_kernel", "reset_kernel", "_new"),
+        *("feed_frame", "sample_inputs", "step_outputs"),
+    ):
         assert callee not in compiled, compiled
 
 

@@ -2,14 +2,17 @@
 
 numba compiles a kernel in the process that first calls it, one kernel after the other: a first
 ``lde replay`` on an empty cache (:mod:`lde.jitcache`) used one core for 20-35 s. The kernels of a
-backend's step are independent of one another until the step that joins them: :func:`compile_split`
-starts ``python -m lde.coldstart BACKEND`` (the helper), which compiles its share (:data:`HELPER`)
-into the on-disk cache and says so on its stdout (``ready NAME``), while this process compiles the
-rest (:data:`MAIN`); then this process waits for the helper's share, loads it from the cache (numba
-looks there before it compiles) and compiles the step that joins them. The loop of the data path
-(:mod:`lde.pipeline`), compiled next by the run itself, then finds its step compiled. After its
-share of the step the helper compiles the filters' resets and the CSV formatter
-(:mod:`lde.logio`), which the run needs later.
+backend's step are independent of one another until the step that joins them, and the data-path
+loop's own parts (:mod:`lde.pipeline`: ``feed_frame``, ``sample_inputs``, ``step_outputs``, and the
+constructor of its fixed arrays) do not depend on the step at all: :func:`compile_split` starts
+``python -m lde.coldstart BACKEND`` (the helper), which compiles its share (:data:`HELPER`) into
+the on-disk cache and says so on its stdout (``ready NAME``), while this process compiles the rest
+(:data:`MAIN`), waiting for a helper group just before the first of its own that needs it (numba
+then loads it from the cache: it looks there before it compiles). The loop, compiled next by the
+run itself, then finds its step and its parts compiled and only types their calls. After its
+share the helper compiles the filters' resets and the CSV formatter (:mod:`lde.logio`), which the
+run needs later. The shares are balanced by the CPU seconds of each group
+(``scripts/compile_profile.py``; docs/startup.md).
 
 The helper is a plain child process: when it fails, dies or takes longer than ``timeout_s`` this
 process stops waiting (and ends the helper), and numba compiles whatever is not in the cache here,
@@ -50,20 +53,30 @@ __all__ = [
 
 #: the helper's share per backend, in its order (each name is a group of :data:`_GROUPS`)
 HELPER: dict[str, tuple[str, ...]] = {
-    "fixed": ("fx-step", "resets", "csv"),
-    "float": ("learner", "resets", "csv"),
+    "fixed": ("fx-step", "loop-out", "resets", "csv"),
+    "float": ("learner", "loop-out", "resets", "csv"),
 }
-#: this process's share before the joining step, per backend
+#: this process's share, in its order: groups of :data:`_GROUPS`, and ``wait NAME`` (wait for the
+#: helper's group NAME, which the next ones need: the joining step its callees, the loop's
+#: arguments and loop its parts)
 MAIN: dict[str, tuple[str, ...]] = {
-    "fixed": ("float-step", "learner", "parse"),
-    "float": ("float-step", "parse"),
+    "fixed": (
+        "float-step",
+        "learner",
+        "parse",
+        "loop-rx",
+        "loop-args",
+        "wait fx-step",
+        "join",
+        "wait loop-out",
+    ),
+    "float": ("float-step", "parse", "loop-args", "loop-rx", "wait learner", "join", "wait loop-out"),
 }
 #: ``--backend`` as given (None: the default) to the backend it names, for the backends with a split
 #: (checked against :func:`lde.backends.get_backend` by the tests; the CLI starts the helper before
 #: it imports the registry)
 EARLY_NAMES: dict[str | None, str] = {None: "fixed", "fixed": "fixed", "float": "float", "lateral": "float"}
-#: the helper group each backend's joining step needs
-_NEEDS = {"fixed": "fx-step", "float": "learner"}
+_WAIT = "wait "
 
 
 def _types() -> Any:
@@ -158,8 +171,77 @@ def _join(backend: str) -> None:
     bp, bs = state_types(backend)
     f1 = T.float64[::1]
     step = B.lateral_fixed_step if backend == "fixed" else B.lateral_step
-    # as the loop calls it (lde.pipeline: np.int64(fresh), bool(ok_m), bool(ok_e))
+    # as the loop calls it (lde.pipeline: fresh and the flags as sample_inputs returns them)
     step.compile((bp, bs, T.int64, f1, T.int64, T.boolean, T.boolean, f1))
+
+
+def loop_fields() -> tuple[Any, ...]:
+    """The loop's fixed arrays (:data:`lde.loopargs.FIELDS`) as :meth:`lde.engine.Engine.reset`
+    makes them, for the ``lde`` profile and the reference vehicle: the loop's arguments and parts
+    are compiled for their numba types, which are the same for every profile and vehicle
+    (``tests/test_coldstart.py`` checks them against real engines)."""
+    import numpy as np
+
+    from .engine import OutputTable
+    from .overlay import limiter_params, new_limiter_state
+    from .params import load_vehicle
+    from .profiles import load_profile
+    from .signals import RxState, RxTables
+
+    profile = load_profile("lde")
+    tables = RxTables.of(profile)
+    outputs = OutputTable.of(profile)
+    lsi, lsf = new_limiter_state()
+    return (
+        tables.kernel_args(),
+        outputs.args,
+        RxState.initial(tables).kernel_args(),
+        np.full(1, np.iinfo(np.int64).min, np.int64),
+        limiter_params(load_vehicle("reference")),
+        lsi,
+        lsf,
+        np.zeros(len(outputs.names), np.int64),
+        np.zeros(1, np.int64),
+    )
+
+
+def _loop_args() -> None:
+    """The constructor of the loop's fixed arrays (:func:`lde.loopargs.loop_arrays`)."""
+    from numba import typeof
+
+    from . import loopargs
+
+    loopargs._new.compile(tuple(typeof(v) for v in loop_fields()))
+
+
+def _part_types() -> tuple[Any, ...]:
+    from numba import typeof
+
+    return tuple(typeof(v) for v in loop_fields())
+
+
+def _loop_rx() -> None:
+    """The loop's receiver parts (:func:`lde.pipeline.feed_frame`, ``sample_inputs``), for the
+    argument types the loop (:func:`lde.pipeline.make_loop`) calls them with."""
+    from numba import types as T
+
+    from . import pipeline as P
+
+    tb, _, st, prev_t, _, _, _, _, used_since = _part_types()
+    i8, b, f1, i1 = T.int64, T.boolean, T.float64[::1], T.int64[::1]
+    P.feed_frame.compile((tb, st, i1, i8, i8, b, i8, T.uint64, i8, used_since))
+    P.sample_inputs.compile((tb, st, i8, f1, i1, prev_t))
+
+
+def _loop_out() -> None:
+    """The loop's output part (:func:`lde.pipeline.step_outputs`: overlay, finalisation, encoders)."""
+    from numba import types as T
+
+    from . import pipeline as P
+
+    _, otab, _, _, lp, lsi, lsf, counters, _ = _part_types()
+    i8, b, f1 = T.int64, T.boolean, T.float64[::1]
+    P.step_outputs.compile((lp, lsi, lsf, otab, counters, i8, f1, i8, b, f1, b, T.uint8[:, ::1], f1, f1))
 
 
 _GROUPS: dict[str, Callable[[], None]] = {
@@ -169,6 +251,9 @@ _GROUPS: dict[str, Callable[[], None]] = {
     "resets": _resets,
     "parse": _parse,
     "csv": _csv,
+    "loop-args": _loop_args,
+    "loop-rx": _loop_rx,
+    "loop-out": _loop_out,
 }
 
 
@@ -181,8 +266,9 @@ class SplitReport:
     main_s: dict[str, float] = field(default_factory=dict)  # this process's groups: when each ended
     helper_s: dict[str, float] = field(default_factory=dict)  # the helper's: when this process heard
     helper_cpu: dict[str, float] = field(default_factory=dict)  # the helper's CPU seconds by then
-    main_cpu_at_wait: float = 0.0  # this process's CPU seconds when it began to wait
-    waited_s: float = 0.0  # this process waiting for the helper
+    main_cpu_at_wait: float = 0.0  # this process's CPU seconds when it began to wait (the first time)
+    waits: dict[str, float] = field(default_factory=dict)  # seconds this process waited for each group
+    waited_s: float = 0.0  # this process waiting for the helper, in all
     helper_failed: str = ""  # why this process stopped waiting (empty: it did not)
     total_s: float = 0.0
 
@@ -291,27 +377,39 @@ def compile_split(
         t0 = helper.t0
     from numba.core.event import install_recorder
 
+    started = helper
     with install_recorder("numba:compile") as rec:
         for name in MAIN[backend]:
-            if name == "parse" and logs is not None and not _reads_candump(logs):
+            if not name.startswith(_WAIT):
+                if name == "parse" and logs is not None and not _reads_candump(logs):
+                    continue
+                if name == "join":
+                    _join(backend)
+                else:
+                    _GROUPS[name]()
+                rep.main_s[name] = time.perf_counter() - t0
                 continue
-            _GROUPS[name]()
-            rep.main_s[name] = time.perf_counter() - t0
-    if helper is not None and not rec.buffer:  # all loaded: this process's cache is warm after all
-        helper.stop()
-        rep.helper_failed = "not needed (the cache was warm)"
-        helper = None
-    if helper is not None:
-        t_wait = time.perf_counter()
-        rep.main_cpu_at_wait = time.process_time()
-        rep.helper_failed = helper.wait_for(_NEEDS[backend], t0 + timeout_s)
-        rep.waited_s = time.perf_counter() - t_wait
-        rep.helper_s = dict(helper.ready)
-        rep.helper_cpu = dict(helper.ready_cpu)
-    _join(backend)
-    rep.main_s["join"] = rep.total_s = time.perf_counter() - t0
+            if helper is not None and not rep.waits and not rec.buffer:
+                helper.stop()  # all loaded: this process's cache was warm after all
+                rep.helper_failed = "not needed (the cache was warm)"
+                helper = None
+            if helper is None:
+                continue  # compiled here when needed, as without a helper
+            t_wait = time.perf_counter()
+            if not rep.waits:
+                rep.main_cpu_at_wait = time.process_time()
+            why = helper.wait_for(name[len(_WAIT) :], t0 + timeout_s)
+            rep.waits[name[len(_WAIT) :]] = time.perf_counter() - t_wait
+            if why:
+                rep.helper_failed = why
+                helper = None
+    rep.waited_s = sum(rep.waits.values())
+    if started is not None:
+        rep.helper_s = dict(started.ready)
+        rep.helper_cpu = dict(started.ready_cpu)
+    rep.total_s = time.perf_counter() - t0
     global _LAST
-    _LAST = (rep, helper)
+    _LAST = (rep, started)
     return rep
 
 

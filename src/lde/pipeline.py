@@ -21,6 +21,10 @@ replay calls it per chunk of a log with the anchored grid (or a recording's step
 :class:`lde.engine.Engine` and survives between calls, so a log cut into chunks, or a live run step
 by step, gives the same rows as one call over everything.
 
+The frame's and the step's work around the backend step are compiled functions of their own
+(:func:`feed_frame`, :func:`sample_inputs`, :func:`step_outputs`), shared by every backend's loop:
+a cold start compiles them beside the step on a second core (:mod:`lde.coldstart`).
+
 The backend step (``step(bp, bs, t_ns, inputs, fresh, mdps_ok, esc_ok, out) -> status``: the
 sampled SI inputs, a bit mask of the inputs that brought a new sample since the previous step, the
 groups' validity; ``out`` the ``O_*`` slots) is bound into its own compiled copy of the loop by
@@ -53,6 +57,7 @@ from .grid import (
     grid_step_done,
 )
 from .overlay import LP_GAIN, LS_STATE, overlay_kernel
+from .refcount import NO_REFCOUNT
 from .signals import (
     I_COLUMN_TORQUE,
     I_SPEED,
@@ -166,6 +171,85 @@ def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cov
         counters[j] = advance_counter(counters[j], m_mod[j], m_inv[j])
 
 
+# --- the loop's parts, each its own compiled (cached) function -------------------------------------
+# They are shared by every backend's loop and do not depend on the backend step, so a cold start
+# compiles them in its helper process (lde.coldstart) while this process compiles the step; the
+# loop then only types three calls (its own compile: about a third). LLVM still sees their code
+# when it optimises the loop's module (numba links a callee's module into its caller's).
+# Without numba's reference counting (lde.refcount): it would incref and decref every array
+# argument of a call (about 30 here, the tables are tuples of arrays) on each call: +13 % (fixed) /
+# +30 % (float) engine CPU per hour measured with them as plain calls (docs/startup.md).
+
+
+@njit(cache=True, **NO_REFCOUNT)
+def feed_frame(tb, st, g, t_ns, can_id, is_ext, dlc, w_le, anchor, used_since):  # pragma: no cover
+    """One received frame (time ``t_ns`` [ns]): the receiver (:func:`lde.signals.rx_feed`), the
+    count of accepted input frames since the previous step, the grid (:func:`lde.grid.grid_frame`;
+    ``anchor``: the row of the anchor message)."""
+    m, code = rx_feed(tb, st, t_ns, can_id, is_ext, dlc, w_le)
+    accepted = code >= 0 and st[0][m, S_ACCEPTED] != 0
+    if accepted:
+        used_since[0] += 1
+    grid_frame(g, t_ns, m >= 0, m == anchor and accepted)
+
+
+@njit(cache=True, **NO_REFCOUNT)
+def sample_inputs(tb, st, tk, vin, age, prev_t):  # pragma: no cover - compiled
+    """The inputs at step time ``tk`` [ns] into ``vin`` (SI) and ``age`` [ns]
+    (:func:`lde.signals.rx_sample`). Returns (valid mask, fresh mask: the inputs that brought a new
+    sample since the previous step at ``prev_t[0]``, which becomes ``tk``; mdps ok, esc ok)."""
+    mask, ok_m, ok_e = rx_sample(tb, st, tk, vin, age)
+    fresh = 0
+    for q in range(vin.shape[0]):
+        if age[q] >= 0 and tk - age[q] > prev_t[0]:
+            fresh |= 1 << q
+    prev_t[0] = tk
+    return mask, np.int64(fresh), bool(ok_m), bool(ok_e)
+
+
+@njit(cache=True, **NO_REFCOUNT)
+def step_outputs(
+    lp, lsi, lsf, otab, counters, tk, est, status, enable, vin, encode, frames_row, vals, scratch
+):  # pragma: no cover - compiled
+    """After the backend step at ``tk`` [ns] (``est``: its ``O_*`` slots, ``status`` its bits): the
+    overlay law and limiter, the finalisation, the output values ``vals`` (``V_*``) and, when
+    ``encode``, the output frames into ``frames_row`` (one row per output message). Returns
+    (torque [Nm], status, limiter state)."""
+    gain = est[O_GAIN]
+    if math.isfinite(gain) and gain > 0.0:  # the backend's learned tires (else the vehicle file's)
+        lp[LP_GAIN] = gain
+    torque = overlay_kernel(
+        lp,
+        lsi,
+        lsf,
+        tk,
+        est[O_FW],
+        est[O_MW],
+        status,
+        vin[I_SPEED],
+        vin[I_STEERING_ANGLE],
+        vin[I_COLUMN_TORQUE],
+        enable,
+    )
+    torque, status = finalise(est, torque, status)
+    state = lsi[LS_STATE]
+    vals[V_FW] = est[O_FW]
+    vals[V_MW] = est[O_MW]
+    vals[V_T_ALIGN] = est[O_T_ALIGN]
+    vals[V_STATUS] = status
+    vals[V_T_OVERLAY] = torque
+    vals[V_ACTIVE] = 1.0 if (state == 1 or state == 2) else 0.0
+    vals[V_STATE] = state
+    # the wind / bank split and the learned state (0 on the bus where a backend has none)
+    vals[V_FW_WIND] = est[O_FW_WIND] if math.isfinite(est[O_FW_WIND]) else 0.0
+    vals[V_MW_WIND] = est[O_MW_WIND] if math.isfinite(est[O_MW_WIND]) else 0.0
+    vals[V_BANK_DEG] = est[O_BANK] / DEG if math.isfinite(est[O_BANK]) else 0.0
+    vals[V_LEARN] = est[O_LEARN]
+    if encode:
+        _encode_outputs(otab, vals, counters, frames_row, scratch)
+    return torque, status, state
+
+
 #: the backend's compiled step inside a specialised loop (:func:`make_loop` binds it)
 STEP: Any = None
 
@@ -248,51 +332,16 @@ def _run_loop(
                 if ex_extra.shape[0] > j:
                     extra = ex_extra[j]
             vin = o_in[n]
-            age = o_age[n]
-            mask, ok_m, ok_e = rx_sample(tb, st, tk, vin, age)
-            # fresh: input i brought a new sample since the previous step
-            fresh = 0
-            for q in range(vin.shape[0]):
-                if age[q] >= 0 and tk - age[q] > prev_t[0]:
-                    fresh |= 1 << q
-            prev_t[0] = tk
             est = o_est[n]
-            # np.int64 / bool: numba types the call while the loop's types are still partial (fresh
-            # as the literal 0, the flags as literal True) and would compile the step once more for them
-            status = STEP(bp, bs, tk, vin, np.int64(fresh), bool(ok_m), bool(ok_e), est)
+            mask, fresh, ok_m, ok_e = sample_inputs(tb, st, tk, vin, o_age[n], prev_t)
+            status = STEP(bp, bs, tk, vin, fresh, ok_m, ok_e, est)
             status |= extra
-            gain = est[O_GAIN]
-            if math.isfinite(gain) and gain > 0.0:  # the backend's learned tires (else the vehicle file's)
-                lp[LP_GAIN] = gain
-            torque = overlay_kernel(
-                lp,
-                lsi,
-                lsf,
-                tk,
-                est[O_FW],
-                est[O_MW],
-                status,
-                vin[I_SPEED],
-                vin[I_STEERING_ANGLE],
-                vin[I_COLUMN_TORQUE],
-                enable,
-            )
-            torque, status = finalise(est, torque, status)
-            state = lsi[LS_STATE]
-            vals[V_FW] = est[O_FW]
-            vals[V_MW] = est[O_MW]
-            vals[V_T_ALIGN] = est[O_T_ALIGN]
-            vals[V_STATUS] = status
-            vals[V_T_OVERLAY] = torque
-            vals[V_ACTIVE] = 1.0 if (state == 1 or state == 2) else 0.0
-            vals[V_STATE] = state
-            # the wind / bank split and the learned state (0 on the bus where a backend has none)
-            vals[V_FW_WIND] = est[O_FW_WIND] if math.isfinite(est[O_FW_WIND]) else 0.0
-            vals[V_MW_WIND] = est[O_MW_WIND] if math.isfinite(est[O_MW_WIND]) else 0.0
-            vals[V_BANK_DEG] = est[O_BANK] / DEG if math.isfinite(est[O_BANK]) else 0.0
-            vals[V_LEARN] = est[O_LEARN]
-            if encode:
-                _encode_outputs(otab, vals, counters, o_frames[n], scratch)
+            # np.int64 / bool: numba types a call while the loop's types are still partial (the
+            # literal 0 or True of their first assignment) and would compile the callee once more
+            torque, status, state = step_outputs(
+                lp, lsi, lsf, otab, counters, tk, est, np.int64(status), bool(enable), vin, encode,
+                o_frames[n], vals, scratch,
+            )  # fmt: skip
             o_t[n] = tk
             o_status[n] = status
             o_tov[n] = torque
@@ -311,11 +360,8 @@ def _run_loop(
             break
         if g[G_MODE] == MODE_EXPLICIT and g[G_K] >= explicit.shape[0]:
             break  # no step left: later frames wait for the steps they belong to (time order)
-        m, code = rx_feed(tb, st, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), words[i])
-        accepted = code >= 0 and e2e[m, S_ACCEPTED] != 0
-        if accepted:
-            used_since[0] += 1
-        grid_frame(g, t[i], m >= 0, m == anchor and accepted)
+        w = words[i]
+        feed_frame(tb, st, g, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), w, anchor, used_since)
         i += 1
     return i, n
 
