@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from lde.jitcache import STAMP_NAME, drop_stale, sources_stamp
+from lde.jitcache import STAMP_NAME, drop_stale, sources_digest, sources_stamp
 
 CALLEE = """
 from numba import njit
@@ -84,9 +84,13 @@ def test_drop_stale_keeps_a_cache_whose_sources_did_not_change(tmp_path, monkeyp
     for name in ("caller.run-5.py311.nbi", "caller.run-5.py311.1.nbc"):
         (cdir / name).write_bytes(b"x")
     assert drop_stale([pkg]) == 2  # no stamp yet: whatever is there may be stale
-    assert (cdir / STAMP_NAME).read_text() == sources_stamp([pkg])
+    assert (cdir / STAMP_NAME).read_text() == f"{sources_stamp([pkg])} {sources_digest([pkg])}"
     (cdir / "caller.run-5.py311.nbi").write_bytes(b"x")
     assert drop_stale([pkg]) == 0 and (cdir / "caller.run-5.py311.nbi").exists()
+    # touched, same content (a checkout; the tree seen through user-mode Linux's hostfs): kept
+    _bump(pkg / "callee.py", (pkg / "callee.py").read_text())
+    assert drop_stale([pkg]) == 0 and (cdir / "caller.run-5.py311.nbi").exists()
+    assert (cdir / STAMP_NAME).read_text().split()[0] == sources_stamp([pkg])
     _bump(pkg / "callee.py", textwrap.dedent(CALLEE.format(v=3)))
     assert drop_stale([pkg]) == 1 and not (cdir / "caller.run-5.py311.nbi").exists()
 
