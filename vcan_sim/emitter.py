@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
+from lde.clock import MonotonicClock
 from lde.codec import MessageCodec, MessageEncoder, encode_frames, si_to_dbc
 from lde.frames import FrameBatch, ns_to_seconds
 from lde.profiles import Profile
@@ -295,6 +296,7 @@ def pump(
     benchmark's decomposition of the live loop's period error, ``bench/bench_loop.py --trace``).
     """
     st = PumpStats()
+    clock = MonotonicClock(spin_ns=round(spin_s * 1e9))  # sleep, then spin the last spin_s
     # what exists now (modules, DBC objects, the schedules) leaves the collector's view: a full
     # collection during the run then scans only what the run allocates (a full scan of everything
     # takes tens of ms on a slow CPU, longer than the MDPS frame's timeout)
@@ -339,10 +341,7 @@ def pump(
                 due = wall0 + t_rel
                 wait = due - now
                 if wait > 0:
-                    if wait > spin_s:
-                        time.sleep(wait - spin_s)  # a timed sleep: no frame on the bus wakes it
-                    while time.monotonic() < due:  # the last spin_s: the sleep's wake-up is too coarse
-                        pass
+                    clock.sleep_until(round(due * 1e9))  # a timed sleep: no frame on the bus wakes it
                 elif -wait > MAX_LAG_S:  # move the schedule: no burst of stale frames
                     st.slips += 1
                     st.slipped_s += -wait

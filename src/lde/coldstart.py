@@ -207,11 +207,9 @@ def loop_fields() -> tuple[Any, ...]:
 
 def _loop_args() -> None:
     """The constructor of the loop's fixed arrays (:func:`lde.loopargs.loop_arrays`)."""
-    from numba import typeof
-
     from . import loopargs
 
-    loopargs._new.compile(tuple(typeof(v) for v in loop_fields()))
+    loopargs._new.compile(_part_types())
 
 
 def _part_types() -> tuple[Any, ...]:

@@ -563,9 +563,7 @@ class Service:
                 self._make_due(tk)
             r = lock_anchor(lock, t_rx)
         if r:
-            self._due.append(t_rx)
-            if self._last_due is None or t_rx > self._last_due:
-                self._last_due = t_rx
+            self._make_due(t_rx)
 
     def _make_due(self, t_k: int) -> None:
         self._due.append(t_k)
