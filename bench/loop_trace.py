@@ -25,6 +25,7 @@ and, from the simulator's own trace (``lde sim --send-trace``), what comes befor
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 
@@ -123,9 +124,18 @@ def decompose(d: dict[str, np.ndarray]) -> dict[str, object]:
 
 
 def main(argv: list[str]) -> int:
-    for path in argv:
-        with np.load(path) as z:
-            print(json.dumps({"file": path, **decompose(dict(z))}))
+    ap = argparse.ArgumentParser(
+        description="The live loop's period error taken apart (JSON, one line per trace)."
+    )
+    ap.add_argument("traces", nargs="+", metavar="F.npz", help="written by bench_loop.py --trace")
+    args = ap.parse_args(argv)
+    for path in args.traces:
+        try:
+            with np.load(path) as z:
+                tr = dict(z)
+        except (OSError, ValueError) as exc:
+            ap.error(f"{path}: not a readable trace ({exc})")
+        print(json.dumps({"file": path, **decompose(tr)}))
     return 0
 
 
