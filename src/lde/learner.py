@@ -94,8 +94,8 @@ N_SIG = 7
  L_TORSION, L_B_TAU, L_B_GATE, L_D_TAU, L_D_GATE_F, L_D_GATE_M, L_RATE,
  L_LEARNED_REL, L_MIN_SAMPLES, L_SIG_B, L_ENABLE, L_RELAX, L_EXC_SW, L_SLIDE, L_SLOW,
  L_QUIET, L_EXC_F, L_SIG_CTB, L_SIGMA0, L_WIND_MAX, L_WIND_REL, L_WIND_SIG,
- L_WIND_Q, L_EXC_SW3, L_R3_ACC, L_JP3, L_CP3, L_W_PIN, L_RK_ALL) = range(45)  # fmt: skip
-N_LP = 45
+ L_WIND_Q, L_EXC_SW3, L_R3_ACC) = range(41)  # fmt: skip
+N_LP = 41
 
 # --- learner state (ls, float) -----------------------------------------------------------------------
 # svf: 3 * N_SIG (value, derivative, second derivative); then regression blocks
@@ -125,9 +125,7 @@ LS_RLP = LS_BP + 6  # 2 s low-pass of the yaw rate minus the bias (the anchor te
 LS_HI = LS_RLP + 1  # heading integral since the last anchor, int (r - b) dt [rad]
 LS_HT = LS_HI + 1  # time since the last anchor [s]; < 0: no window open (waiting for an anchor)
 LS_AC = LS_HT + 1  # how long the anchor condition has held [s]
-LS_PIN = LS_AC + 1  # fast SVF of the pinion angle (value, rate, acceleration)
-LS_RK = LS_PIN + 3  # the learner's SVF of the rack's inertia and damping torque N (J w' + c w) (R3 only)
-N_LS = LS_RK + 3
+N_LS = LS_AC + 1
 
 ST_NOT, ST_LEARNING, ST_LEARNED = 0, 1, 2
 
@@ -208,12 +206,6 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     # measured aligning torque carries the rack's damping and inertia (a lead that grows with the
     # steering's acceleration), which R3 does not model; off (inf)
     lp[L_R3_ACC] = math.inf
-    # a generic rack below the torsion bar (inertia [kg m^2], viscous damping [Nm s/rad], referred to
-    # the steering column), taken out of the aligning torque's rate in R3 only; off (0)
-    lp[L_JP3] = 0.0
-    lp[L_CP3] = 0.0
-    lp[L_W_PIN] = 2.0 * math.pi * 15.0  # the pinion angle's SVF [rad/s]
-    lp[L_RK_ALL] = 0.0  # 1: take the same rack torque out of R1's and R2's aligning torque as well
     return lp
 
 
@@ -316,8 +308,9 @@ def _project_bound(ls, toff, poff, n, i, lo, hi):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def _svf(ls, o, u, w, zeta, dt):  # pragma: no cover - compiled
-    """y'' = w^2 (u - y) - 2 zeta w y' (semi-implicit Euler); stores y, y', y'' at ls[o:o+3]."""
+def _svf(ls, k, u, w, zeta, dt):  # pragma: no cover - compiled
+    """y'' = w^2 (u - y) - 2 zeta w y' (semi-implicit Euler); stores y, y', y''."""
+    o = LS_SVF + 3 * k
     y = ls[o]
     yd = ls[o + 1]
     ydd = w * w * (u - y) - 2.0 * zeta * w * yd
@@ -347,11 +340,7 @@ def learner_step(
         return False
     T = n * (tcol + tast)
     u = (yaw, ay, T, zfric, angle, tcol, vx)
-    pin = angle - p[E.P_CTB] * tcol
     if ls[LS_INIT] == 0.0:
-        for i in range(3):
-            ls[LS_PIN + i] = pin if i == 0 else 0.0
-            ls[LS_RK + i] = 0.0
         for k in range(N_SIG):
             ls[LS_SVF + 3 * k] = u[k]
             ls[LS_SVF + 3 * k + 1] = 0.0
@@ -365,10 +354,7 @@ def learner_step(
         ls[LS_WARM] = 0.0
     w, zeta = lp[L_W], lp[L_ZETA]
     for k in range(N_SIG):
-        _svf(ls, LS_SVF + 3 * k, u[k], w, zeta, dt)
-    if lp[L_JP3] != 0.0 or lp[L_CP3] != 0.0:
-        _svf(ls, LS_PIN, pin, lp[L_W_PIN], zeta, dt)
-        _svf(ls, LS_RK, n * (lp[L_JP3] * ls[LS_PIN + 2] + lp[L_CP3] * ls[LS_PIN + 1]), w, zeta, dt)
+        _svf(ls, k, u[k], w, zeta, dt)
     ls[LS_WARM] += dt
     o = LS_SVF
     r_f, r_d = ls[o + 3 * S_R], ls[o + 3 * S_R + 1]
@@ -438,8 +424,8 @@ def learner_step(
             tfric = p[E.P_TFRIC]
             # R3: a_y = s X0 - (s/K) X1 - (s tau/K) X2 + (s N Tfric/(2K)) Xz - (s c_tb) Xtb + c3
             xr[0] = v_f * a_d / n - lf * r_d + v_f * (r_f - p[E.P_BR])
-            xr[1] = -v_f * (T_d - ls[LS_RK + 1]) / 2.0
-            xr[2] = -v_f * (T_dd - ls[LS_RK + 2]) / 2.0
+            xr[1] = -v_f * T_d / 2.0
+            xr[2] = -v_f * T_dd / 2.0
             xr[3] = v_f * z_d
             xr[4] = -v_f * tc_d / n
             xr[5] = 1.0
@@ -455,7 +441,7 @@ def learner_step(
             cascade = 0.15 * lp[L_MIN_SAMPLES]
             # R1: Iz r_dot + lr m a_y / s = (L/t) T_true + c1   (c1 = lr F_wind/s + M_wind - ...)
             s = p[E.P_S]
-            T_true = T_f - n * tfric * z_f - p[E.P_T0] - lp[L_RK_ALL] * ls[LS_RK]
+            T_true = T_f - n * tfric * z_f - p[E.P_T0]
             xr[0] = T_true
             xr[1] = 1.0
             if ls[LS_N + 1] > cascade and excited:
