@@ -199,12 +199,13 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     # minus its 3 s low-pass); 1-16 alike on the zoo, 0 is the learner before (docs/estimator.md,
     # "The wind's onset")
     lp[L_WIND_Q] = 4.0
-    # R3's own steering-rate gate [rad/s road-wheel RMS]; the same as R1's (L_EXC_SW) unless set
-    # (docs/estimator.md, "K and the twist: what splits them")
-    lp[L_EXC_SW3] = lp[L_EXC_SW]
+    # R3's own steering-rate gate [rad/s road-wheel RMS]; < 0: R1's (L_EXC_SW), as shipped (0.25 and
+    # 0.1 deg/s were worse on the zoo: docs/estimator.md, "K and the twist: what splits them")
+    lp[L_EXC_SW3] = -1.0
     # R3's residual variance grows by (road-wheel angle acceleration / this [rad/s^2])^2: the
     # measured aligning torque carries the rack's damping and inertia (a lead that grows with the
-    # steering's acceleration), which R3 does not model; off (inf)
+    # steering's acceleration), which R3 does not model; off (inf): 1 deg/s^2 learns the twist and K
+    # nearer the truth but was not better on both plant sets (docs/estimator.md, same section)
     lp[L_R3_ACC] = math.inf
     return lp
 
@@ -414,7 +415,8 @@ def learner_step(
         if lp[L_WIND_REL] < math.inf:
             force_exc = force_exc and abs(ls[LS_BP + 3]) < lp[L_WIND_REL] * math.sqrt(ls[LS_BP + 4])
         excited = force_exc and ls[LS_EXC] > lp[L_EXC_SW] ** 2
-        excited3 = force_exc and ls[LS_EXC] > lp[L_EXC_SW3] ** 2
+        gate3 = lp[L_EXC_SW3] if lp[L_EXC_SW3] >= 0.0 else lp[L_EXC_SW]
+        excited3 = force_exc and ls[LS_EXC] > gate3**2
         xr = ws[0]
         ph = ws[1]
         sliding = abs(a_d) > lp[L_SLIDE]
