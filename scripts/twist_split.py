@@ -11,7 +11,7 @@ the information those samples added (``P_end^-1 - P_0^-1``; the random walks of 
 it approximate). The compliance that the two share, per unit of the aligning torque at the drive's
 typical ``T_col / T``, is printed as well: collinear regressors fix that sum, the prior the split.
 
-    PYTHONPATH=src:. python scripts/twist_split.py --plants angle_above_tb,indep_twin --hooks ",L_SIG_CTB=0.15*DEG"
+    PYTHONPATH=src:. python scripts/twist_split.py --plants angle_above_tb --hooks ";L_SIG_CTB=0.1*DEG"
 """
 
 from __future__ import annotations
@@ -88,7 +88,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--plants", default="indep_twin,tires_minus25,suv_slow,angle_above_tb")
     ap.add_argument("--profiles", default="hyundai")
-    ap.add_argument("--hooks", default="", help="';'-separated hook specs (tune_zoo --hook form); '' = shipped")
+    ap.add_argument("--hooks", default="", help="';'-separated tune_zoo --hook specs; '' = shipped")
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
     print(
