@@ -94,8 +94,8 @@ N_SIG = 7
  L_TORSION, L_B_TAU, L_B_GATE, L_D_TAU, L_D_GATE_F, L_D_GATE_M, L_RATE,
  L_LEARNED_REL, L_MIN_SAMPLES, L_SIG_B, L_ENABLE, L_RELAX, L_EXC_SW, L_SLIDE, L_SLOW,
  L_QUIET, L_EXC_F, L_SIG_CTB, L_SIGMA0, L_WIND_MAX, L_WIND_REL, L_WIND_SIG,
- L_WIND_Q) = range(39)  # fmt: skip
-N_LP = 39
+ L_WIND_Q, L_EXC_SW3, L_R3_ACC) = range(41)  # fmt: skip
+N_LP = 41
 
 # --- learner state (ls, float) -----------------------------------------------------------------------
 # svf: 3 * N_SIG (value, derivative, second derivative); then regression blocks
@@ -199,6 +199,14 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     # minus its 3 s low-pass); 1-16 alike on the zoo, 0 is the learner before (docs/estimator.md,
     # "The wind's onset")
     lp[L_WIND_Q] = 4.0
+    # R3's own steering-rate gate [rad/s road-wheel RMS]; < 0: R1's (L_EXC_SW), as shipped (0.25 and
+    # 0.1 deg/s were worse on the zoo: docs/estimator.md, "K and the twist: what splits them")
+    lp[L_EXC_SW3] = -1.0
+    # R3's residual variance grows by (road-wheel angle acceleration / this [rad/s^2])^2: the
+    # measured aligning torque carries the rack's damping and inertia (a lead that grows with the
+    # steering's acceleration), which R3 does not model; off (inf): 1 deg/s^2 learns the twist and K
+    # nearer the truth but was not better on both plant sets (docs/estimator.md, same section)
+    lp[L_R3_ACC] = math.inf
     return lp
 
 
@@ -407,6 +415,8 @@ def learner_step(
         if lp[L_WIND_REL] < math.inf:
             force_exc = force_exc and abs(ls[LS_BP + 3]) < lp[L_WIND_REL] * math.sqrt(ls[LS_BP + 4])
         excited = force_exc and ls[LS_EXC] > lp[L_EXC_SW] ** 2
+        gate3 = lp[L_EXC_SW3] if lp[L_EXC_SW3] >= 0.0 else lp[L_EXC_SW]
+        excited3 = force_exc and ls[LS_EXC] > gate3**2
         xr = ws[0]
         ph = ws[1]
         sliding = abs(a_d) > lp[L_SLIDE]
@@ -421,8 +431,9 @@ def learner_step(
             xr[3] = v_f * z_d
             xr[4] = -v_f * tc_d / n
             xr[5] = 1.0
-            if excited:
-                _rls(ls, LS_T3, LS_P3, N3, xr, ay_f, slow * lp[L_SIG3] ** 2, ph)
+            if excited3:
+                w3 = 1.0 + (ls[LS_SVF + 3 * S_DSW + 2] / (n * lp[L_R3_ACC])) ** 2
+                _rls(ls, LS_T3, LS_P3, N3, xr, ay_f, w3 * slow * lp[L_SIG3] ** 2, ph)
                 # a twist is >= 0: push clamps it there, so R3 must too, or K, s and the friction stay
                 # fitted to the negative twist the filter never uses (docs/estimator.md, "Twist bound")
                 _project_bound(ls, LS_T3, LS_P3, N3, 4, 0.0, ls[LS_T3] * CTB_MAX)
