@@ -316,7 +316,7 @@ def naive_replay(frames: FrameBatch, profile, vehicle, out: Path) -> int:
 def bench_replay_inproc(log: Path, mcap: Path, vehicle, profile, repeat: int, tmp: Path) -> dict:
     """In process (warm, no start-up): the hour through read -> engine -> CSV, CPU per stage (each
     stage's own thread CPU; the CSV written inline here, ``lde replay`` writes it from a thread
-    beside the engine; candump pieces are read one ahead in a thread, as ``lde replay`` reads them)."""
+    beside the engine; the pieces are read one ahead in a thread, as ``lde replay`` reads them)."""
     out: dict[str, Any] = {}
     for label, path in (("candump", log), ("mcap", mcap)):
         for backend in ("fixed", "float"):
@@ -351,7 +351,7 @@ def bench_replay_inproc(log: Path, mcap: Path, vehicle, profile, repeat: int, tm
                     backend,
                     sinks=(sink,),
                     output_frames=False,
-                    read_ahead=li.stream.mcap is None,  # as lde replay reads it
+                    read_ahead=True,  # as lde replay reads it
                 )
                 csvw.close()
                 li.stream.close()
