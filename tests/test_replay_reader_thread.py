@@ -17,8 +17,8 @@ import pytest
 from mcap_util import chunk_spans
 
 from lde.cli import main
-from lde.errors import LogFormatError
 from lde.engine import StepBlock
+from lde.errors import LogFormatError
 from lde.frames import FrameBatch
 from lde.logio import McapWriter, read_log
 from lde.params import load_vehicle
