@@ -5,8 +5,8 @@
     python bench/pyspy_phases.py F.txt [--rate 500]
 
 Each sample of the main thread goes to the first phase whose marker is on its stack (the engine's
-compiled loop, numba's first load of a cached kernel through its BLAS check, the other kernel and
-registry loads, imports, reading the log, the CSV hand-off); samples of the reader and CSV threads
+compiled loop, numba's array registry with its BLAS check, the other kernel and registry loads,
+imports, reading the log, the CSV hand-off); samples of the reader and CSV threads
 are counted apart. Shares are of the main thread's samples: compare them between runs, not the
 seconds of a loaded machine.
 """
@@ -20,7 +20,8 @@ import sys
 #: (phase, markers): the first phase with a marker on the stack takes the sample
 PHASES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("engine: the compiled data-path loop", ("run_arrays",)),
-    ("numba's first load: scipy.linalg through its BLAS check", ("_check_blas",)),
+    # numba's array registry, which lde.lazyblas loads up front (its BLAS check without scipy.linalg)
+    ("numba's array registry and its BLAS check", ("_check_blas", "arraymath.py")),
     ("numba: the other kernel and registry loads", ("load_overload", "compile (")),
     ("imports", ("_find_and_load",)),
     ("reading the log (in the main thread)", ("read_file", "iter_frames", "_walk", "_ordered")),

@@ -308,7 +308,7 @@ def run_replay(
     learned: str | Path | None = None,
     learned_start: str | None = None,
     stop: Callable[[], bool] | None = None,
-    read_ahead: bool | None = None,
+    read_ahead: bool = True,
 ) -> ReplaySummary:
     """Stream frames through the data path; every piece's rows go to each sink as
     ``sink(piece, rows)``, the steps after the log's last frame with an empty piece.
@@ -323,12 +323,13 @@ def run_replay(
     from (its recording's ``learned_start``): used by a learning backend when ``learned`` names no
     existing file, so that the recording replays to the live estimates. ``stop``: asked after
     every piece; True ends the replay there (SIGINT / SIGTERM: the sinks have every row so far
-    and can be closed; :attr:`ReplaySummary.stopped`). ``read_ahead``: an iterable of pieces is read
-    in a thread one piece ahead of the engine (:class:`lde.logio.stream.ReadAhead`; the timing
-    ``read`` is then the time the engine waited for a piece); None (default): for every log but an
-    MCAP file (:class:`lde.logio.LogStream` with ``mcap``), whose chunk in flight (~9 MiB: the
-    decompressed 4 MB chunk and its frame columns) took a 10-hour log's peak RSS from 247 to 256 MiB,
-    over issue 12's 250, for about 0.1 s of reading per hour. Other arguments as :func:`replay`.
+    and can be closed; :attr:`ReplaySummary.stopped`). ``read_ahead`` (default True): an iterable of
+    pieces is read in a thread one piece ahead of the engine (:class:`lde.logio.stream.ReadAhead`: a
+    candump block parsed, an MCAP chunk decompressed and walked on the other core; the timing
+    ``read`` is then the time the engine waited for a piece; an error of the reader is raised here
+    after the pieces before it). The piece in flight costs an MCAP replay about 10 MiB of peak RSS
+    (the decompressed chunk and its columns), paid for by scipy.linalg no longer being loaded
+    (:mod:`lde.lazyblas`, about 20 MiB). Other arguments as :func:`replay`.
     """
     name = DEFAULT_BACKEND if backend is None else backend
     t0 = time.perf_counter()
@@ -345,8 +346,8 @@ def run_replay(
     ahead: ReadAhead[FrameBatch] | None = None
     if isinstance(frames, FrameBatch):
         pieces: Iterable[FrameBatch] = split(frames.sort(), chunk_frames)
-    elif read_ahead or (read_ahead is None and getattr(frames, "mcap", None) is None):
-        # the next piece is read (parsed) while the engine runs this one
+    elif read_ahead:
+        # the next piece is read (parsed, decompressed) while the engine runs this one
         pieces = ahead = ReadAhead(frames)
     else:
         pieces = frames

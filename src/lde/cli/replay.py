@@ -266,6 +266,9 @@ def _run(args: argparse.Namespace, resume_gc: Callable[[], None]) -> int:
         from ..coldstart import start_helper
 
         helper = start_helper(args.backend)  # compiles part of the data path on the other core
+    from ..lazyblas import defer_blas_import
+
+    defer_blas_import()  # numba's BLAS check without importing scipy.linalg (0.2-0.45 s)
 
     from ..fleet import ReplayJob, run_jobs, summary_table
     from ..logio import REORDER_WINDOW_NS
