@@ -51,17 +51,19 @@ def defer_blas_import() -> bool:
     import numba  # noqa: F401 - numba's own start-up first, in its order
     import numba.np.linalg as nplinalg
 
-    real = nplinalg.ensure_blas
+    real = getattr(nplinalg, "ensure_blas", None)
     width_check = getattr(nplinalg, "_check_lapack_int_width", None)
+    if real is None or width_check is None:  # another numba (the dependency is not pinned): its own check
+        return False
 
     def ensure_blas_on_disk() -> None:
-        if width_check is not None:
-            width_check()  # reads scipy.__config__ only
+        width_check()  # reads scipy.__config__ only
 
     nplinalg.ensure_blas = ensure_blas_on_disk
     try:
         import numba.np.arraymath as arraymath
     finally:
         nplinalg.ensure_blas = real
-    arraymath.ensure_blas = real  # bound by its `from numba.np.linalg import ensure_blas`
-    return bool(arraymath._HAVE_BLAS)
+    if getattr(arraymath, "ensure_blas", None) is ensure_blas_on_disk:
+        arraymath.ensure_blas = real  # bound by its `from numba.np.linalg import ensure_blas`
+    return bool(getattr(arraymath, "_HAVE_BLAS", False))
