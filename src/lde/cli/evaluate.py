@@ -13,7 +13,8 @@ plant's spec sheet (mass, yaw inertia, lf, lr, tread, ratio on the generic defau
 Writes OUT/zoo_runs.csv (every run), OUT/zoo_table.csv and OUT/zoo_table.md (a row per plant x
 profile x backend x mode, a summary line per target, wind force, bank angle, payload about both CGs)
 and OUT/spec_sheets/. ``--modes cold,warm`` (the default): cold runs with the spec sheet only; warm
-first replays an earlier drive of the same car with ``--learned S`` and then the run with it. A
+first replays an earlier drive of the same car with ``--learned S`` and then the run with it
+(``--prior A,B``: which drives, each its own mode ``warm after NAME``; default ``prior_drive``). A
 payload plant also runs with the spec sheet plus the load (``PLANT + load`` rows).
 ``--readme README.md --doc docs/study.md`` (full run only) write the summary and the tables between
 the files' two marker comments (``lde evaluate --zoo: begin`` and ``end``).
