@@ -302,3 +302,86 @@ def test_a_disturbance_free_scenario_is_scored_by_rms_whatever_the_aero_side_for
     assert res.accuracy.rms_fw == pytest.approx(30.0) and res.accuracy.rms_mw == pytest.approx(5.0)
     disturbed = run_one(RunSpec("wind_step"), engine=engine)
     assert disturbed.accuracy.kind is metrics.Kind.FORCE_ONLY  # decided from the truth (no moment)
+
+
+# --- warm after other prior drives ------------------------------------------------------------------
+
+
+def test_warm_runs_once_per_prior_and_an_unknown_prior_is_refused():
+    specs = zoo.zoo_specs(
+        ["indep_twin"],
+        scenarios=("wind_step",),
+        profiles=("lde",),
+        backends=("float",),
+        modes=(zoo.Mode.COLD, zoo.Mode.WARM),
+        priors=("prior_drive", "slalom", "prior_drive"),
+    )
+    assert [s.est_options.learned_prior for s in specs] == [None, "prior_drive", "slalom"]
+    with pytest.raises(ConfigError, match="unknown prior scenario.*no_such_drive"):
+        zoo.zoo_specs(["indep_twin"], mode=zoo.Mode.WARM, priors=("no_such_drive",))
+    # another prior keeps its own run directory
+    names = {str(cli_engine.run_dir_name(s)) for s in specs}
+    assert names == {
+        "indep_twin/lde-float/wind_step-s0",
+        "indep_twin/lde-float/wind_step-s0-warm",
+        "indep_twin/lde-float/wind_step-s0-warm-slalom",
+    }
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--prior", "no_such_drive"], "lde: error: unknown prior scenario(s) no_such_drive"),
+        (["--modes", "cold", "--prior", "slalom"], "lde: error: --prior applies to warm runs"),
+        (
+            ["--prior", "slalom", "--readme", "README.md"],
+            "lde: error: --readme/--doc write the full zoo table",
+        ),
+    ],
+)
+def test_evaluate_prior_errors_are_one_line(capsys, tmp_path, argv, message):
+    code = main(["evaluate", "--zoo", "--plants", "indep_twin", "--out", str(tmp_path), *argv])
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(message)
+
+
+def test_evaluate_without_zoo_refuses_prior(capsys):
+    assert main(["evaluate", "--prior", "slalom"]) == 2
+    assert "--prior" in capsys.readouterr().err
+
+
+def _warm(res, prior):
+    spec = RunSpec(**{**res.spec.__dict__, "est_options": EstOptions(learned_prior=prior)})
+    return RunResult(spec, res.accuracy, res.error)
+
+
+def test_tables_and_summary_report_each_prior_apart():
+    D = metrics.Kind.DISTURBED
+    cold = _res("indep_twin", "wind_step", _acc(D, 0.06, 0.08))
+    shipped = _warm(_res("indep_twin", "wind_step", _acc(D, 0.04, 0.03)), zoo.PRIOR_SCENARIO)
+    slalom = _warm(_res("indep_twin", "wind_step", _acc(D, 0.09, 0.07)), "slalom")
+    results = [slalom, cold, shipped]
+    assert [zoo.mode_label(r) for r in results] == ["warm after slalom", "cold", "warm"]
+    rows = zoo.plant_table_rows(results)
+    assert [(r["mode"], r["prior"], r["targets_met"]) for r in rows] == [
+        ("warm", "slalom", 0),
+        ("cold", "", 1),
+        ("warm", "prior_drive", 1),
+    ]
+    md = zoo.plant_table_markdown(results, extras=False).splitlines()
+    assert md[0] == "| plant | profile | mode | wind_step | met |"
+    assert md[2] == "| indep_twin | lde | warm after slalom | **9.0 / 7.0** | 0/1 |"
+    lines = zoo.summary_lines(results)
+    # cold, the shipped prior (as the README's lines have them), then the other prior
+    assert lines[0].startswith("cold, crosswind/bank scenarios") and "met in 1 of 1" in lines[0]
+    assert lines[1].startswith("warm, crosswind/bank scenarios, NRMSE <= 5 %") and "met in 1 of 1" in lines[1]
+    assert lines[2].startswith("warm after slalom, crosswind/bank scenarios, NRMSE <= 5 %")
+    assert "met in 0 of 1" in lines[2]
+    # the shipped prior's lines do not change when another prior is run beside it
+    assert zoo.summary_lines([cold, shipped]) == lines[:2]
+    from lde.study import zooreport
+
+    info = zooreport.RunInfo("cmd", 3, 1.0, 2, "m", 0.0, 0.0, "today")
+    doc = zooreport.doc_block(results, info)
+    assert doc.index("**Cold**") < doc.index("**Warm**") < doc.index("**Warm after slalom**")

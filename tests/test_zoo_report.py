@@ -75,7 +75,8 @@ def test_table_rows_carry_every_column():
     ]
     summary = ["targets_met", "runs", "wind_met", "wind_runs", "wind_worst", "bank_met", "bank_runs"]
     summary += ["bank_worst_deg", "learn_states"]
-    assert set(cold) == {"plant", "profile", "backend", "mode", *per_scenario, *summary}
+    assert set(cold) == {"plant", "profile", "backend", "mode", "prior", *per_scenario, *summary}
+    assert [r["prior"] for r in rows] == ["", zoo.PRIOR_SCENARIO, "", ""]
     assert cold["wind_step_fw"] == 0.08 and cold["wind_step_mw"] == 0.04
     assert (cold["lane_change_fw"], cold["lane_change_mw"]) == (50.0, 9.0)
     assert cold["wind_step_wind"] == 0.07 and math.isnan(cold["lane_change_wind"])

@@ -515,6 +515,19 @@ _LIST += [
         ),
         weave=Weave(t_start=28.0, amplitude=0.8, period=4.0, cycles=2),
     ),
+    Scenario(
+        "banked_lane_changes",
+        "no wind: 4 lane changes on a road banked 0 -> +3 -> -3 -> 0 deg, 90 km/h (a prior drive with bank)",
+        duration=60.0,
+        speed_kmh=90.0,
+        bank_deg=(Step(5.0, 3.0, 3.0), Step(30.0, 3.0, -3.0), Step(52.0, 3.0, 0.0)),
+        lane=(
+            Step(10.0, 4.0, 3.5),
+            Step(20.0, 4.0, 0.0),
+            Step(36.0, 3.5, -3.5),
+            Step(45.0, 3.5, 0.0),
+        ),
+    ),
 ]
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in _LIST}

@@ -51,6 +51,7 @@ from ..study.engine import (
 )
 from ..study.spec import SPEC_SHEET, SPEC_SHEET_LOADED, Estimate, Estimator, RunSpec
 from ..study.specsheet import write_spec_sheet
+from ..study.zoo import PRIOR_SCENARIO as PRIOR_DRIVE
 from . import main
 
 #: the prior drive of a warm run uses the run's seed + this (another drive of the same car)
@@ -104,8 +105,10 @@ def replay_argv(
 
 
 def run_dir_name(spec: RunSpec) -> Path:
-    """The run's directory below ``spec.work_dir``: plant/profile-backend/scenario-sSEED[-warm]."""
-    warm = "-warm" if spec.est_options.learned_prior else ""
+    """The run's directory below ``spec.work_dir``: plant/profile-backend/scenario-sSEED[-warm[-PRIOR]]
+    (``-PRIOR`` after another prior drive than the zoo's shipped one)."""
+    prior = spec.est_options.learned_prior
+    warm = "" if not prior else "-warm" if prior == PRIOR_DRIVE else f"-warm-{prior}"
     return (
         Path(plant_name(spec.sim_vehicle))
         / f"{spec.profile}-{spec.backend}"

@@ -13,7 +13,8 @@ plant's spec sheet (mass, yaw inertia, lf, lr, tread, ratio on the generic defau
 Writes OUT/zoo_runs.csv (every run), OUT/zoo_table.csv and OUT/zoo_table.md (a row per plant x
 profile x backend x mode, a summary line per target, wind force, bank angle, payload about both CGs)
 and OUT/spec_sheets/. ``--modes cold,warm`` (the default): cold runs with the spec sheet only; warm
-first replays an earlier drive of the same car with ``--learned S`` and then the run with it. A
+first replays an earlier drive of the same car with ``--learned S`` and then the run with it
+(``--prior A,B``: which drives, each its own mode ``warm after NAME``; default ``prior_drive``). A
 payload plant also runs with the spec sheet plus the load (``PLANT + load`` rows).
 ``--readme README.md --doc docs/study.md`` (full run only) write the summary and the tables between
 the files' two marker comments (``lde evaluate --zoo: begin`` and ``end``).
@@ -91,6 +92,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     z.add_argument("--warm", action="store_true", help="warm only (= --modes warm)")
     z.add_argument(
+        "--prior",
+        type=_csv_list,
+        metavar="A,B",
+        help="warm: the earlier drive(s) of the same car to learn on, each reported apart "
+        f"(scenario names, another seed than the scored drive; default {zoo.PRIOR_SCENARIO})",
+    )
+    z.add_argument(
         "--readme",
         type=Path,
         metavar="FILE",
@@ -126,12 +134,14 @@ def run(args: argparse.Namespace) -> int:
         or args.backends
         or args.warm
         or args.modes
+        or args.prior
         or args.keep_logs
         or args.readme
         or args.doc
     ):
         raise ConfigError(
-            "--plants, --profiles, --backends, --modes, --warm, --keep-logs, --readme and --doc need --zoo"
+            "--plants, --profiles, --backends, --modes, --warm, --prior, --keep-logs, --readme and --doc "
+            "need --zoo"
         )
     payloads = study.all_payloads() if args.all_payloads else tuple(args.payload or ("",))
     specs = study.evaluation_specs(
@@ -178,6 +188,9 @@ def run_zoo(args: argparse.Namespace) -> int:
     if args.workers is None:
         args.workers = 2
     modes = _modes(args)
+    priors = tuple(args.prior or (zoo.PRIOR_SCENARIO,))
+    if args.prior and zoo.Mode.WARM not in modes:
+        raise ConfigError("--prior applies to warm runs: add warm to --modes")
     profiles = args.profiles or ((args.profile,) if args.profile else zoo.PROFILES)
     backends = args.backends or ((args.backend,) if args.backend else zoo.BACKENDS)
     for b in backends:
@@ -193,6 +206,7 @@ def run_zoo(args: argparse.Namespace) -> int:
         backends=backends,
         seed=args.seed,
         modes=modes,
+        priors=priors,
         duration=args.duration,
         work_dir=str((out / "runs").resolve()) if args.keep_logs else "",
     )
@@ -269,6 +283,7 @@ def _check_full(
             ("--profiles/--profile", set(profiles) != set(zoo.PROFILES)),
             ("--backends/--backend", set(backends) != set(zoo.BACKENDS)),
             ("--modes/--warm", set(modes) != set(zoo.Mode)),
+            ("--prior", tuple(args.prior or (zoo.PRIOR_SCENARIO,)) != (zoo.PRIOR_SCENARIO,)),
             ("--seed", args.seed != 0),
             ("--duration", args.duration is not None),
         )
@@ -293,6 +308,7 @@ def _command(args: argparse.Namespace) -> str:
         ("--scenarios", _scenarios(args)),
         ("--profiles", args.profiles),
         ("--backends", args.backends),
+        ("--prior", args.prior),
     ):
         if val:
             parts.append(f"{flag} {','.join(val)}")

@@ -5,7 +5,9 @@ For every plant of :mod:`vcan_sim.zoo` x scenario x profile (``lde``, ``hyundai`
 spec-sheet vehicle file (:mod:`lde.cli.engine`), score the CSV against the truth
 (:mod:`lde.metrics`: NRMSE after 2 s; RMS on a disturbance-free drive; Mw about the true CG and
 about the spec sheet's CG). Cold: ``lde replay LOG``; warm: after ``lde replay PRIOR --learned S``
-on the plant's :data:`PRIOR_SCENARIO` with another seed (only a learning backend, ``lateral``, uses it).
+on the plant's prior drive with another seed (only a learning backend, ``lateral``, uses it): the
+shipped :data:`PRIOR_SCENARIO` by default, or any scenario (``priors``), each reported apart
+(:func:`mode_label`: ``warm`` for the default, ``warm after NAME`` otherwise).
 
 A plant that carries a payload is run twice: with its spec sheet (the unloaded car) and with the
 spec sheet plus the load (:data:`~lde.study.spec.SPEC_SHEET_LOADED`: the loaded car's mass, yaw
@@ -71,7 +73,12 @@ def plants() -> tuple[str, ...]:
     return plant_names()
 
 
-def check_selection(plant_list: Sequence[str], scenarios: Sequence[str], profiles: Sequence[str]) -> None:
+def check_selection(
+    plant_list: Sequence[str],
+    scenarios: Sequence[str],
+    profiles: Sequence[str],
+    priors: Sequence[str] = (PRIOR_SCENARIO,),
+) -> None:
     """ConfigError naming what does not exist (before any run starts)."""
 
     known = plants()
@@ -84,6 +91,11 @@ def check_selection(plant_list: Sequence[str], scenarios: Sequence[str], profile
     bad = [p for p in profiles if p not in PROFILES]
     if bad:
         raise ConfigError(f"unknown profile(s) {', '.join(bad)} (zoo profiles: {', '.join(PROFILES)})")
+    bad = [s for s in priors if s not in SCENARIOS]
+    if bad:
+        raise ConfigError(f"unknown prior scenario(s) {', '.join(bad)} (see lde sim --list)")
+    if not priors:
+        raise ConfigError("--prior needs at least one scenario")
 
 
 def zoo_specs(
@@ -97,16 +109,23 @@ def zoo_specs(
     work_dir: str = "",
     modes: Sequence[Mode] = (Mode.COLD,),
     load_signal: bool = True,
+    priors: Sequence[str] = (PRIOR_SCENARIO,),
 ) -> list[RunSpec]:
-    """One ``cli`` run per mode x plant x profile x backend x scenario (group = plant name; ``mode``
-    alone overrides ``modes``). With ``load_signal`` a payload plant also runs with the spec sheet
-    plus the load (:data:`SPEC_SHEET_LOADED`)."""
+    """One ``cli`` run per mode x plant x profile x backend x scenario, warm once per prior drive
+    in ``priors`` (group = plant name; ``mode`` alone overrides ``modes``). With ``load_signal`` a
+    payload plant also runs with the spec sheet plus the load (:data:`SPEC_SHEET_LOADED`)."""
     names = tuple(plant_list or plants())
-    check_selection(names, scenarios, profiles)
+    priors = tuple(dict.fromkeys(priors))
+    check_selection(names, scenarios, profiles, priors)
     loaded = _payload_plants(names) if load_signal else set()
     specs = []
+    ests = []
     for m in (mode,) if mode is not None else tuple(modes):
-        est = EstOptions(learned_prior=PRIOR_SCENARIO) if m is Mode.WARM else EstOptions()
+        if m is Mode.WARM:
+            ests += [EstOptions(learned_prior=pr) for pr in priors]
+        else:
+            ests.append(EstOptions())
+    for est in ests:
         for plant in names:
             sheets = (SPEC_SHEET, SPEC_SHEET_LOADED) if plant in loaded else (SPEC_SHEET,)
             for sheet in sheets:
@@ -134,6 +153,19 @@ def zoo_specs(
 def mode_of(r: RunResult) -> Mode:
     """Cold or warm (warm: the run learned on a prior drive first)."""
     return Mode.WARM if r.spec.est_options.learned_prior else Mode.COLD
+
+
+def prior_of(r: RunResult) -> str:
+    """The prior drive a warm run learned on ("" for a cold run)."""
+    return r.spec.est_options.learned_prior or ""
+
+
+def mode_label(r: RunResult) -> str:
+    """``cold``, ``warm`` (after the shipped :data:`PRIOR_SCENARIO`) or ``warm after NAME``."""
+    prior = prior_of(r)
+    if not prior:
+        return Mode.COLD.value
+    return Mode.WARM.value if prior == PRIOR_SCENARIO else f"{Mode.WARM.value} after {prior}"
 
 
 def load_known(r: RunResult) -> bool:
@@ -202,11 +234,11 @@ def cell(acc: metrics.Accuracy | None, payload: bool = False, file_cg_is_true: b
     return text
 
 
-RowKey = tuple[str, str, str, Mode]
+RowKey = tuple[str, str, str, str]
 
 
 def _row_key(r: RunResult) -> RowKey:
-    return (row_label(r), r.spec.profile, r.spec.backend, mode_of(r))
+    return (row_label(r), r.spec.profile, r.spec.backend, mode_label(r))
 
 
 def _rows(results: Sequence[RunResult]) -> tuple[list[RowKey], list[str], dict[RowKey, dict[str, RunResult]]]:
@@ -266,18 +298,26 @@ def learn_string(rs: Sequence[RunResult | None]) -> str:
 
 def plant_table_rows(results: Sequence[RunResult]) -> list[dict[str, Any]]:
     """The per-plant table as CSV rows: plant (``PLANT + load`` for a file with the load), profile,
-    backend, mode, per scenario the two target figures (``<scenario>_fw``, ``<scenario>_mw``: NRMSE
+    backend, mode, prior, per scenario the two target figures (``<scenario>_fw``, ``<scenario>_mw``: NRMSE
     fractions with Mw about the file's CG, or RMS in N / Nm on a disturbance-free drive), for
     payload plants Mw about the true CG (``<scenario>_mw_true_cg``) and about the unloaded CG
     (``<scenario>_mw_unloaded_cg``), the wind force NRMSE (``<scenario>_wind``), bank RMS
     (``<scenario>_bank_deg``) and learner state at the end (``<scenario>_learn_state``); per row how
-    many runs meet their target, the wind and bank counts (:func:`wind_bank`) and the learn string."""
+    many runs meet their target, the wind and bank counts (:func:`wind_bank`) and the learn string.
+    ``prior``: the drive a warm row learned on ("" cold)."""
     keys, scen, by = _rows(results)
     rows = []
     for key in keys:
-        plant, prof, be, mode = key
-        row: dict[str, Any] = {"plant": plant, "profile": prof, "backend": be, "mode": mode.value}
+        plant, prof, be, _ = key
         runs = [by[key].get(sc) for sc in scen]
+        first = next(r for r in runs if r is not None)
+        row: dict[str, Any] = {
+            "plant": plant,
+            "profile": prof,
+            "backend": be,
+            "mode": mode_of(first).value,
+            "prior": prior_of(first),
+        }
         met = n = 0
         for sc, r in zip(scen, runs, strict=True):
             if r is None:
@@ -327,7 +367,7 @@ def plant_table_markdown(
     ]
     for key in keys:
         plant, prof, be, mode = key
-        row = [plant, prof] + ([be] if show_be else []) + ([mode.value] if show_mode else [])
+        row = [plant, prof] + ([be] if show_be else []) + ([mode] if show_mode else [])
         runs = [by[key].get(sc) for sc in scen]
         met = n = 0
         for r in runs:
@@ -354,16 +394,16 @@ def summary_lines(results: Sequence[RunResult]) -> list[str]:
     reported by :func:`payload_lines`): runs that meet it and the worst figures (where); per mode
     the wind force and the bank angle; failed runs."""
     out = []
-    groups: dict[tuple[int, str, bool], list[RunResult]] = {}
+    groups: dict[tuple[str, int, str, bool], list[RunResult]] = {}
     failed = [r for r in results if not r.ok]
     order = {metrics.COLD.name: 0, metrics.WARM.name: 1, metrics.WARM_DEFECTS.name: 2}
     for r in results:
         if r.ok and r.accuracy is not None and not load_known(r):
             undisturbed = r.accuracy.kind is metrics.Kind.UNDISTURBED
             name = target_of(r).name
-            groups.setdefault((order[name], name, undisturbed), []).append(r)
+            groups.setdefault((_prior_sort(r), order[name], name, undisturbed), []).append(r)
     targets = {t.name: t for t in (metrics.COLD, metrics.WARM, metrics.WARM_DEFECTS)}
-    for (_, name, undisturbed), rs in sorted(groups.items()):
+    for (prior, _, name, undisturbed), rs in sorted(groups.items()):
         t = targets[name]
         met = sum(meets(r) for r in rs)
         worst_f = max(rs, key=lambda r: figures(r)[0])
@@ -383,21 +423,22 @@ def summary_lines(results: Sequence[RunResult]) -> list[str]:
                 f"worst Fw {100 * wf:.1f} % ({_where(worst_f)}), "
                 f"worst Mw {100 * wm:.1f} % ({_where(worst_m)})"
             )
-        out.append(f"{name}, {what}: met in {met} of {len(rs)} runs; {worst}")
-    for mode in Mode:
-        rs = [r for r in results if r.ok and mode_of(r) is mode and not load_known(r)]
+        after = f" after {prior[1:]}" if prior else ""
+        out.append(f"{name}{after}, {what}: met in {met} of {len(rs)} runs; {worst}")
+    for mode in _labels(results):
+        rs = [r for r in results if r.ok and mode_label(r) == mode and not load_known(r)]
         if not rs:
             continue
         wb = wind_bank(rs)
         if wb["wind_runs"]:
             out.append(
-                f"{mode.value}, wind force NRMSE <= {100 * metrics.WIND_MAX_NRMSE:g} % (runs with wind): "
+                f"{mode}, wind force NRMSE <= {100 * metrics.WIND_MAX_NRMSE:g} % (runs with wind): "
                 f"met in {wb['wind_met']:.0f} of {wb['wind_runs']:.0f} runs; "
                 f"worst {100 * wb['wind_worst']:.1f} %"
             )
         if wb["bank_runs"]:
             out.append(
-                f"{mode.value}, bank angle RMS <= {metrics.BANK_MAX_RMS_DEG:g} deg: "
+                f"{mode}, bank angle RMS <= {metrics.BANK_MAX_RMS_DEG:g} deg: "
                 f"met in {wb['bank_met']:.0f} of {wb['bank_runs']:.0f} runs; "
                 f"worst {wb['bank_worst_deg']:.2f} deg"
             )
@@ -413,7 +454,7 @@ def payload_lines(results: Sequence[RunResult]) -> list[str]:
     """Per mode and payload plant: mean Mw NRMSE over its crosswind/bank runs about the unloaded
     CG and about the true CG, with the spec sheet and with the spec sheet plus the load."""
     out = []
-    for mode in Mode:
+    for mode in _labels(results):
         for plant in dict.fromkeys(plant_name(r.spec.sim_vehicle) for r in results if _is_payload(r)):
             rs = [
                 r
@@ -421,7 +462,7 @@ def payload_lines(results: Sequence[RunResult]) -> list[str]:
                 if r.ok
                 and r.accuracy is not None
                 and r.accuracy.kind is not metrics.Kind.UNDISTURBED
-                and mode_of(r) is mode
+                and mode_label(r) == mode
                 and plant_name(r.spec.sim_vehicle) == plant
             ]
             parts = []
@@ -434,7 +475,7 @@ def payload_lines(results: Sequence[RunResult]) -> list[str]:
                         f"{100 * _mean(a.nrmse_mw for a in sel):.1f} % ({len(sel)} runs)"
                     )
             if parts:
-                out.append(f"{mode.value}, payload {plant} (mean NRMSE): " + "; ".join(parts))
+                out.append(f"{mode}, payload {plant} (mean NRMSE): " + "; ".join(parts))
     return out
 
 
@@ -445,7 +486,7 @@ def backend_lines(results: Sequence[RunResult]) -> list[str]:
     for r in results:
         if r.ok and r.accuracy is not None:
             s = r.spec
-            key = (row_label(r), s.profile, mode_of(r), s.scenario, s.seed)
+            key = (row_label(r), s.profile, mode_label(r), s.scenario, s.seed)
             by.setdefault(key, {})[s.backend] = r
     backends = list(dict.fromkeys(r.spec.backend for r in results))
     out = []
@@ -462,6 +503,22 @@ def backend_lines(results: Sequence[RunResult]) -> list[str]:
                 f"{dm:.3g} Nm (Mw) over {len(pairs)} pairs of runs; the target verdict differs in {split}"
             )
     return out
+
+
+def _prior_sort(r: RunResult) -> str:
+    """Sorts the shipped prior (and cold) first: "" for them, "~NAME" after another prior."""
+    prior = prior_of(r)
+    return "" if prior in ("", PRIOR_SCENARIO) else f"~{prior}"
+
+
+def mode_order(r: RunResult) -> tuple[int, str]:
+    """Sort key of a run's mode: cold, warm (the shipped prior), then warm after other priors."""
+    return (0 if mode_of(r) is Mode.COLD else 1, _prior_sort(r))
+
+
+def _labels(results: Sequence[RunResult]) -> list[str]:
+    """The mode labels present, in :func:`mode_order`."""
+    return list(dict.fromkeys(mode_label(r) for r in sorted(results, key=mode_order)))
 
 
 def _mean(xs: Any) -> float:

@@ -106,12 +106,11 @@ def readme_block(results: Sequence[RunResult], info: RunInfo) -> str:
 
 def doc_block(results: Sequence[RunResult], info: RunInfo) -> str:
     """``docs/study.md``'s zoo section: the run line, the legend, the summary lines and per mode the
-    table with a row per plant x profile x backend."""
+    table with a row per plant x profile x backend (warm once per prior drive: ``warm after NAME``)."""
     lines = [run_line(info), "", LEGEND, "", *summary_block(results)]
-    for mode in zoo.Mode:
-        rs = [r for r in results if zoo.mode_of(r) is mode]
-        if rs:
-            lines += ["", f"**{mode.value.capitalize()}**", "", zoo.plant_table_markdown(rs)]
+    for mode in dict.fromkeys(zoo.mode_label(r) for r in sorted(results, key=zoo.mode_order)):
+        rs = [r for r in results if zoo.mode_label(r) == mode]
+        lines += ["", f"**{mode.capitalize()}**", "", zoo.plant_table_markdown(rs)]
     return "\n".join(lines)
 
 
