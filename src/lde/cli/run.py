@@ -16,10 +16,14 @@ import signal
 import sys
 import threading
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from ..errors import BusError, ConfigError
-from ..service import StepResult
 from . import BACKEND_CHOICES, BACKEND_HELP
+from .coldrun import begin, compile_ahead
+
+if TYPE_CHECKING:
+    from ..service import StepResult
 
 log = logging.getLogger("lde.service")
 
@@ -147,6 +151,7 @@ def _spin_ns(spin_us: float) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    cold = begin(args.backend)  # before the heavy imports: the notice within a second
     from .. import service as svc_mod
     from ..clock import MonotonicClock
     from ..params import load_vehicle
@@ -165,6 +170,7 @@ def run(args: argparse.Namespace) -> int:
     vehicle = load_vehicle(args.vehicle)
     if vehicle.defaults:
         log.info("%s", vehicle.defaults_note())
+    compile_ahead(cold)  # before real-time priority: the compilers are not real-time work
     if args.realtime:
         _realtime(args)
     elif args.cpu:
