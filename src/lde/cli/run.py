@@ -151,6 +151,10 @@ def _spin_ns(spin_us: float) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.flood_rate is not None and not (args.flood_rate > 0 and math.isfinite(args.flood_rate)):
+        raise ConfigError(f"--flood-rate {args.flood_rate}: need frames per second > 0")
+    if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
+        raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
     cold = begin(args.backend)  # before the heavy imports: the notice within a second
     from .. import service as svc_mod
     from ..clock import MonotonicClock
@@ -158,10 +162,6 @@ def run(args: argparse.Namespace) -> int:
     from ..profiles import load_profile
     from ..units import STEP_NS
 
-    if args.flood_rate is not None and not (args.flood_rate > 0 and math.isfinite(args.flood_rate)):
-        raise ConfigError(f"--flood-rate {args.flood_rate}: need frames per second > 0")
-    if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
-        raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
     logging.getLogger("lde.service").setLevel(logging.INFO)
     # no other thread runs in the service's process (the recorder writes from its own process); should
     # one ever hold the interpreter lock, the loop must get it back within a fraction of a step
