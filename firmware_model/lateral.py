@@ -133,7 +133,7 @@ IN_ACCEL_SAT = 64  #: finite but outside its format: no update, counted
 # =============================================================================== arithmetic
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, **NO_REFCOUNT)
 def shr(value, s):  # pragma: no cover - compiled
     """value * 2**-s rounded HALF_UP (s > 0); exact left shift for s <= 0."""
     if s > 0:
@@ -141,7 +141,7 @@ def shr(value, s):  # pragma: no cover - compiled
     return value << (-s)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, **NO_REFCOUNT)
 def sat32(sat, v, slot):  # pragma: no cover - compiled
     if v > INT32_MAX:
         sat[slot] += 1
@@ -152,7 +152,7 @@ def sat32(sat, v, slot):  # pragma: no cover - compiled
     return v
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, **NO_REFCOUNT)
 def add64(sat, a, b):  # pragma: no cover - compiled
     if b > 0 and a > INT64_MAX - b:
         sat[S_ACC64] += 1
@@ -163,13 +163,13 @@ def add64(sat, a, b):  # pragma: no cover - compiled
     return a + b
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, **NO_REFCOUNT)
 def mac(sat, acc, a, b):  # pragma: no cover - compiled
     """acc + a b (a, b int32 values: the product fits an int64) in a saturating int64."""
     return add64(sat, acc, a * b)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, **NO_REFCOUNT)
 def msb(a):  # pragma: no cover - compiled
     """floor(log2 a) of an integer a >= 1 (a count-leading-zeros instruction on an MCU)."""
     n = 0
@@ -430,7 +430,7 @@ def _coef(cs, sat, k, w, w2):  # pragma: no cover - compiled
     return sat32(sat, acc, S_COEF)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, **NO_REFCOUNT)
 def _cmul(cs, slot, v, f_in, f_out):  # pragma: no cover - compiled
     """A slow-task constant (raw, frac) times v (Q f_in), in Q f_out (int64, not saturated)."""
     return shr(cs[slot] * v, cs[slot + 1] + f_in - f_out)
@@ -547,7 +547,7 @@ def _friction_sign(tv, ft, cs, aux, sat, pinion):  # pragma: no cover - compiled
     return tanh_q(tv, ft, u)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, **NO_REFCOUNT)
 def _sat_total(sat):  # pragma: no cover - compiled
     n = 0
     for k in range(sat.shape[0]):
@@ -682,7 +682,7 @@ def step_kernel(
 # =============================================================================== the boundary
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, **NO_REFCOUNT)
 def quantise(value, f):  # pragma: no cover - compiled
     """(raw, bad) of a float in the int32 format with ``f`` fractional bits (bad: not finite or
     saturated)."""

@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from numba import typeof
@@ -137,3 +138,81 @@ def test_no_helper_when_the_cache_dir_changed_after_numba_read_it(tmp_path: Path
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "elsewhere"))
     assert C.start_helper("float") is None
     assert C.start_helper("paper") is None  # no split for it at all
+
+
+def test_the_live_helper_leaves_out_the_replays_groups(monkeypatch, capsys) -> None:
+    done: list[str] = []
+    for g in C._GROUPS:
+        monkeypatch.setitem(C._GROUPS, g, lambda g=g: done.append(g))
+    assert C.helper_main(["fixed", "--live"]) == 0
+    assert done == [g for g in C.HELPER["fixed"] if g not in C.REPLAY_ONLY] and "csv" not in done
+    heard = [line.split()[1] for line in capsys.readouterr().out.splitlines()]
+    assert heard == done
+    done.clear()
+    assert C.helper_main(["fixed"]) == 0 and done == list(C.HELPER["fixed"])
+    assert C.helper_main(["fixed", "--what"]) == 2 and C.helper_main(["paper"]) == 2
+
+
+LIVE_EARLY = """
+import sys
+import lde.coldstart as C
+def fake(backend, live=False):
+    heavy = [m for m in ("numba", "can", "lde.engine", "lde.service", "lde.demo") if m in sys.modules]
+    print("helper", backend, live, heavy, flush=True)
+    sys.exit(0)
+C.start_helper = fake
+from lde.cli import main
+main(sys.argv[1:])
+"""
+
+
+@pytest.mark.parametrize("cmd", [["demo", "--no-mcap", "--no-plot"], ["run", "-i", "virtual", "-c", "x"]])
+def test_a_live_command_on_a_cold_cache_says_so_and_starts_the_helper_before_its_imports(
+    cmd: list[str], tmp_path: Path
+) -> None:
+    """``lde demo`` and ``lde run`` on an empty cache: the notice first, then the helper of the split
+    (for a live command), both before numba, python-can or the engine are imported."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "nb"), PYTHONPATH=f"{ROOT / 'src'}:{ROOT}")
+    argv = [sys.executable, "-c", LIVE_EARLY, *cmd, "--backend", "float"]
+    out = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stderr.startswith("lde: compiling the numba kernels"), out.stderr
+    assert out.stdout.strip() == "helper float True []"
+
+
+@pytest.mark.parametrize("cmd", ["demo", "run"])
+def test_a_live_command_compiles_the_split_before_its_work(cmd: str, monkeypatch, capsys) -> None:
+    """Cold (as the cache check says): the split's share of this process, with the helper, then the
+    command's work (the demo; the service's bus); warm: neither the notice nor the split."""
+    import lde.coldstart
+    import lde.demo
+    import lde.jitcache
+    import lde.service
+    from lde.cli import main
+    from lde.errors import ConfigError
+
+    calls: list[tuple[Any, ...]] = []
+
+    def work(*a: Any, **k: Any) -> None:
+        calls.append(("work",))
+        raise ConfigError("stop here")
+
+    monkeypatch.setattr(
+        lde.coldstart, "start_helper", lambda b, live=False: calls.append(("helper", b, live))
+    )
+    monkeypatch.setattr(
+        lde.coldstart, "compile_split", lambda b, h, logs=None: calls.append(("split", b, logs))
+    )
+    monkeypatch.setattr(lde.demo, "run_demo", work)
+    monkeypatch.setattr(lde.service, "open_bus", work)
+    argv = [cmd, "--backend", "fixed", *(["-i", "virtual"] if cmd == "run" else ["--no-mcap", "--no-plot"])]
+    for warm in (False, True):
+        calls.clear()
+        monkeypatch.setattr(lde.jitcache, "is_warm", lambda warm=warm: warm)
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        if warm:
+            assert calls == [("work",)] and "compiling" not in err
+        else:
+            assert calls == [("helper", "fixed", True), ("split", "fixed", []), ("work",)]
+            assert err.startswith("lde: compiling the numba kernels")

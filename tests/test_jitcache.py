@@ -110,3 +110,24 @@ def test_drop_stale_leaves_an_unwritable_cache_alone(tmp_path, monkeypatch):
         assert drop_stale([pkg]) == 0
     finally:
         cdir.chmod(0o700)
+
+
+def test_a_first_runs_kernels_survive_the_second_runs_drop_stale(tmp_path, monkeypatch):
+    """A first run on an empty cache directory: numba makes the directory and writes the kernels
+    there after drop_stale ran. The second run must load them, not take them for stale (it did:
+    the second run after an install compiled everything again)."""
+    pkg = _write_pkg(tmp_path, 1)
+    cache = tmp_path / "cache"
+    assert _run(tmp_path, pkg, cache, True) == 10
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(cache))
+    from lde.jitcache import _dir_cache_dirs
+
+    (cdir,) = _dir_cache_dirs(pkg)
+
+    def files() -> dict[str, tuple[int, int]]:
+        return {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in cdir.glob("*.nb[ic]")}
+
+    first = files()
+    assert len(first) == 4 and (cdir / STAMP_NAME).exists()  # caller and callee: index and data each
+    assert _run(tmp_path, pkg, cache, True) == 10
+    assert files() == first  # the same files: loaded, not deleted and written again

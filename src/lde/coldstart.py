@@ -43,6 +43,7 @@ __all__ = [
     "EARLY_NAMES",
     "HELPER",
     "MAIN",
+    "REPLAY_ONLY",
     "SplitReport",
     "compile_split",
     "helper_main",
@@ -56,6 +57,8 @@ HELPER: dict[str, tuple[str, ...]] = {
     "fixed": ("fx-step", "loop-out", "resets", "csv"),
     "float": ("learner", "loop-out", "resets", "csv"),
 }
+#: the helper's groups that only a replay needs (``lde run`` and ``lde demo`` write no CSV)
+REPLAY_ONLY = frozenset({"csv"})
 #: this process's share, in its order: groups of :data:`_GROUPS`, and ``wait NAME`` (wait for the
 #: helper's group NAME, which the next ones need: the joining step its callees, the loop's
 #: arguments and loop its parts)
@@ -321,9 +324,11 @@ class _Helper:
             self.proc.wait()
 
 
-def start_helper(backend: str | None) -> _Helper | None:
+def start_helper(backend: str | None, live: bool = False) -> _Helper | None:
     """Start the helper for ``--backend`` as given (:data:`EARLY_NAMES`; None for a backend without
-    a split, or when the process cannot be started). Cheap: call it before the heavy imports."""
+    a split, or when the process cannot be started). Cheap: call it before the heavy imports.
+    ``live``: for a command that writes no CSV (``lde run``, ``lde demo``): the helper leaves out
+    the CSV formatter (:data:`REPLAY_ONLY`)."""
     name = EARLY_NAMES.get(backend)
     if name is None:
         return None
@@ -331,7 +336,8 @@ def start_helper(backend: str | None) -> _Helper | None:
     if numba is not None and os.environ.get("NUMBA_CACHE_DIR", "") != numba.config.CACHE_DIR:
         return None  # NUMBA_CACHE_DIR changed since numba read it: the helper would cache elsewhere
     try:
-        return _Helper(name, time.perf_counter())
+        argv = [sys.executable, "-m", "lde.coldstart", name, *(["--live"] if live else [])]
+        return _Helper(name, time.perf_counter(), argv)
     except OSError:
         return None
 
@@ -424,11 +430,15 @@ def last_split() -> tuple[SplitReport, subprocess.Popen[bytes] | None] | None:
 
 
 def helper_main(argv: list[str]) -> int:
-    """The helper: compile this backend's :data:`HELPER` groups, ``ready NAME`` after each."""
-    if len(argv) != 1 or argv[0] not in HELPER:
-        print(f"usage: python -m lde.coldstart {{{','.join(HELPER)}}}", file=sys.stderr)
+    """The helper: compile this backend's :data:`HELPER` groups, ``ready NAME`` after each
+    (``--live``: not those of :data:`REPLAY_ONLY`)."""
+    live = argv[1:] == ["--live"]
+    if not (len(argv) == 1 or live) or argv[0] not in HELPER:
+        print(f"usage: python -m lde.coldstart {{{','.join(HELPER)}}} [--live]", file=sys.stderr)
         return 2
     for name in HELPER[argv[0]]:
+        if live and name in REPLAY_ONLY:
+            continue
         _GROUPS[name]()
         print(f"ready {name} {time.process_time():.3f}", flush=True)
     return 0

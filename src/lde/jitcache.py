@@ -127,9 +127,38 @@ def drop_stale(packages: list[Path] | None = None) -> int:
     removed = 0
     for pkg in pkgs:
         for src in _source_dirs(pkg):
-            for cache in _dir_cache_dirs(src):
+            dirs = _dir_cache_dirs(src)
+            for cache in dirs:
                 removed += _drop_dir(cache, stamp, pkgs, digest)
+            _stamp_new(dirs, stamp, pkgs, digest)
     return removed
+
+
+def _stamp_new(dirs: list[Path], stamp: str, pkgs: list[Path], digest: list[str]) -> None:
+    """Create the directory numba will write these sources' kernels to (the first of ``dirs`` that
+    exists writable or can be made, as numba picks it) with this stamp, when it does not exist yet.
+
+    Without it, the kernels a first run compiles land in a directory without a stamp, and the next
+    run's :func:`drop_stale` takes them for stale and deletes them all: the second run after an install
+    was as cold as the first (measured: 23 kernels compiled again, docs/startup.md)."""
+    for cache in dirs:
+        if cache.is_dir():
+            if os.access(cache, os.W_OK):
+                return  # _drop_dir stamped it (or it holds this stamp)
+            continue
+        try:
+            cache.mkdir(parents=True)
+            if not digest:
+                digest.append(sources_digest(pkgs))
+            tmp = cache / f"{STAMP_NAME}.{os.getpid()}"
+            tmp.write_text(f"{stamp} {digest[0]}")
+            os.replace(tmp, cache / STAMP_NAME)
+            return
+        except FileExistsError:  # made by another process just now (the cold start's helper)
+            _drop_dir(cache, stamp, pkgs, digest)
+            return
+        except OSError:
+            continue
 
 
 def _drop_dir(cache: Path, stamp: str, pkgs: list[Path], digest: list[str]) -> int:

@@ -11,6 +11,7 @@ import argparse
 import sys
 
 from . import BACKEND_CHOICES, BACKEND_HELP
+from .coldrun import begin, compile_ahead
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -39,6 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    cold = begin(args.backend)  # before the heavy imports: the notice within a second
     from ..demo import DEFAULT_SCENARIO, run_demo
     from ..params import load_vehicle
 
@@ -47,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
         from ..errors import ConfigError
 
         raise ConfigError(f"--duration must be > 0, got {args.duration}")
+    compile_ahead(cold)
     summary, _on, _off = run_demo(
         args.scenario or DEFAULT_SCENARIO,
         seed=args.seed,

@@ -16,10 +16,14 @@ import signal
 import sys
 import threading
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from ..errors import BusError, ConfigError
-from ..service import StepResult
 from . import BACKEND_CHOICES, BACKEND_HELP
+from .coldrun import begin, compile_ahead
+
+if TYPE_CHECKING:
+    from ..service import StepResult
 
 log = logging.getLogger("lde.service")
 
@@ -147,16 +151,17 @@ def _spin_ns(spin_us: float) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.flood_rate is not None and not (args.flood_rate > 0 and math.isfinite(args.flood_rate)):
+        raise ConfigError(f"--flood-rate {args.flood_rate}: need frames per second > 0")
+    if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
+        raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
+    cold = begin(args.backend)  # before the heavy imports: the notice within a second
     from .. import service as svc_mod
     from ..clock import MonotonicClock
     from ..params import load_vehicle
     from ..profiles import load_profile
     from ..units import STEP_NS
 
-    if args.flood_rate is not None and not (args.flood_rate > 0 and math.isfinite(args.flood_rate)):
-        raise ConfigError(f"--flood-rate {args.flood_rate}: need frames per second > 0")
-    if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
-        raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
     logging.getLogger("lde.service").setLevel(logging.INFO)
     # no other thread runs in the service's process (the recorder writes from its own process); should
     # one ever hold the interpreter lock, the loop must get it back within a fraction of a step
@@ -165,6 +170,7 @@ def run(args: argparse.Namespace) -> int:
     vehicle = load_vehicle(args.vehicle)
     if vehicle.defaults:
         log.info("%s", vehicle.defaults_note())
+    compile_ahead(cold)  # before real-time priority: the compilers are not real-time work
     if args.realtime:
         _realtime(args)
     elif args.cpu:
