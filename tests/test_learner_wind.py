@@ -56,7 +56,8 @@ def warm():
     prior = _frames("prior_drive", 500)
     _run(vehicle, prior, None, learned, Ln.default_lp()[Ln.L_WIND_Q])
     # the same prior drive without the steering gate's low-rate tier: the car ends it 'learning'
-    # (521 samples), not 'learned' (1929), so the slalom's wind can still move its tires
+    # (521 samples), not 'learned' (1929 with the tier at 500 N), so the slalom's wind can still move
+    # its tires
     learning = tmp / "learning.json"
     _run(vehicle, prior, None, learning, Ln.default_lp()[Ln.L_WIND_Q], low_tier=False)
     return vehicle, learned, learning, _frames("slalom", 0)
@@ -67,8 +68,8 @@ def test_the_slalom_in_a_crosswind_keeps_the_learned_tires(warm):
     without the intercept noise (``L_WIND_Q`` 0, the learner before) Cf falls by more than 6 %
     (-11 % measured). The counterfactual needs a car still 'learning' after its prior drive: with the
     steering gate's low-rate tier the prior drive makes it 'learned' (1000x slower), and without the
-    intercept noise Cf then falls by 2.6 % only; so both are checked on the prior learned without
-    the tier (-0.7 % and -11 %), the first also on the default prior."""
+    intercept noise Cf then falls by a few % only (2.6 % with the tier at 500 N); so both are checked
+    on the prior learned without the tier (-0.7 % and -11 %), the first also on the default prior."""
     vehicle, learned, learning, frames = warm
     for state in (learned, learning):
         p0, p = _run(vehicle, frames, state, None, Ln.default_lp()[Ln.L_WIND_Q])
