@@ -177,6 +177,42 @@ def test_no_excitation_no_learning():
         assert p[slot] == pytest.approx(p0[slot], rel=1e-9)
 
 
+def _lane_changes(t):
+    """Plain lane changes at 100 km/h, open loop on the linear truth: 3.5 m over 5 s (lateral
+    acceleration 3.5 x 2 pi / 5^2 sin(2 pi t / 5), about 0.9 m/s^2 at its peak, as the zoo's
+    ``lane_change``), left at 0 s and back at 10 s, every 20 s. The steering-wheel angle is the
+    steady-state one for that acceleration (the reference car's L and understeer gradient): about
+    0.3 deg of road-wheel angle, 0.26 deg/s RMS of road-wheel rate during a change."""
+    veh = load_vehicle("reference")
+    b, t_ = veh.body, veh.tires
+    length = b.lf + b.lr
+    k_us = b.mass / length * (b.lr / (2 * t_.cf) - b.lf / (2 * t_.cr))
+    period, width = 5.0, 3.5
+    tc = t % 20.0
+    tau = (tc % 10.0) / period
+    if tau >= 1.0:
+        return 0.0
+    ay = (1.0 if tc < 10.0 else -1.0) * width * 2 * math.pi / period**2 * math.sin(2 * math.pi * tau)
+    return veh.steering.ratio * ay * (length / VX**2 + k_us)
+
+
+@pytest.mark.parametrize("scale", [0.85, 1.15])
+def test_plain_lane_changes_at_motorway_speed_teach_the_tires(scale):
+    """Issue 11's prior drive of plain lane changes: on a truth whose Cf, Cr, K are 15 % off the prior,
+    80 s of lane changes at 100 km/h (0.26 deg/s of road-wheel rate, under the 0.5 deg/s steering
+    gate, about 1 kN of lateral force) move each most of the way to the truth, through the low-rate
+    tier (``L_EXC_SW2``, ``L_EXC_F2``). With that tier off (the gate before) nothing is learned."""
+    p, p0, ls = _learn(scale, scale, scale, steer=_lane_changes, seconds=80.0)
+    for slot in (E.P_CF, E.P_CR, E.P_K):
+        moved = p[slot] / p0[slot] - 1.0
+        assert moved * (scale - 1.0) > 0.0, (slot, p[slot], p0[slot])
+        assert abs(moved) > 0.5 * abs(scale - 1.0), (slot, p[slot] / p0[slot])
+    p, p0, ls = _learn(scale, scale, scale, steer=_lane_changes, seconds=80.0, lp_set={Ln.L_EXC_SW2: -1.0})
+    assert ls[Ln.LS_N] == 0
+    for slot in (E.P_CF, E.P_CR, E.P_K):
+        assert p[slot] == p0[slot]
+
+
 def test_defaults_are_the_tuned_gates():
     """The constants docs/estimator.md states (tuned on the zoo's tuning plants; the steering gate
     put back to 0.5 deg/s: docs/estimator.md, "Reverted")."""
