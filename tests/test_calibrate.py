@@ -206,7 +206,13 @@ def test_cli_calibrate_writes_a_file_that_replay_uses(tmp_path):
     cal = load_vehicle(tmp_path / "cal.toml")
     assert cal.tires == load_vehicle("reference").tires
     assert cal.corrections.friction == pytest.approx(0.8, rel=0.15)
-    for vehicle, name in (("reference", "raw.csv"), (tmp_path / "cal.toml", "cal.csv")):
+    # the online learner off in both replays: it now learns from a lane change too (the steering
+    # gate's low-rate tier) and would take the raw estimate down as well; what is checked here is
+    # what the written corrections do
+    fixed_raw, fixed_cal = tmp_path / "raw_fixed.toml", tmp_path / "cal_fixed.toml"
+    fixed_raw.write_text('extends = "reference"\nname = "raw"\n[learning]\nenabled = 0\n')
+    fixed_cal.write_text('extends = "cal.toml"\nname = "cal"\n[learning]\nenabled = 0\n')
+    for vehicle, name in ((fixed_raw, "raw.csv"), (fixed_cal, "cal.csv")):
         rc, _ = run("replay", log, "--vehicle", vehicle, "--csv", tmp_path / name, "--backend", "fixed")
         assert rc == 0
     rms = {}
