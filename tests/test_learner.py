@@ -10,6 +10,7 @@ on a drive without excitation.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
@@ -97,40 +98,76 @@ def _learn(
     ``sigma``: the truth's tire relaxation length [m] (both axles); ``wind``: a steady crosswind
     force [N] through the CG; ``lp_set``: learner constants to set ({slot: value})."""
     veh = load_vehicle("reference")
-    b, t = veh.body, veh.tires
+    b = veh.body
     n_ratio = veh.steering.ratio
     p = E.params_vector(veh)
     p0 = p.copy()
     lp = Ln.default_lp()
     for slot, value in (lp_set or {}).items():
         lp[slot] = value
-    ls = Ln.init_state(p, lp, friction_prior=p[E.P_TFRIC])
+    rig = rig_on_truth(veh, p, lp, (scale_f, scale_r, scale_k), sigma)
+    ls = rig.ls
     if started:
         ls[Ln.LS_N] = ls[Ln.LS_N + 1] = ls[Ln.LS_N + 2] = 0.2 * lp[Ln.L_MIN_SAMPLES]
-    p[E.P_TFRIC] = 0.0  # the truth has no friction; the prior is left as a vehicle file gives it
-    cf, cr, k = t.cf * scale_f, t.cr * scale_r, t.align_rate * scale_k
-    s = p[E.P_S]
-    ad, bd = _truth(b.mass, b.yaw_inertia, b.lf, b.lr, cf, cr, VX, sigma)
-    x, xs, P = np.zeros(len(bd)), np.zeros(E.NX), np.zeros((E.NX, E.NX))
-    fs, ints = np.zeros(E.N_F), np.zeros(E.N_I, np.int64)
-    E.reset_kernel(p, xs, P, fs, ints)
-    h, ph, out, ws = np.zeros(E.NX), np.zeros(E.NX), np.zeros(N_OUT), np.zeros((2, Ln.N3))
+    x = np.zeros(len(rig.bd))
     rng = np.random.default_rng(seed)
     for i in range(int(seconds / STEP_S)):
         ti = i * STEP_S
         delta = steer(ti) / n_ratio
-        ay, yaw, tcol, tast = _sense(x, delta, b, (cf, cr, k), s, n_ratio, rng, wind=wind)
-        st = E.step_kernel(
-            p, xs, P, fs, ints, h, ph, 10**9 + i * STEP_NS, VX, steer(ti), yaw, tcol, tast, ay,
-            True, True, True, True, True, out,
-        )  # fmt: skip
-        Ln.learner_step(
-            lp, ls, ws, p, out, VX, steer(ti), yaw, tcol, tast, ay, fs[E.F_ZFRIC], bool(st & VALID)
-        )
-        x = ad @ x + bd * delta
+        ay, yaw, tcol, tast = _sense(x, delta, b, rig.truth, rig.s, n_ratio, rng, wind=wind)
+        rig.step(i, steer(ti), yaw, tcol, tast, ay)
+        x = rig.ad @ x + rig.bd * delta
         if wind:  # the wind's force through the CG: beta_dot += F / (m vx), as a step's increment
             x[0] += wind / (b.mass * VX) * STEP_S
     return p, p0, ls
+
+
+@dataclass
+class Rig:
+    """The filter's and the learner's arrays for a drive on the linear truth (:func:`rig_on_truth`)."""
+
+    p: np.ndarray  # the filter's parameters (the learner pushes into them)
+    lp: np.ndarray
+    ls: np.ndarray
+    truth: tuple[float, float, float]  # the truth's Cf, Cr [N/rad], K [Nm/rad]
+    ad: np.ndarray  # the truth's discrete state transition and input
+    bd: np.ndarray
+    s: float  # the filter's accelerometer scale factor
+    xs: np.ndarray = field(default_factory=lambda: np.zeros(E.NX))
+    P: np.ndarray = field(default_factory=lambda: np.zeros((E.NX, E.NX)))
+    fs: np.ndarray = field(default_factory=lambda: np.zeros(E.N_F))
+    ints: np.ndarray = field(default_factory=lambda: np.zeros(E.N_I, np.int64))
+    h: np.ndarray = field(default_factory=lambda: np.zeros(E.NX))
+    ph: np.ndarray = field(default_factory=lambda: np.zeros(E.NX))
+    out: np.ndarray = field(default_factory=lambda: np.zeros(N_OUT))
+    ws: np.ndarray = field(default_factory=lambda: np.zeros((2, Ln.N3)))
+
+    def step(self, i: int, angle: float, yaw: float, tcol: float, tast: float, ay: float) -> int:
+        """Step ``i`` of the filter at VX with these measurements [rad, rad/s, Nm, Nm, m/s^2], then the
+        learner; returns the filter's status."""
+        st = E.step_kernel(
+            self.p, self.xs, self.P, self.fs, self.ints, self.h, self.ph, 10**9 + i * STEP_NS, VX,
+            angle, yaw, tcol, tast, ay, True, True, True, True, True, self.out,
+        )  # fmt: skip
+        Ln.learner_step(
+            self.lp, self.ls, self.ws, self.p, self.out, VX, angle, yaw, tcol, tast, ay,
+            self.fs[E.F_ZFRIC], bool(st & VALID),
+        )  # fmt: skip
+        return int(st)
+
+
+def rig_on_truth(veh, p, lp, scales, sigma=0.0) -> Rig:
+    """The learner started from ``p`` (the vehicle file's values, friction prior included), the filter
+    reset, and a linear truth at VX whose Cf, Cr, K are the vehicle's tires times ``scales``, with
+    relaxation length ``sigma`` [m] and no friction (``p``'s friction is set to 0)."""
+    b, t = veh.body, veh.tires
+    ls = Ln.init_state(p, lp, friction_prior=p[E.P_TFRIC])
+    p[E.P_TFRIC] = 0.0  # the truth has no friction; the prior is left as a vehicle file gives it
+    cf, cr, k = t.cf * scales[0], t.cr * scales[1], t.align_rate * scales[2]
+    ad, bd = _truth(b.mass, b.yaw_inertia, b.lf, b.lr, cf, cr, VX, sigma)
+    rig = Rig(p, lp, ls, (cf, cr, k), ad, bd, float(p[E.P_S]))
+    E.reset_kernel(p, rig.xs, rig.P, rig.fs, rig.ints)
+    return rig
 
 
 @pytest.mark.parametrize("scale", [1.2, 0.8])

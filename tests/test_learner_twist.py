@@ -11,14 +11,12 @@ import math
 
 import numpy as np
 import pytest
-from test_learner import _sense, _truth, _weave
+from test_learner import _sense, _weave, rig_on_truth
 
 from lde import estimator as E
 from lde import learner as Ln
 from lde.params import load_vehicle
-from lde.status import VALID
-from lde.step import N_OUT
-from lde.units import DEG, STEP_NS, STEP_S
+from lde.units import DEG, STEP_S
 
 VX = 100.0 / 3.6
 I_TB = Ln.LS_T3 + 4  # R3's twist coefficient s c_tb
@@ -62,34 +60,24 @@ def _learn_pinion(sig_ctb_deg: float, lag_twist_deg: float, seconds: float = 60.
     ``lag_twist_deg`` x T_col [deg/Nm] (a negative twist: what R3 saw on the zoo's pinion angles).
     Returns p and the smallest R3 twist coefficient seen."""
     veh = load_vehicle("reference")
-    b, t = veh.body, veh.tires
+    b = veh.body
     n_ratio = veh.steering.ratio
     p = E.params_vector(veh)
     lp = Ln.default_lp(torsion=False)
     lp[Ln.L_SIG_CTB] = sig_ctb_deg * DEG
-    ls = Ln.init_state(p, lp, friction_prior=p[E.P_TFRIC])
-    p[E.P_TFRIC] = 0.0
-    cf, cr, k = 1.15 * t.cf, 1.15 * t.cr, 1.15 * t.align_rate
-    s = p[E.P_S]
-    ad, bd = _truth(b.mass, b.yaw_inertia, b.lf, b.lr, cf, cr, VX)
-    x, xs, P = np.zeros(2), np.zeros(E.NX), np.zeros((E.NX, E.NX))
-    fs, ints = np.zeros(E.N_F), np.zeros(E.N_I, np.int64)
-    E.reset_kernel(p, xs, P, fs, ints)
-    h, ph, out, ws = np.zeros(E.NX), np.zeros(E.NX), np.zeros(N_OUT), np.zeros((2, Ln.N3))
+    rig = rig_on_truth(veh, p, lp, (1.15, 1.15, 1.15))
+    ls = rig.ls
+    x = np.zeros(2)
     rng = np.random.default_rng(0)
     lowest = math.inf
     for i in range(int(seconds / STEP_S)):
         ti = i * STEP_S
         delta = _weave(ti) / n_ratio
-        ay, yaw, tcol, tast = _sense(x, delta, b, (cf, cr, k), s, n_ratio, rng)
+        ay, yaw, tcol, tast = _sense(x, delta, b, rig.truth, rig.s, n_ratio, rng)
         angle = _weave(ti) + lag_twist_deg * DEG * tcol
-        st = E.step_kernel(
-            p, xs, P, fs, ints, h, ph, 10**9 + i * STEP_NS, VX, angle, yaw, tcol, tast, ay,
-            True, True, True, True, True, out,
-        )  # fmt: skip
-        Ln.learner_step(lp, ls, ws, p, out, VX, angle, yaw, tcol, tast, ay, fs[E.F_ZFRIC], bool(st & VALID))
+        rig.step(i, angle, yaw, tcol, tast, ay)
         lowest = min(lowest, ls[I_TB])
-        x = ad @ x + bd * delta
+        x = rig.ad @ x + rig.bd * delta
     return p, lowest
 
 

@@ -15,14 +15,12 @@ import math
 
 import numpy as np
 import pytest
-from test_learner import _truth, _weave
+from test_learner import _weave, rig_on_truth
 
 from lde import estimator as E
 from lde import learner as Ln
 from lde.params import load_vehicle
-from lde.status import VALID
-from lde.step import N_OUT
-from lde.units import DEG, STEP_NS, STEP_S
+from lde.units import DEG, STEP_S
 
 VX = 100.0 / 3.6
 
@@ -34,21 +32,16 @@ def _learn_above(twist_deg: float, sig_ctb_deg: float | None = None, seconds: fl
     steering wheel, ``twist_deg`` [deg/Nm] x T_col above the pinion. Weaving of varying amplitude.
     Returns (K learned / true - 1, twist learned [deg/Nm])."""
     veh = load_vehicle("reference")
-    b, t = veh.body, veh.tires
+    b = veh.body
     n = veh.steering.ratio
     p = E.params_vector(veh, angle_above_torsion_bar=True)
     lp = Ln.default_lp(torsion=True)
     if sig_ctb_deg is not None:
         lp[Ln.L_SIG_CTB] = sig_ctb_deg * DEG
-    ls = Ln.init_state(p, lp, friction_prior=p[E.P_TFRIC])
-    p[E.P_TFRIC] = 0.0  # the truth has no friction
-    cf, cr, k = 1.1 * t.cf, 1.1 * t.cr, 1.1 * t.align_rate
-    s = p[E.P_S]
-    ad, bd = _truth(b.mass, b.yaw_inertia, b.lf, b.lr, cf, cr, VX)
-    x, xs, P = np.zeros(2), np.zeros(E.NX), np.zeros((E.NX, E.NX))
-    fs, ints = np.zeros(E.N_F), np.zeros(E.N_I, np.int64)
-    E.reset_kernel(p, xs, P, fs, ints)
-    h, ph, out, ws = np.zeros(E.NX), np.zeros(E.NX), np.zeros(N_OUT), np.zeros((2, Ln.N3))
+    rig = rig_on_truth(veh, p, lp, (1.1, 1.1, 1.1))
+    cf, cr, k = rig.truth
+    s = rig.s
+    x = np.zeros(2)
     rng = np.random.default_rng(0)
     for i in range(int(seconds / STEP_S)):
         ti = i * STEP_S
@@ -63,12 +56,8 @@ def _learn_above(twist_deg: float, sig_ctb_deg: float | None = None, seconds: fl
         ay = s * (2 * cf * af + 2 * cr * ar) / b.mass + rng.normal(0, 0.02)
         yaw = r + rng.normal(0, 0.05 * DEG)
         angle = sw + twist_deg * DEG * tcol
-        st = E.step_kernel(
-            p, xs, P, fs, ints, h, ph, 10**9 + i * STEP_NS, VX, angle, yaw, tcol, tast, ay,
-            True, True, True, True, True, out,
-        )  # fmt: skip
-        Ln.learner_step(lp, ls, ws, p, out, VX, angle, yaw, tcol, tast, ay, fs[E.F_ZFRIC], bool(st & VALID))
-        x = ad @ x + bd * delta
+        rig.step(i, angle, yaw, tcol, tast, ay)
+        x = rig.ad @ x + rig.bd * delta
     return p[E.P_K] / k - 1.0, math.degrees(p[E.P_CTB])
 
 
