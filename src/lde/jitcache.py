@@ -148,11 +148,7 @@ def _stamp_new(dirs: list[Path], stamp: str, pkgs: list[Path], digest: list[str]
             continue
         try:
             cache.mkdir(parents=True)
-            if not digest:
-                digest.append(sources_digest(pkgs))
-            tmp = cache / f"{STAMP_NAME}.{os.getpid()}"
-            tmp.write_text(f"{stamp} {digest[0]}")
-            os.replace(tmp, cache / STAMP_NAME)
+            _write_stamp(cache, stamp, pkgs, digest)
             return
         except FileExistsError:  # made by another process just now (the cold start's helper)
             _drop_dir(cache, stamp, pkgs, digest)
@@ -179,12 +175,21 @@ def _drop_dir(cache: Path, stamp: str, pkgs: list[Path], digest: list[str]) -> i
             for f in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
                 f.unlink(missing_ok=True)
                 removed += 1
-        tmp = cache / f"{STAMP_NAME}.{os.getpid()}"
-        tmp.write_text(f"{stamp} {digest[0]}")
-        os.replace(tmp, mark)
+        _write_stamp(cache, stamp, pkgs, digest)
     except OSError:
         pass
     return removed
+
+
+def _write_stamp(cache: Path, stamp: str, pkgs: list[Path], digest: list[str]) -> None:
+    """``cache``'s stamp file (the sources' stamp and content digest), replaced atomically;
+    ``digest`` is computed once per :func:`drop_stale` (an empty list: not yet). OSError as the
+    file system gives it."""
+    if not digest:
+        digest.append(sources_digest(pkgs))
+    tmp = cache / f"{STAMP_NAME}.{os.getpid()}"
+    tmp.write_text(f"{stamp} {digest[0]}")
+    os.replace(tmp, cache / STAMP_NAME)
 
 
 #: the compiled data-path loops, one per backend (:data:`lde.backends.BACKENDS`, named by

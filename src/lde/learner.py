@@ -95,8 +95,8 @@ N_SIG = 7
  L_TORSION, L_B_TAU, L_B_GATE, L_D_TAU, L_D_GATE_F, L_D_GATE_M, L_RATE,
  L_LEARNED_REL, L_MIN_SAMPLES, L_SIG_B, L_ENABLE, L_RELAX, L_EXC_SW, L_SLIDE, L_SLOW,
  L_QUIET, L_EXC_F, L_SIG_CTB, L_SIGMA0, L_WIND_MAX, L_WIND_REL, L_WIND_SIG,
- L_WIND_Q, L_EXC_SW3, L_R3_ACC, L_EXC_V, L_EXC_US, L_EXC_SW2, L_EXC_F2, L_WIND_MAX2) = range(46)  # fmt: skip
-N_LP = 46
+ L_WIND_Q, L_EXC_SW3, L_R3_ACC, L_EXC_SW2, L_EXC_F2, L_WIND_MAX2) = range(44)  # fmt: skip
+N_LP = 44
 
 # --- learner state (ls, float) -----------------------------------------------------------------------
 # svf: 3 * N_SIG (value, derivative, second derivative); then regression blocks
@@ -221,12 +221,6 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     lp[L_EXC_SW2] = 0.2 * DEG
     lp[L_EXC_F2] = 450.0
     lp[L_WIND_MAX2] = 150.0
-    # the steering gates scaled with speed (measured, not adopted: docs/study.md): above L_EXC_V
-    # [m/s] a gate G becomes G g(L_EXC_V) / g(v), g(v) = v^2 / (L + K_us v^2) the steady lateral
-    # acceleration per road-wheel angle (K_us from the current tires when L_EXC_US > 0, else 0);
-    # inf: off
-    lp[L_EXC_V] = math.inf
-    lp[L_EXC_US] = 0.0
     return lp
 
 
@@ -434,20 +428,12 @@ def learner_step(
         force_exc = force_exc and abs(ls[LS_BP + 3]) < lp[L_WIND_MAX]
         if lp[L_WIND_REL] < math.inf:
             force_exc = force_exc and abs(ls[LS_BP + 3]) < lp[L_WIND_REL] * math.sqrt(ls[LS_BP + 4])
-        gsc = 1.0
-        if v_f > lp[L_EXC_V]:
-            kus = 0.0
-            if lp[L_EXC_US] > 0.0:
-                kus = m * (lr / (2.0 * p[E.P_CF]) - lf / (2.0 * p[E.P_CR])) / L
-            v0 = lp[L_EXC_V]
-            gsc = (v0 * v0 / (L + kus * v0 * v0)) / (v_f * v_f / (L + kus * v_f * v_f))
-        gsw = lp[L_EXC_SW] * gsc
-        excited = force_exc and ls[LS_EXC] > gsw**2
-        gate3 = lp[L_EXC_SW3] * gsc if lp[L_EXC_SW3] >= 0.0 else gsw
+        excited = force_exc and ls[LS_EXC] > lp[L_EXC_SW] ** 2
+        gate3 = lp[L_EXC_SW3] if lp[L_EXC_SW3] >= 0.0 else lp[L_EXC_SW]
         excited3 = force_exc and ls[LS_EXC] > gate3**2
         if lp[L_EXC_SW2] >= 0.0 and force_exc:
             # the low-rate tier (default_lp): slow steering with a large manoeuvre force, no wind
-            low = ls[LS_EXC] > (lp[L_EXC_SW2] * gsc) ** 2 and ls[LS_BP + 4] > lp[L_EXC_F2] ** 2
+            low = ls[LS_EXC] > lp[L_EXC_SW2] ** 2 and ls[LS_BP + 4] > lp[L_EXC_F2] ** 2
             low = low and abs(ls[LS_BP + 3]) < lp[L_WIND_MAX2]
             excited = excited or low
             excited3 = excited3 or low
