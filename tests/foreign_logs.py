@@ -133,9 +133,7 @@ def foreign(f: FrameBatch, n: int, seed: int = 0) -> FrameBatch:
     dlc = rng.integers(0, 9, n).astype(np.uint8)
     data = rng.integers(0, 256, (n, 8)).astype(np.uint8)
     data[np.arange(8)[None, :] >= dlc[:, None]] = 0
-    other = FrameBatch(
-        t_ns=t, can_id=ids, is_extended=ext, dlc=dlc, data=data, is_rx=np.ones(n, np.bool_)
-    )
+    other = FrameBatch(t_ns=t, can_id=ids, is_extended=ext, dlc=dlc, data=data, is_rx=np.ones(n, np.bool_))
     return FrameBatch.concat([f, other])
 
 
@@ -157,7 +155,9 @@ def at_dbc_limits(f: FrameBatch, profile: str, t0_s: float, t1_s: float) -> Fram
             if (s.start, s.length) in {(fd[0], fd[1]) for fd in (*sch.counter_fields, *sch.checksum_fields)}
         }
         rel = f.t_ns - int(f.t_ns[0])
-        rows = np.flatnonzero((f.can_id == spec.frame_id) & (rel >= round(t0_s * SEC)) & (rel < round(t1_s * SEC)))
+        rows = np.flatnonzero(
+            (f.can_id == spec.frame_id) & (rel >= round(t0_s * SEC)) & (rel < round(t1_s * SEC))
+        )
         for j, r in enumerate(rows):
             raw = bytes(f.data[r, : spec.length])
             dec = msg.decode(raw, decode_choices=False, scaling=True)
@@ -243,7 +243,9 @@ def write_mcap_library(path: Path, f: FrameBatch, opt: McapOptions | None = None
     comp = {"lz4": CompressionType.LZ4, "zstd": CompressionType.ZSTD, "none": CompressionType.NONE}
     payloads = can_payloads(f)
     with path.open("wb") as fh:
-        w = Writer(fh, chunk_size=opt.chunk_size, compression=comp[opt.compression], use_chunking=opt.use_chunking)
+        w = Writer(
+            fh, chunk_size=opt.chunk_size, compression=comp[opt.compression], use_chunking=opt.use_chunking
+        )
         w.start(profile="", library="someone-else")
         sid = w.register_schema(CAN_SCHEMA_NAME, "ros2msg", CAN_SCHEMA_TEXT.encode())
         cid = w.register_channel(opt.topic, "cdr", sid)

@@ -75,9 +75,9 @@ def describe_ids(counts: Counter[int] | dict[int, int], profile: Profile) -> str
     text = "ids that arrived: " + ", ".join(f"0x{fid:X} x{n}" for fid, n in top)
     if more > 0:
         text += f" and {more} more"
-    own = {spec.frame_id: name for name, spec in profile.messages.items()}
+    own = sorted({spec.frame_id for spec in profile.messages.values()})
     fits = [f for f in profile_fit(frozenset(counts)) if f.profile != profile.name]
-    came = [name for fid, name in own.items() if fid in counts]
+    came = [f"0x{fid:X}" for fid in own if fid in counts]
     if came:
         text += f"; of this profile's ({profile.name}) inputs only {', '.join(came)} arrived"
     elif fits:
