@@ -75,10 +75,11 @@ def describe_ids(counts: Counter[int] | dict[int, int], profile: Profile) -> str
     text = "ids that arrived: " + ", ".join(f"0x{fid:X} x{n}" for fid, n in top)
     if more > 0:
         text += f" and {more} more"
-    own = {spec.frame_id for spec in profile.messages.values()}
+    own = sorted({spec.frame_id for spec in profile.messages.values()})
     fits = [f for f in profile_fit(frozenset(counts)) if f.profile != profile.name]
-    if own & set(counts):
-        text += f"; some are this profile's ({profile.name}) inputs, arriving late or out of time"
+    came = [f"0x{fid:X}" for fid in own if fid in counts]
+    if came:
+        text += f"; of this profile's ({profile.name}) inputs only {', '.join(came)} arrived"
     elif fits:
         f = fits[0]
         text += (

@@ -8,6 +8,7 @@ Line format (one frame per line)::
     (1700000000.123456) vcan0 2A0#R                        remote frame ('#R' or '#R<len>')
     (1700000000.123456) vcan0 20000080#0000000000000000    error frame (CAN_ERR_FLAG 0x20000000 in the id)
     (1700000000.123456) vcan0 2A0#0011 T                   python-can's optional direction (R rx, T tx)
+    (1700000000.123456) 2A0#0011223344556677              no interface column (some other tools)
 
 Timestamps are parsed from their text to integer nanoseconds exactly (seconds and up to 9 fraction
 digits; more digits are truncated), never through a float. The parser is a numba kernel over the raw
@@ -118,7 +119,12 @@ def _parse_block(buf, hexv, t_out, id_out, ext_out, dlc_out, word_out, rx_out, c
                 while _sp(buf[i]):
                     i += 1
                 n_if = 0  # interface token
+                tok = i
                 while buf[i] != 10 and not _sp(buf[i]):
+                    if buf[i] == 35:  # '#': no interface column, this is the frame (other tools' -L)
+                        i = tok
+                        n_if = 1
+                        break
                     i += 1
                     n_if += 1
                 while _sp(buf[i]):

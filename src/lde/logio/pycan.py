@@ -135,7 +135,7 @@ class _Columns:
         self.ids.append(int(m.arbitration_id))
         self.ext.append(bool(m.is_extended_id))
         self.dlc.append(len(raw))
-        self.rx.append(bool(m.is_rx))
+        self.rx.append(True)  # the logger's direction, not lde's (module doc)
         self.payload += raw[:8].ljust(8, b"\x00")
 
     def take(self) -> FrameBatch:
