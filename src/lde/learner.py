@@ -36,7 +36,8 @@ R2 (rear axle; Cr)::
   D, so the coefficient 2 Cr sigma is positive (the front's lag cancels for equal sigma).
 
 The regressions start in cascade (R1 once R3 has samples, R2 once R1 has): without it Cr ended 5 %
-off. They learn only when the drive is excited (lateral-force variation > 150 N; for R3 and R1 also
+off; and R2 forgets its samples as fast as the K and trail it regressed them on still move
+(``L_R2_UPQ``). They learn only when the drive is excited (lateral-force variation > 150 N; for R3 and R1 also
 road-wheel rate RMS > 0.5 deg/s, or > 0.2 deg/s with > 450 N and the wind under 150 N: a lane change
 at motorway speed; not for R2: on the fast ends of the manoeuvres alone it learned Cr 8-16 % low) and
 disturbance-quiet (the filter's wind estimate varies less than half as much as
@@ -95,8 +96,8 @@ N_SIG = 7
  L_TORSION, L_B_TAU, L_B_GATE, L_D_TAU, L_D_GATE_F, L_D_GATE_M, L_RATE,
  L_LEARNED_REL, L_MIN_SAMPLES, L_SIG_B, L_ENABLE, L_RELAX, L_EXC_SW, L_SLIDE, L_SLOW,
  L_QUIET, L_EXC_F, L_SIG_CTB, L_SIGMA0, L_WIND_MAX, L_WIND_REL, L_WIND_SIG,
- L_WIND_Q, L_EXC_SW3, L_R3_ACC, L_EXC_SW2, L_EXC_F2, L_WIND_MAX2) = range(44)  # fmt: skip
-N_LP = 44
+ L_WIND_Q, L_EXC_SW3, L_R3_ACC, L_EXC_SW2, L_EXC_F2, L_WIND_MAX2, L_R2_UPQ) = range(45)  # fmt: skip
+N_LP = 45
 
 # --- learner state (ls, float) -----------------------------------------------------------------------
 # svf: 3 * N_SIG (value, derivative, second derivative); then regression blocks
@@ -221,6 +222,13 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     lp[L_EXC_SW2] = 0.2 * DEG
     lp[L_EXC_F2] = 450.0
     lp[L_WIND_MAX2] = 150.0
+    # R2 regresses on K, the trail t = K/Cf and the twist as R3 and R1 have them at each sample: while
+    # those still move (the first 20-40 s of a drive), its samples are taken on a model that is then
+    # left behind, and Cr kept them (K 7200 -> 5350 and the twist 0.5 -> 0 deg/Nm under R2's first
+    # samples left Cr 6 % high, Mw 10-13 % warm). At each push R2's covariance is scaled by 1 + this x
+    # ((dK/K)^2 + (dt/t)^2) of the push: the samples on the old model are forgotten as fast as it
+    # moves, and not at all once it has settled. 0: off (docs/estimator.md, "R2 after K and the trail")
+    lp[L_R2_UPQ] = 3.0e3
     return lp
 
 
@@ -575,10 +583,17 @@ def push(lp, ls, p):  # pragma: no cover - compiled
         s = p[E.P_S]
         tfric = p[E.P_TFRIC]
     p[E.P_S] = min(max(s, 0.95), 1.25)
+    k_old = p[E.P_K]
     p[E.P_K] = _lim(k, p[E.P_K], rate, 2000.0, 20000.0)
     t_old = p[E.P_K] / p[E.P_CF]
     t_new = min(max(t, t_old * (1.0 - rate)), t_old * (1.0 + rate))
     t_new = min(max(t_new, 0.04), 0.25)
+    if lp[L_R2_UPQ] > 0.0:  # R2's samples on the K and trail it had (lp[L_R2_UPQ], default_lp)
+        dk = p[E.P_K] / k_old - 1.0
+        dt = t_new / (k_old / p[E.P_CF]) - 1.0
+        f = 1.0 + lp[L_R2_UPQ] * (dk * dk + dt * dt)
+        for i in range(N2 * N2):
+            ls[LS_P2 + i] *= f
     p[E.P_CF] = min(max(p[E.P_K] / t_new, 20000.0), 200000.0)
     p[E.P_CR] = _lim(cr, p[E.P_CR], rate, 20000.0, 200000.0)
     p[E.P_TFRIC] = min(max(tfric, 0.0), 2.0)
