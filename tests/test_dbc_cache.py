@@ -99,7 +99,9 @@ def test_db_of_a_dbc_changed_after_loading_is_an_error(cache, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "garbage", [b"", b"\x80\x05not a pickle", b"\x80\x04K\x01.", None], ids=["empty", "corrupt", "other", "cut"]
+    "garbage",
+    [b"", b"\x80\x05not a pickle", b"\x80\x04K\x01.", None],
+    ids=["empty", "corrupt", "other", "cut"],
 )
 def test_corrupt_cache_entry_falls_back_to_parsing(cache, garbage):
     ref = load_profile("lde")
@@ -154,7 +156,10 @@ def test_replay_with_a_warm_cache_imports_neither_cantools_nor_python_can(tmp_pa
     outs = []
     for k in range(2):
         r = subprocess.run(
-            [sys.executable, "-c", code, log, str(tmp_path / f"{k}.csv")], env=env, capture_output=True, text=True
+            [sys.executable, "-c", code, log, str(tmp_path / f"{k}.csv")],
+            env=env,
+            capture_output=True,
+            text=True,
         )
         outs.append(r.stdout.split())
     assert outs[0][0] == "0" and outs[0][1] == "True"  # a miss parses with cantools

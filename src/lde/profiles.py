@@ -22,6 +22,7 @@ The DBC directory is found as ``<repo root>/dbc`` (source checkout or editable i
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import pickle
@@ -439,10 +440,8 @@ def _cache_put(where: Path | None, key: str, parts: dict) -> None:
             pickle.dump(parts, fh, protocol=pickle.HIGHEST_PROTOCOL)
         os.replace(tmp, where / f"{key}.pickle")
     except Exception:
-        try:
+        with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
-        except OSError:
-            pass
 
 
 def load_profile(
