@@ -114,6 +114,18 @@ def test_corrupt_cache_entry_falls_back_to_parsing(cache, garbage):
     assert load_profile("lde")._db is None  # the entry was written again
 
 
+def test_incomplete_entry_falls_back_to_parsing(cache):
+    import pickle
+
+    load_profile("lde")
+    (entry,) = _entries(cache)
+    parts = pickle.loads(entry.read_bytes())
+    del parts["signals"]
+    entry.write_bytes(pickle.dumps(parts))
+    p = load_profile("lde")
+    assert p._db is not None and "LDE_Estimate" in p.signals
+
+
 def test_entry_of_another_dbc_is_not_used(cache, tmp_path):
     """An entry copied under another key (or a hash collision of the file name) is refused."""
     load_profile("lde")

@@ -415,7 +415,8 @@ def _cache_key(data: bytes, key: str, params: tuple[int, int, int]) -> str:
 
 
 def _cache_get(where: Path | None, key: str, dbc_sha: str) -> dict | None:
-    """The cached parts of a profile, or None (no entry, unreadable, corrupt, or another DBC's)."""
+    """The cached parts of a profile, or None (no entry, unreadable, corrupt, incomplete, or another
+    DBC's). The entries are pickles in the user's own cache, trusted as numba's cache beside them is."""
     if where is None or not key:
         return None
     try:
@@ -424,6 +425,10 @@ def _cache_get(where: Path | None, key: str, dbc_sha: str) -> dict | None:
     except Exception:  # missing, unreadable, truncated or corrupt: parse the DBC instead
         return None
     if not isinstance(parts, dict) or parts.get("key") != key or parts.get("dbc_sha256") != dbc_sha:
+        return None
+    if not all(isinstance(parts.get(k), dict) for k in ("inputs", "messages", "outputs", "signals")):
+        return None
+    if not isinstance(parts.get("anchor"), str) or not isinstance(parts.get("angle_above_torsion_bar"), bool):
         return None
     return parts
 
