@@ -25,9 +25,8 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import can
-import cantools
 import numpy as np
 from numba import njit
 
@@ -43,7 +42,11 @@ from .bitfield import (
 from .e2e import IntegrityScheme, protect_word
 from .errors import LdeError
 from .frames import FrameBatch, ns_to_seconds
-from .profiles import Profile
+from .profiles import Profile, SignalDef
+
+if TYPE_CHECKING:  # python-can (~35-110 ms to import) only where can.Message objects are made
+    import can
+    import cantools
 
 __all__ = [
     "EncodeError",
@@ -216,7 +219,7 @@ def words_le(data: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class SignalCodec:
-    """Bit position and scaling of one DBC signal, compiled from cantools."""
+    """Bit position and scaling of one DBC signal (from the profile's :class:`lde.profiles.SignalDef`)."""
 
     name: str
     start: int  # DBC start bit (LSB for Intel, MSB for Motorola)
@@ -229,20 +232,24 @@ class SignalCodec:
     maximum: float | None
 
     @classmethod
-    def from_cantools(cls, sig: cantools.database.can.Signal) -> SignalCodec:
+    def of(cls, sig: SignalDef) -> SignalCodec:
         if sig.is_float:
             raise LdeError(f"signal {sig.name}: IEEE float signals are not supported")
         return cls(
             name=sig.name,
-            start=int(sig.start),
-            length=int(sig.length),
-            little_endian=sig.byte_order == "little_endian",
-            signed=bool(sig.is_signed),
-            scale=float(sig.scale),
-            offset=float(sig.offset),
-            minimum=None if sig.minimum is None else float(sig.minimum),
-            maximum=None if sig.maximum is None else float(sig.maximum),
+            start=sig.start,
+            length=sig.length,
+            little_endian=sig.little_endian,
+            signed=sig.signed,
+            scale=sig.scale,
+            offset=sig.offset,
+            minimum=sig.minimum,
+            maximum=sig.maximum,
         )
+
+    @classmethod
+    def from_cantools(cls, sig: cantools.database.can.Signal) -> SignalCodec:
+        return cls.of(SignalDef.from_cantools(sig))
 
     @property
     def shift(self) -> int:
@@ -388,12 +395,11 @@ class MessageCodec:
 
     def __init__(self, profile: Profile, name: str) -> None:
         spec = profile.spec(name)  # ConfigError if unknown
-        msg = profile.db.get_message_by_name(name)
         self.name = name
         self.frame_id = spec.frame_id
         self.length = spec.length
         self.scheme: IntegrityScheme = spec.scheme
-        self.signals: dict[str, SignalCodec] = {s.name: SignalCodec.from_cantools(s) for s in msg.signals}
+        self.signals: dict[str, SignalCodec] = {s.name: SignalCodec.of(s) for s in profile.signals[name]}
         integrity_fields = set(self.scheme.counter_fields) | set(self.scheme.checksum_fields)
         self.integrity: frozenset[str] = frozenset(
             n for n, s in self.signals.items() if s.little_endian and (s.start, s.length) in integrity_fields
@@ -457,6 +463,8 @@ class MessageEncoder:
 
     def message(self, values: Mapping[str, float], t_ns: int, channel: str | None = None) -> can.Message:
         """Encoded python-can message with timestamp ``t_ns`` (float seconds)."""
+        import can
+
         return can.Message(
             timestamp=ns_to_seconds(t_ns),
             arbitration_id=self.codec.frame_id,

@@ -22,17 +22,25 @@ The DBC directory is found as ``<repo root>/dbc`` (source checkout or editable i
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import os
+import pickle
+import sys
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
+from typing import TYPE_CHECKING, Any
 
-import cantools
 import numpy as np
 
 from .e2e import P01_SCHEME, IntegrityKind, IntegrityScheme, ReceiverConfig
 from .errors import ConfigError
 from .units import DEG, KMH
+
+if TYPE_CHECKING:  # cantools (and python-can through it) is imported only to parse a DBC
+    import cantools
 
 __all__ = [
     "INPUT_NAMES",
@@ -46,6 +54,8 @@ __all__ = [
     "load_profile",
     "dbc_dir",
     "PROFILE_NAMES",
+    "SignalDef",
+    "profile_cache_dir",
 ]
 
 INPUT_NAMES: tuple[str, ...] = (
@@ -112,18 +122,65 @@ class MessageSpec:
         return "mdps" if self.inputs[0] in MDPS_INPUTS else "esc"
 
 
+@dataclass(frozen=True)
+class SignalDef:
+    """One DBC signal's bit layout and scaling, as the DBC gives them (physical value = raw * scale +
+    offset, in the DBC's unit; ``start``: the DBC start bit, LSB for Intel, MSB for Motorola)."""
+
+    name: str
+    start: int
+    length: int
+    little_endian: bool
+    signed: bool
+    scale: float
+    offset: float
+    minimum: float | None
+    maximum: float | None
+    is_float: bool = False
+
+    @classmethod
+    def from_cantools(cls, sig: cantools.database.can.Signal) -> SignalDef:
+        return cls(
+            name=sig.name,
+            start=int(sig.start),
+            length=int(sig.length),
+            little_endian=sig.byte_order == "little_endian",
+            signed=bool(sig.is_signed),
+            scale=float(sig.scale),
+            offset=float(sig.offset),
+            minimum=None if sig.minimum is None else float(sig.minimum),
+            maximum=None if sig.maximum is None else float(sig.maximum),
+            is_float=bool(sig.is_float),
+        )
+
+
 @dataclass(frozen=True, eq=False)
 class Profile:
-    """A CAN profile: DBC database, input signal map, input and output message specs."""
+    """A CAN profile: input signal map, input and output message specs, the signals of those
+    messages; the whole DBC database (:attr:`db`, cantools) is parsed only when asked for."""
 
     name: str
     dbc_path: Path
-    db: cantools.database.can.Database
     inputs: Mapping[str, InputMap]
     messages: Mapping[str, MessageSpec]  # input messages by name
     outputs: Mapping[str, MessageSpec]  # lde's output messages by name
+    #: every signal of each input and output message, in the DBC's order
+    signals: Mapping[str, tuple[SignalDef, ...]]
     anchor_message: str  # its first accepted frame anchors the step grid (the MDPS torque message)
     angle_above_torsion_bar: bool = False  # the steering angle sensor reads the torsion bar's twist
+    dbc_sha256: str = ""  # of the DBC file's bytes when the profile was loaded
+    _db: Any = field(default=None, repr=False)
+
+    @property
+    def db(self) -> cantools.database.can.Database:
+        """The DBC parsed by cantools (on first use: a profile from the cache has not parsed it).
+        ConfigError if the file changed since the profile was loaded."""
+        if self._db is None:
+            data = _read_dbc(self.dbc_path)
+            if self.dbc_sha256 and hashlib.sha256(data).hexdigest() != self.dbc_sha256:
+                raise ConfigError(f"DBC {self.dbc_path} changed since profile {self.name!r} was loaded")
+            object.__setattr__(self, "_db", _parse_dbc(self.dbc_path, data))
+        return self._db
 
     @property
     def steering_rate_signed(self) -> bool:
@@ -306,6 +363,92 @@ def _spec(
     )
 
 
+#: bump when what the cache holds changes shape (the sources of this module and lde.e2e are part of
+#: the key as well, so a code change never serves an old entry)
+_CACHE_FORMAT = 1
+
+
+def profile_cache_dir() -> Path | None:
+    """Where parsed profiles are cached: ``$LDE_PROFILE_CACHE`` (``off``: no cache), else
+    ``$XDG_CACHE_HOME/lde/profiles`` (default ``~/.cache/lde/profiles``)."""
+    env = os.environ.get("LDE_PROFILE_CACHE")
+    if env:
+        return None if env.lower() in ("off", "0", "no") else Path(env)
+    xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(xdg) / "lde" / "profiles"
+
+
+def _read_dbc(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as e:
+        raise ConfigError(f"cannot read DBC {path}: {e.strerror or e}") from None
+
+
+def _parse_dbc(path: Path, data: bytes) -> cantools.database.can.Database:
+    import cantools  # ~20 ms, and python-can (~35-110 ms) through its tester: only on a cache miss
+
+    try:
+        # decoded as cantools.database.load_file decodes a .dbc (cp1252, errors replaced), from the
+        # bytes that were hashed: the cache key is always the parsed file's
+        text = data.decode("cp1252", errors="replace")
+        db = cantools.database.load_string(text, database_format="dbc", strict=True)
+    except Exception as e:  # cantools raises several parser error types
+        raise ConfigError(f"cannot read DBC {path}: {e}") from e
+    if not isinstance(db, cantools.database.can.Database):
+        raise ConfigError(f"{path} is not a CAN database")
+    return db
+
+
+def _cache_key(data: bytes, key: str, params: tuple[int, int, int]) -> str:
+    """The DBC's bytes, which definition it is read with, the receiver parameters, this module's
+    and lde.e2e's sources (what a profile is built from) and the interpreter (pickle)."""
+    h = hashlib.sha256()
+    h.update(f"{_CACHE_FORMAT}|{key if key in _DEFS else '<path>'}|{params}|{sys.version_info[:2]}|".encode())
+    for src in (Path(__file__), Path(__file__).with_name("e2e.py")):
+        try:
+            h.update(src.read_bytes())
+        except OSError:
+            return ""  # sources not readable as files (a zip): no cache
+    h.update(hashlib.sha256(data).digest())
+    return h.hexdigest()
+
+
+def _cache_get(where: Path | None, key: str, dbc_sha: str) -> dict | None:
+    """The cached parts of a profile, or None (no entry, unreadable, corrupt, incomplete, or another
+    DBC's). The entries are pickles in the user's own cache, trusted as numba's cache beside them is."""
+    if where is None or not key:
+        return None
+    try:
+        with open(where / f"{key}.pickle", "rb") as fh:
+            parts = pickle.load(fh)
+    except Exception:  # missing, unreadable, truncated or corrupt: parse the DBC instead
+        return None
+    if not isinstance(parts, dict) or parts.get("key") != key or parts.get("dbc_sha256") != dbc_sha:
+        return None
+    if not all(isinstance(parts.get(k), dict) for k in ("inputs", "messages", "outputs", "signals")):
+        return None
+    if not isinstance(parts.get("anchor"), str) or not isinstance(parts.get("angle_above_torsion_bar"), bool):
+        return None
+    return parts
+
+
+def _cache_put(where: Path | None, key: str, parts: dict) -> None:
+    """Write an entry atomically; a cache that cannot be written is skipped (the DBC is parsed
+    again next time)."""
+    if where is None or not key:
+        return
+    tmp = where / f".{key}.{os.getpid()}.tmp"
+    try:
+        where.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as fh:
+            pickle.dump(parts, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(tmp, where / f"{key}.pickle")
+    except Exception:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+
+
 def load_profile(
     name_or_path: str | Path = "lde",
     *,
@@ -318,6 +461,10 @@ def load_profile(
     A path to a DBC is matched to a profile definition by its input message names (a variant of
     ``lde.dbc`` with other ids or scalings works). ``timeout_periods``, ``max_delta`` (MaxDeltaCounter)
     and ``sync_frames`` (good frames before a message is trusted again) configure every receiver.
+
+    The parsed profile is cached (:func:`profile_cache_dir`) under a key of the DBC file's bytes,
+    these arguments and the sources that build it: a changed DBC is parsed again, never served from
+    the cache; a missing, corrupt or unwritable cache falls back to parsing (cantools).
 
     Raises:
         ConfigError: unknown profile, unreadable DBC, or a DBC missing a message/signal the profile needs.
@@ -333,12 +480,37 @@ def load_profile(
                 f"unknown CAN profile {key!r}: use one of {list(_DEFS)} or the path of a .dbc file"
             )
         pname = path.stem
-    try:
-        db = cantools.database.load_file(str(path), database_format="dbc", strict=True)
-    except Exception as e:  # cantools raises several parser error types
-        raise ConfigError(f"cannot read DBC {path}: {e}") from e
-    if not isinstance(db, cantools.database.can.Database):
-        raise ConfigError(f"{path} is not a CAN database")
+    data = _read_dbc(path)
+    dbc_sha = hashlib.sha256(data).hexdigest()
+    params = (int(timeout_periods), int(max_delta), int(sync_frames))
+    where = profile_cache_dir()
+    ckey = _cache_key(data, key, params) if where is not None else ""
+    parts = _cache_get(where, ckey, dbc_sha)
+    db = None
+    if parts is None:
+        db = _parse_dbc(path, data)
+        parts = _build(db, key, path, f"profile {pname!r} ({path})", params)
+        parts.update(key=ckey, dbc_sha256=dbc_sha)
+        _cache_put(where, ckey, parts)
+    return Profile(
+        name=pname,
+        dbc_path=path,
+        inputs=MappingProxyType(dict(parts["inputs"])),
+        messages=MappingProxyType(dict(parts["messages"])),
+        outputs=MappingProxyType(dict(parts["outputs"])),
+        signals=MappingProxyType(dict(parts["signals"])),
+        anchor_message=parts["anchor"],
+        angle_above_torsion_bar=parts["angle_above_torsion_bar"],
+        dbc_sha256=dbc_sha,
+        _db=db,
+    )
+
+
+def _build(
+    db: cantools.database.can.Database, key: str, path: Path, where: str, params: tuple[int, int, int]
+) -> dict[str, Any]:
+    """A profile's parts (plain data: cached) from the parsed DBC; ConfigError where it does not fit."""
+    timeout_periods, max_delta, sync_frames = params
     names = {m.name for m in db.messages}
     if key in _DEFS:
         pdef = _DEFS[key]
@@ -350,8 +522,6 @@ def load_profile(
                 f"({ {k: sorted({i.message for i in d.inputs}) for k, d in _DEFS.items()} })"
             )
         pdef = _DEFS[matches[0]]
-    where = f"profile {pname!r} ({path})"
-
     inputs = {}
     for im in pdef.inputs:
         if im.message not in names:
@@ -397,13 +567,15 @@ def load_profile(
     if len(set(ids)) != len(ids):
         raise ConfigError(f"{where}: duplicate CAN ids among inputs and outputs: {ids}")
 
-    return Profile(
-        name=pname,
-        dbc_path=path,
-        db=db,
-        inputs=MappingProxyType(inputs),
-        messages=MappingProxyType(messages),
-        outputs=MappingProxyType(outputs),
-        anchor_message=pdef.anchor,
-        angle_above_torsion_bar=pdef.angle_above_torsion_bar,
-    )
+    signals = {
+        name: tuple(SignalDef.from_cantools(sg) for sg in db.get_message_by_name(name).signals)
+        for name in [*messages, *outputs]
+    }
+    return {
+        "inputs": inputs,
+        "messages": messages,
+        "outputs": outputs,
+        "signals": signals,
+        "anchor": pdef.anchor,
+        "angle_above_torsion_bar": pdef.angle_above_torsion_bar,
+    }

@@ -55,9 +55,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import can
 import numpy as np
 
 from .engine import OUTPUT_MESSAGES, StepBlock
@@ -69,6 +68,9 @@ from .profiles import INPUT_NAMES
 from .signals import N_INPUTS
 from .status import DEADLINE_MISS, STATUS_BITS
 from .step import N_OUT
+
+if TYPE_CHECKING:  # python-can is imported by whoever hands in can.Message objects
+    import can
 
 __all__ = [
     "Recorder",

@@ -138,13 +138,13 @@ class RxTables:
         in_msg, in_sig0, in_nsig, in_factor, in_group = [], [], [], [], []
         for name in INPUT_NAMES:
             im = profile.inputs[name]
-            msg = profile.db.get_message_by_name(im.message)
+            sigs = {sg.name: sg for sg in profile.signals[im.message]}
             in_msg.append(row[im.message])
             in_sig0.append(len(codecs))
             in_nsig.append(len(im.signals))
             in_factor.append(float(im.factor))
             in_group.append(G_MDPS if name in MDPS_INPUTS else G_ESC)
-            codecs += [SignalCodec.from_cantools(msg.get_signal_by_name(sn)) for sn in im.signals]
+            codecs += [SignalCodec.of(sigs[sn]) for sn in im.signals]
         group = np.zeros(m, np.int64)
         for k, s in enumerate(specs):
             group[k] = G_MDPS if s.group == "mdps" else G_ESC
