@@ -436,6 +436,9 @@ def helper_main(argv: list[str]) -> int:
     if not (len(argv) == 1 or live) or argv[0] not in HELPER:
         print(f"usage: python -m lde.coldstart {{{','.join(HELPER)}}} [--live]", file=sys.stderr)
         return 2
+    from .lazyblas import defer_blas_import
+
+    defer_blas_import()  # as lde replay: numba's BLAS check without importing scipy.linalg
     for name in HELPER[argv[0]]:
         if live and name in REPLAY_ONLY:
             continue
