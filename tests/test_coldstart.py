@@ -54,6 +54,8 @@ def test_every_wait_names_a_helper_group_compiled_before_it_is_needed(backend: s
     waits = [m.removeprefix("wait ") for m in main if m.startswith("wait ")]
     assert waits == [h for h in helper if h in waits]  # in the helper's order: no wait blocks a later one
     assert "join" in main and main.index("join") > main.index("wait " + helper[0])
+    # the run makes its backend state (the resets) right after the split: compiled by then
+    assert helper.index("resets") < helper.index(waits[-1])
     for g in (*helper, *main):
         assert g.startswith("wait ") or g == "join" or g in C._GROUPS
 
@@ -107,7 +109,7 @@ names = collections.Counter()
 class L(event.Listener):
     def on_start(self, ev): pass
     def on_end(self, ev): names[ev.data["dispatcher"].py_func.__qualname__] += 1
-for g in ("fx-step", "float-step", "learner", "resets", "loop-args", "loop-rx", "loop-out"):
+for g in ("fx-step", "float-step", "learner", "resets", "loop-args", "loop-feed", "loop-sample", "loop-out"):
     C._GROUPS[g]()
 event.register("numba:compile", L())
 C._join("fixed")

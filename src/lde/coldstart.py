@@ -54,26 +54,37 @@ __all__ = [
 
 #: the helper's share per backend, in its order (each name is a group of :data:`_GROUPS`)
 HELPER: dict[str, tuple[str, ...]] = {
-    "fixed": ("fx-step", "loop-out", "resets", "csv"),
-    "float": ("learner", "loop-out", "resets", "csv"),
+    "fixed": ("fx-step", "resets", "loop-out", "loop-sample", "csv"),
+    "float": ("learner", "resets", "loop-out", "csv"),
 }
 #: the helper's groups that only a replay needs (``lde run`` and ``lde demo`` write no CSV)
 REPLAY_ONLY = frozenset({"csv"})
 #: this process's share, in its order: groups of :data:`_GROUPS`, and ``wait NAME`` (wait for the
 #: helper's group NAME, which the next ones need: the joining step its callees, the loop's
-#: arguments and loop its parts)
+#: arguments and loop its parts). The helper's resets come before the last group waited for: the
+#: run makes its backend state (which calls them) right after (they were compiled here in a race).
 MAIN: dict[str, tuple[str, ...]] = {
     "fixed": (
         "float-step",
         "learner",
         "parse",
-        "loop-rx",
+        "loop-feed",
         "loop-args",
         "wait fx-step",
         "join",
         "wait loop-out",
+        "wait loop-sample",
     ),
-    "float": ("float-step", "parse", "loop-args", "loop-rx", "wait learner", "join", "wait loop-out"),
+    "float": (
+        "float-step",
+        "parse",
+        "loop-args",
+        "loop-feed",
+        "loop-sample",
+        "wait learner",
+        "join",
+        "wait loop-out",
+    ),
 }
 #: ``--backend`` as given (None: the default) to the backend it names, for the backends with a split
 #: (checked against :func:`lde.backends.get_backend` by the tests; the CLI starts the helper before
@@ -221,17 +232,26 @@ def _part_types() -> tuple[Any, ...]:
     return tuple(typeof(v) for v in loop_fields())
 
 
-def _loop_rx() -> None:
-    """The loop's receiver parts (:func:`lde.pipeline.feed_frame`, ``sample_inputs``), for the
-    argument types the loop (:func:`lde.pipeline.make_loop`) calls them with."""
+def _loop_feed() -> None:
+    """The loop's receiver part per frame (:func:`lde.pipeline.feed_frame`), for the argument
+    types the loop (:func:`lde.pipeline.make_loop`) calls it with."""
     from numba import types as T
 
     from . import pipeline as P
 
-    tb, _, st, prev_t, _, _, _, _, used_since = _part_types()
-    i8, b, f1, i1 = T.int64, T.boolean, T.float64[::1], T.int64[::1]
+    tb, _, st, _, _, _, _, _, used_since = _part_types()
+    i8, b, i1 = T.int64, T.boolean, T.int64[::1]
     P.feed_frame.compile((tb, st, i1, i8, i8, b, i8, T.uint64, i8, used_since))
-    P.sample_inputs.compile((tb, st, i8, f1, i1, prev_t))
+
+
+def _loop_sample() -> None:
+    """The loop's receiver part per step (:func:`lde.pipeline.sample_inputs`), as :func:`_loop_feed`."""
+    from numba import types as T
+
+    from . import pipeline as P
+
+    tb, _, st, prev_t, _, _, _, _, _ = _part_types()
+    P.sample_inputs.compile((tb, st, T.int64, T.float64[::1], T.int64[::1], prev_t))
 
 
 def _loop_out() -> None:
@@ -253,7 +273,8 @@ _GROUPS: dict[str, Callable[[], None]] = {
     "parse": _parse,
     "csv": _csv,
     "loop-args": _loop_args,
-    "loop-rx": _loop_rx,
+    "loop-feed": _loop_feed,
+    "loop-sample": _loop_sample,
     "loop-out": _loop_out,
 }
 
