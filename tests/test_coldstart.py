@@ -86,6 +86,39 @@ def test_a_ready_line_split_across_reads_is_heard() -> None:
     h.proc.wait()
 
 
+@pytest.mark.parametrize("backend", sorted(C.HELPER))
+def test_a_failed_helpers_groups_are_compiled_here_where_they_were_waited_for(
+    backend: str, monkeypatch
+) -> None:
+    """The helper dies at once: each group this process would have waited for is compiled here in its
+    place (before the joining step, which would otherwise compile the firmware's kernels itself)."""
+    done: list[str] = []
+    for g in C._GROUPS:
+        monkeypatch.setitem(C._GROUPS, g, lambda g=g: done.append(g))
+    monkeypatch.setattr(C, "_join", lambda b: done.append("join"))
+    dead = C._Helper(backend, time.perf_counter(), [sys.executable, "-c", "import sys; sys.exit(1)"])
+    rep = C.compile_split(backend, dead, logs=None)
+    assert rep.helper_failed
+    assert done == [m.removeprefix("wait ") for m in C.MAIN[backend]]
+
+
+@pytest.mark.slow
+def test_a_cold_fixed_split_without_its_helper_compiles(tmp_path: Path) -> None:
+    """On an empty cache, with a helper that dies at once: the split compiles (on main at 4444421 the
+    joining step compiled the coefficient set under its own flags and failed to type it)."""
+    code = """
+import sys, time
+from lde import coldstart as C
+h = C._Helper("fixed", time.perf_counter(), [sys.executable, "-c", "import sys; sys.exit(1)"])
+rep = C.compile_split("fixed", h, logs=[])
+print(rep.helper_failed)
+"""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "nb"), PYTHONPATH=f"{ROOT / 'src'}:{ROOT}")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "it ended (rc 1)" in out.stdout
+
+
 def test_the_split_goes_on_without_its_helper() -> None:
     """A helper that fails at once: this process compiles (or loads) everything itself."""
     from lde.backends import lateral_step

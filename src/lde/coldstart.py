@@ -15,9 +15,11 @@ run needs later. The shares are balanced by the CPU seconds of each group
 (``scripts/compile_profile.py``; docs/startup.md).
 
 The helper is a plain child process: when it fails, dies or takes longer than ``timeout_s`` this
-process stops waiting (and ends the helper), and numba compiles whatever is not in the cache here,
-as without a helper. numba writes a cache entry with an atomic rename, so a kernel is either
-complete in the cache or absent.
+process stops waiting (and ends the helper) and compiles each group it would have waited for
+itself, where it would have waited (not inside the joining step: numba would compile the firmware's
+kernels there with the step's flags, without reference counting, and the coefficient set, which
+allocates, fails to type: a cold ``fixed`` run crashed so). numba writes a cache entry with an
+atomic rename, so a kernel is either complete in the cache or absent.
 
 Signatures: a kernel compiled ahead must have exactly the argument types the caller gives it, else
 the caller compiles it again. They are written out here (:func:`state_types`) from the backend
@@ -419,7 +421,11 @@ def compile_split(
                 rep.helper_failed = "not needed (the cache was warm)"
                 helper = None
             if helper is None:
-                continue  # compiled here when needed, as without a helper
+                # compiled here, before the group that needs it: numba would otherwise compile the
+                # firmware's kernels inside the joining step, with its flags (no reference counting:
+                # the coefficient set, which allocates, then fails to type)
+                _GROUPS[name[len(_WAIT) :]]()
+                continue
             t_wait = time.perf_counter()
             if not rep.waits:
                 rep.main_cpu_at_wait = time.process_time()
@@ -428,6 +434,7 @@ def compile_split(
             if why:
                 rep.helper_failed = why
                 helper = None
+                _GROUPS[name[len(_WAIT) :]]()
     rep.waited_s = sum(rep.waits.values())
     if started is not None:
         rep.helper_s = dict(started.ready)
