@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import json
 import os
 import subprocess
 import sys
@@ -251,3 +252,22 @@ def test_a_live_command_compiles_the_split_before_its_work(cmd: str, monkeypatch
         else:
             assert calls == [("helper", "fixed", True), ("split", "fixed", []), ("work",)]
             assert err.startswith("lde: compiling the numba kernels")
+
+
+def test_the_helper_imports_from_this_processs_path_not_its_working_directory(tmp_path: Path) -> None:
+    """The helper's command replaces its ``sys.path`` with the one given (this process's): a
+    ``firmware_model`` in the working directory (a checkout) is not imported instead."""
+    shadow = tmp_path / "lde"
+    shadow.mkdir()
+    (shadow / "__init__.py").write_text("raise SystemExit('imported from the working directory')\n")
+    code = C._HELPER_CODE.replace("from lde.coldstart import helper_main", "import lde; print(lde.__file__)")
+    code = code.replace("; sys.exit(helper_main(sys.argv[1:]))", "")
+    out = subprocess.run(
+        [sys.executable, "-c", code, json.dumps(sys.path)],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert not out.stdout.strip().startswith(str(tmp_path))

@@ -5,7 +5,7 @@ numba compiles a kernel in the process that first calls it, one kernel after the
 backend's step are independent of one another until the step that joins them, and the data-path
 loop's own parts (:mod:`lde.pipeline`: ``feed_frame``, ``sample_inputs``, ``step_outputs``, and the
 constructor of its fixed arrays) do not depend on the step at all: :func:`compile_split` starts
-``python -m lde.coldstart BACKEND`` (the helper), which compiles its share (:data:`HELPER`) into
+``lde.coldstart BACKEND`` in a new Python (the helper), which compiles its share (:data:`HELPER`) into
 the on-disk cache and says so on its stdout (``ready NAME``), while this process compiles the rest
 (:data:`MAIN`), waiting for a helper group just before the first of its own that needs it (numba
 then loads it from the cache: it looks there before it compiles). The loop, compiled next by the
@@ -30,6 +30,7 @@ against real states) and the step's own unpacking (:func:`lde.backends.lateral_f
 from __future__ import annotations
 
 import atexit
+import json
 import os
 import select
 import subprocess
@@ -93,6 +94,13 @@ MAIN: dict[str, tuple[str, ...]] = {
 #: it imports the registry)
 EARLY_NAMES: dict[str | None, str] = {None: "fixed", "fixed": "fixed", "float": "float", "lateral": "float"}
 _WAIT = "wait "
+#: the helper's command: this process's ``sys.path`` first (``python -m`` would put the working
+#: directory first: in a checkout it imported ``firmware_model`` from there while this process had
+#: the installed one, and compiled into a cache this process never reads)
+_HELPER_CODE = (
+    "import json, sys; sys.path[:] = json.loads(sys.argv.pop(1)); "
+    "from lde.coldstart import helper_main; sys.exit(helper_main(sys.argv[1:]))"
+)
 
 
 def _types() -> Any:
@@ -306,7 +314,7 @@ class _Helper:
         self.ready: dict[str, float] = {}  # group: when this process heard it [s from t0]
         self.ready_cpu: dict[str, float] = {}  # group: the helper's CPU seconds by then
         self.proc = subprocess.Popen(
-            argv or [sys.executable, "-m", "lde.coldstart", backend],
+            argv or [sys.executable, "-c", _HELPER_CODE, json.dumps(sys.path), backend],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
@@ -359,7 +367,7 @@ def start_helper(backend: str | None, live: bool = False) -> _Helper | None:
     if numba is not None and os.environ.get("NUMBA_CACHE_DIR", "") != numba.config.CACHE_DIR:
         return None  # NUMBA_CACHE_DIR changed since numba read it: the helper would cache elsewhere
     try:
-        argv = [sys.executable, "-m", "lde.coldstart", name, *(["--live"] if live else [])]
+        argv = [sys.executable, "-c", _HELPER_CODE, json.dumps(sys.path), name, *(["--live"] if live else [])]
         return _Helper(name, time.perf_counter(), argv)
     except OSError:
         return None
