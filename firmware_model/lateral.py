@@ -636,7 +636,9 @@ def step_kernel(
     # --- updates (sequential, scalar), each with a fresh sample only
     if fresh_r:
         z = sat32(sat, yaw - cs[CS_BR], S_INNOV)
-        _update(tv, ft, x, P, sat, h, True, z, 0, cs[CS_RN_R], ph, g)
+        # bool(...) and int(0), not literals (hence the noqa): numba would compile _update once per
+        # literal argument set (about 0.5 s each on a cold start, docs/startup.md)
+        _update(tv, ft, x, P, sat, h, bool(True), z, int(0), cs[CS_RN_R], ph, g)  # noqa: UP018
     if fresh_t and mdps_valid:
         # N (T_col + T_ast) - N T_fric z - T_0 = 2K (delta_f - beta - lf r / vx), scaled by 2**-e_T
         tsum = sat32(sat, tcol + tas, S_IN_TORQUE)
@@ -649,13 +651,13 @@ def step_kernel(
         for i in range(5):
             h[i] = 0
         h[0], h[1] = c[LC.K_HT0], c[LC.K_HT1]
-        _update(tv, ft, x, P, sat, h, False, zt, shr(c[LC.K_DT] * delta, fd), r, ph, g)
+        _update(tv, ft, x, P, sat, h, bool(False), zt, shr(c[LC.K_DT] * delta, fd), r, ph, g)  # noqa: UP018
     if fresh_a and (flags & (IN_ACCEL_NAN | IN_ACCEL_SAT)) == 0:
         # a_y = (s (2 Cf alpha_f + 2 Cr alpha_r) + F_wind) / m, scaled by 2**-e_A
         for i in range(5):
             h[i] = 0
         h[0], h[1], h[2] = c[LC.K_HA0], c[LC.K_HA1], c[LC.K_HA2]
-        _update(tv, ft, x, P, sat, h, False, ay, shr(c[LC.K_DA] * delta, fd), cs[CS_RN_A], ph, g)
+        _update(tv, ft, x, P, sat, h, bool(False), ay, shr(c[LC.K_DA] * delta, fd), cs[CS_RN_A], ph, g)  # noqa: UP018
 
     # T_align_hat = 2K (delta_f - beta - lf r / vx): the aligning-torque row at the a-posteriori X
     acc = mac(sat, mac(sat, 0, c[LC.K_HT0], x[0]), c[LC.K_HT1], x[1])

@@ -49,7 +49,10 @@ def _run(
     """(wall, CPU, load, notice) of a run on an empty cache, then (wall, CPU) of a second one on the
     cache it filled when ``second``."""
     cache = Path(tempfile.mkdtemp(prefix="lde-cold-nb-"))
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), PYTHONPATH=f"{tree / 'src'}:{tree}")
+    # PYTHONSAFEPATH: `python -m` would import firmware_model from the working directory, not TREE
+    env = dict(
+        os.environ, NUMBA_CACHE_DIR=str(cache), PYTHONPATH=f"{tree / 'src'}:{tree}", PYTHONSAFEPATH="1"
+    )
     argv = [sys.executable, "-m", "lde", "replay", str(log), "--csv", str(csv), "--backend", backend]
     if demo_s is not None:
         argv = [sys.executable, "-m", "lde", "demo", "--no-mcap", "--no-plot", "--duration", str(demo_s)]

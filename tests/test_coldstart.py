@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import json
 import os
 import subprocess
 import sys
@@ -54,6 +55,8 @@ def test_every_wait_names_a_helper_group_compiled_before_it_is_needed(backend: s
     waits = [m.removeprefix("wait ") for m in main if m.startswith("wait ")]
     assert waits == [h for h in helper if h in waits]  # in the helper's order: no wait blocks a later one
     assert "join" in main and main.index("join") > main.index("wait " + helper[0])
+    # the run makes its backend state (the resets) right after the split: compiled by then
+    assert helper.index("resets") < helper.index(waits[-1])
     for g in (*helper, *main):
         assert g.startswith("wait ") or g == "join" or g in C._GROUPS
 
@@ -84,6 +87,39 @@ def test_a_ready_line_split_across_reads_is_heard() -> None:
     h.proc.wait()
 
 
+@pytest.mark.parametrize("backend", sorted(C.HELPER))
+def test_a_failed_helpers_groups_are_compiled_here_where_they_were_waited_for(
+    backend: str, monkeypatch
+) -> None:
+    """The helper dies at once: each group this process would have waited for is compiled here in its
+    place (before the joining step, which would otherwise compile the firmware's kernels itself)."""
+    done: list[str] = []
+    for g in C._GROUPS:
+        monkeypatch.setitem(C._GROUPS, g, lambda g=g: done.append(g))
+    monkeypatch.setattr(C, "_join", lambda b: done.append("join"))
+    dead = C._Helper(backend, time.perf_counter(), [sys.executable, "-c", "import sys; sys.exit(1)"])
+    rep = C.compile_split(backend, dead, logs=None)
+    assert rep.helper_failed
+    assert done == [m.removeprefix("wait ") for m in C.MAIN[backend]]
+
+
+@pytest.mark.slow
+def test_a_cold_fixed_split_without_its_helper_compiles(tmp_path: Path) -> None:
+    """On an empty cache, with a helper that dies at once: the split compiles (on main at 4444421 the
+    joining step compiled the coefficient set under its own flags and failed to type it)."""
+    code = """
+import sys, time
+from lde import coldstart as C
+h = C._Helper("fixed", time.perf_counter(), [sys.executable, "-c", "import sys; sys.exit(1)"])
+rep = C.compile_split("fixed", h, logs=[])
+print(rep.helper_failed)
+"""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "nb"), PYTHONPATH=f"{ROOT / 'src'}:{ROOT}")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "it ended (rc 1)" in out.stdout
+
+
 def test_the_split_goes_on_without_its_helper() -> None:
     """A helper that fails at once: this process compiles (or loads) everything itself."""
     from lde.backends import lateral_step
@@ -107,7 +143,7 @@ names = collections.Counter()
 class L(event.Listener):
     def on_start(self, ev): pass
     def on_end(self, ev): names[ev.data["dispatcher"].py_func.__qualname__] += 1
-for g in ("fx-step", "float-step", "learner", "resets", "loop-args", "loop-rx", "loop-out"):
+for g in ("fx-step", "float-step", "learner", "resets", "loop-args", "loop-feed", "loop-sample", "loop-out"):
     C._GROUPS[g]()
 event.register("numba:compile", L())
 C._join("fixed")
@@ -216,3 +252,22 @@ def test_a_live_command_compiles_the_split_before_its_work(cmd: str, monkeypatch
         else:
             assert calls == [("helper", "fixed", True), ("split", "fixed", []), ("work",)]
             assert err.startswith("lde: compiling the numba kernels")
+
+
+def test_the_helper_imports_from_this_processs_path_not_its_working_directory(tmp_path: Path) -> None:
+    """The helper's command replaces its ``sys.path`` with the one given (this process's): a
+    ``firmware_model`` in the working directory (a checkout) is not imported instead."""
+    shadow = tmp_path / "lde"
+    shadow.mkdir()
+    (shadow / "__init__.py").write_text("raise SystemExit('imported from the working directory')\n")
+    code = C._HELPER_CODE.replace("from lde.coldstart import helper_main", "import lde; print(lde.__file__)")
+    code = code.replace("; sys.exit(helper_main(sys.argv[1:]))", "")
+    out = subprocess.run(
+        [sys.executable, "-c", code, json.dumps(sys.path)],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert not out.stdout.strip().startswith(str(tmp_path))

@@ -5,7 +5,7 @@ numba compiles a kernel in the process that first calls it, one kernel after the
 backend's step are independent of one another until the step that joins them, and the data-path
 loop's own parts (:mod:`lde.pipeline`: ``feed_frame``, ``sample_inputs``, ``step_outputs``, and the
 constructor of its fixed arrays) do not depend on the step at all: :func:`compile_split` starts
-``python -m lde.coldstart BACKEND`` (the helper), which compiles its share (:data:`HELPER`) into
+``lde.coldstart BACKEND`` in a new Python (the helper), which compiles its share (:data:`HELPER`) into
 the on-disk cache and says so on its stdout (``ready NAME``), while this process compiles the rest
 (:data:`MAIN`), waiting for a helper group just before the first of its own that needs it (numba
 then loads it from the cache: it looks there before it compiles). The loop, compiled next by the
@@ -15,9 +15,11 @@ run needs later. The shares are balanced by the CPU seconds of each group
 (``scripts/compile_profile.py``; docs/startup.md).
 
 The helper is a plain child process: when it fails, dies or takes longer than ``timeout_s`` this
-process stops waiting (and ends the helper), and numba compiles whatever is not in the cache here,
-as without a helper. numba writes a cache entry with an atomic rename, so a kernel is either
-complete in the cache or absent.
+process stops waiting (and ends the helper) and compiles each group it would have waited for
+itself, where it would have waited (not inside the joining step: numba would compile the firmware's
+kernels there with the step's flags, without reference counting, and the coefficient set, which
+allocates, fails to type: a cold ``fixed`` run crashed so). numba writes a cache entry with an
+atomic rename, so a kernel is either complete in the cache or absent.
 
 Signatures: a kernel compiled ahead must have exactly the argument types the caller gives it, else
 the caller compiles it again. They are written out here (:func:`state_types`) from the backend
@@ -28,6 +30,7 @@ against real states) and the step's own unpacking (:func:`lde.backends.lateral_f
 from __future__ import annotations
 
 import atexit
+import json
 import os
 import select
 import subprocess
@@ -54,32 +57,50 @@ __all__ = [
 
 #: the helper's share per backend, in its order (each name is a group of :data:`_GROUPS`)
 HELPER: dict[str, tuple[str, ...]] = {
-    "fixed": ("fx-step", "loop-out", "resets", "csv"),
-    "float": ("learner", "loop-out", "resets", "csv"),
+    "fixed": ("fx-step", "resets", "loop-out", "loop-sample", "csv"),
+    "float": ("learner", "resets", "loop-out", "csv"),
 }
 #: the helper's groups that only a replay needs (``lde run`` and ``lde demo`` write no CSV)
 REPLAY_ONLY = frozenset({"csv"})
 #: this process's share, in its order: groups of :data:`_GROUPS`, and ``wait NAME`` (wait for the
 #: helper's group NAME, which the next ones need: the joining step its callees, the loop's
-#: arguments and loop its parts)
+#: arguments and loop its parts). The helper's resets come before the last group waited for: the
+#: run makes its backend state (which calls them) right after (they were compiled here in a race).
 MAIN: dict[str, tuple[str, ...]] = {
     "fixed": (
         "float-step",
         "learner",
         "parse",
-        "loop-rx",
+        "loop-feed",
         "loop-args",
         "wait fx-step",
         "join",
         "wait loop-out",
+        "wait loop-sample",
     ),
-    "float": ("float-step", "parse", "loop-args", "loop-rx", "wait learner", "join", "wait loop-out"),
+    "float": (
+        "float-step",
+        "parse",
+        "loop-args",
+        "loop-feed",
+        "loop-sample",
+        "wait learner",
+        "join",
+        "wait loop-out",
+    ),
 }
 #: ``--backend`` as given (None: the default) to the backend it names, for the backends with a split
 #: (checked against :func:`lde.backends.get_backend` by the tests; the CLI starts the helper before
 #: it imports the registry)
 EARLY_NAMES: dict[str | None, str] = {None: "fixed", "fixed": "fixed", "float": "float", "lateral": "float"}
 _WAIT = "wait "
+#: the helper's command: this process's ``sys.path`` first (``python -m`` would put the working
+#: directory first: in a checkout it imported ``firmware_model`` from there while this process had
+#: the installed one, and compiled into a cache this process never reads)
+_HELPER_CODE = (
+    "import json, sys; sys.path[:] = json.loads(sys.argv.pop(1)); "
+    "from lde.coldstart import helper_main; sys.exit(helper_main(sys.argv[1:]))"
+)
 
 
 def _types() -> Any:
@@ -221,17 +242,26 @@ def _part_types() -> tuple[Any, ...]:
     return tuple(typeof(v) for v in loop_fields())
 
 
-def _loop_rx() -> None:
-    """The loop's receiver parts (:func:`lde.pipeline.feed_frame`, ``sample_inputs``), for the
-    argument types the loop (:func:`lde.pipeline.make_loop`) calls them with."""
+def _loop_feed() -> None:
+    """The loop's receiver part per frame (:func:`lde.pipeline.feed_frame`), for the argument
+    types the loop (:func:`lde.pipeline.make_loop`) calls it with."""
     from numba import types as T
 
     from . import pipeline as P
 
-    tb, _, st, prev_t, _, _, _, _, used_since = _part_types()
-    i8, b, f1, i1 = T.int64, T.boolean, T.float64[::1], T.int64[::1]
+    tb, _, st, _, _, _, _, _, used_since = _part_types()
+    i8, b, i1 = T.int64, T.boolean, T.int64[::1]
     P.feed_frame.compile((tb, st, i1, i8, i8, b, i8, T.uint64, i8, used_since))
-    P.sample_inputs.compile((tb, st, i8, f1, i1, prev_t))
+
+
+def _loop_sample() -> None:
+    """The loop's receiver part per step (:func:`lde.pipeline.sample_inputs`), as :func:`_loop_feed`."""
+    from numba import types as T
+
+    from . import pipeline as P
+
+    tb, _, st, prev_t, _, _, _, _, _ = _part_types()
+    P.sample_inputs.compile((tb, st, T.int64, T.float64[::1], T.int64[::1], prev_t))
 
 
 def _loop_out() -> None:
@@ -253,7 +283,8 @@ _GROUPS: dict[str, Callable[[], None]] = {
     "parse": _parse,
     "csv": _csv,
     "loop-args": _loop_args,
-    "loop-rx": _loop_rx,
+    "loop-feed": _loop_feed,
+    "loop-sample": _loop_sample,
     "loop-out": _loop_out,
 }
 
@@ -283,7 +314,7 @@ class _Helper:
         self.ready: dict[str, float] = {}  # group: when this process heard it [s from t0]
         self.ready_cpu: dict[str, float] = {}  # group: the helper's CPU seconds by then
         self.proc = subprocess.Popen(
-            argv or [sys.executable, "-m", "lde.coldstart", backend],
+            argv or [sys.executable, "-c", _HELPER_CODE, json.dumps(sys.path), backend],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
@@ -336,7 +367,7 @@ def start_helper(backend: str | None, live: bool = False) -> _Helper | None:
     if numba is not None and os.environ.get("NUMBA_CACHE_DIR", "") != numba.config.CACHE_DIR:
         return None  # NUMBA_CACHE_DIR changed since numba read it: the helper would cache elsewhere
     try:
-        argv = [sys.executable, "-m", "lde.coldstart", name, *(["--live"] if live else [])]
+        argv = [sys.executable, "-c", _HELPER_CODE, json.dumps(sys.path), name, *(["--live"] if live else [])]
         return _Helper(name, time.perf_counter(), argv)
     except OSError:
         return None
@@ -398,7 +429,11 @@ def compile_split(
                 rep.helper_failed = "not needed (the cache was warm)"
                 helper = None
             if helper is None:
-                continue  # compiled here when needed, as without a helper
+                # compiled here, before the group that needs it: numba would otherwise compile the
+                # firmware's kernels inside the joining step, with its flags (no reference counting:
+                # the coefficient set, which allocates, then fails to type)
+                _GROUPS[name[len(_WAIT) :]]()
+                continue
             t_wait = time.perf_counter()
             if not rep.waits:
                 rep.main_cpu_at_wait = time.process_time()
@@ -407,6 +442,7 @@ def compile_split(
             if why:
                 rep.helper_failed = why
                 helper = None
+                _GROUPS[name[len(_WAIT) :]]()
     rep.waited_s = sum(rep.waits.values())
     if started is not None:
         rep.helper_s = dict(started.ready)
@@ -436,6 +472,9 @@ def helper_main(argv: list[str]) -> int:
     if not (len(argv) == 1 or live) or argv[0] not in HELPER:
         print(f"usage: python -m lde.coldstart {{{','.join(HELPER)}}} [--live]", file=sys.stderr)
         return 2
+    from .lazyblas import defer_blas_import
+
+    defer_blas_import()  # as lde replay: numba's BLAS check without importing scipy.linalg
     for name in HELPER[argv[0]]:
         if live and name in REPLAY_ONLY:
             continue

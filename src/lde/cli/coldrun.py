@@ -26,16 +26,22 @@ class ColdStart:
 
 
 def begin(backend: str | None) -> ColdStart:
-    """The notice on stderr and the helper for ``--backend`` as given, when the cache is cold."""
+    """The notice on stderr and the helper for ``--backend`` as given, when the cache is cold; in
+    either case numba's BLAS check answered from disk (:func:`lde.lazyblas.defer_blas_import`, as
+    ``lde replay``: 0.15-0.45 s of importing ``scipy.linalg`` saved)."""
     from ..jitcache import is_warm, notice
+    from ..lazyblas import defer_blas_import
 
     if is_warm():
+        defer_blas_import()
         return ColdStart(False, None)
     print(notice(), file=sys.stderr, flush=True)
     from ..coldstart import EARLY_NAMES, start_helper
 
     name = EARLY_NAMES.get(backend)
-    return ColdStart(True, name, None if name is None else start_helper(backend, live=True))
+    cs = ColdStart(True, name, None if name is None else start_helper(backend, live=True))
+    defer_blas_import()  # after the helper's start: it does its own
+    return cs
 
 
 def compile_ahead(cs: ColdStart) -> None:
