@@ -2,13 +2,15 @@
 docs/firmware_lateral.md "Fixed vs float while the learners learn").
 
 On the zoo's suv_slow, heavy_load, spec sheet only (cold), the two backends' Mw differ by up to
-0.070 Nm (0.136 Nm with ``L_WIND_Q`` before ``L_R2_UPQ``, 0.027 Nm before both). The integer step is not the cause: its own shadow (the float
-step on the fixed learner's parameters) stays within 0.011 Nm. Each backend runs its own learner on
-its own filter's wind estimate, and ``L_WIND_Q`` makes R1's and R2's gains depend on the square of
-that estimate's band-passed change: the integer filter's F_wind (within 0.1 N of the float one's)
-moves Cf, Cr, K by 1-2.5e-5 relative, and Mw, which closes the yaw balance over kN of tire force, by
-0.1 Nm. The tests pin that split: the integer step tight on the same parameters, the learners on the
-same branches and within a relative 1e-4, the rest of the Mw difference set by ``L_WIND_Q``.
+0.070 Nm (0.136 Nm with ``L_WIND_Q`` before ``L_R2_UPQ``, 0.027 Nm before both). The integer step is
+not the cause: its own shadow (the float step on the fixed learner's parameters) stays within
+0.011 Nm. Each backend runs its own learner on its own filter's wind estimate, and ``L_WIND_Q`` makes
+R1's and R2's gains depend on the square of that estimate's band-passed change (``L_R2_UPQ``: R2's
+on the pushes' changes of K and the trail): the integer filter's F_wind (within 0.1 N of the float
+one's) moves Cf, Cr, K by 1-2.5e-5 relative, and Mw, which closes the yaw balance over kN of tire
+force, by 0.1 Nm. The tests pin that split: the integer step tight on the same parameters, the
+learners on the same branches and within a relative 1e-4, the rest of the Mw difference set by
+``L_WIND_Q`` and ``L_R2_UPQ``.
 """
 
 from __future__ import annotations
