@@ -206,9 +206,11 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     lp[L_EXC_SW3] = -1.0
     # R3's residual variance grows by (road-wheel angle acceleration / this [rad/s^2])^2: the
     # measured aligning torque carries the rack's damping and inertia (a lead that grows with the
-    # steering's acceleration), which R3 does not model; off (inf): 1 deg/s^2 learns the twist and K
-    # nearer the truth but was not better on both plant sets (docs/estimator.md, same section)
-    lp[L_R3_ACC] = math.inf
+    # steering's acceleration), which R3 does not model. Where the twist is learned (the angle above
+    # the bar) 1 deg/s^2: K and the twist nearer the truth on every above-bar zoo plant, and better on
+    # both plant sets once R2 forgets its early samples (L_R2_UPQ); on a pinion angle it cost the
+    # lde profile's runs, so off (inf) there (docs/estimator.md, "R3's rack weighting")
+    lp[L_R3_ACC] = 1.0 * DEG if torsion else math.inf
     # the low-rate tier of the steering gate (R3, R1): a sample whose road-wheel rate RMS is under
     # L_EXC_SW but above L_EXC_SW2 [rad/s] counts when the manoeuvre's force is large, m a_y band RMS
     # above L_EXC_F2 [N], and the filter's wind (3 s mean) is under L_WIND_MAX2 [N]. A lane change at
