@@ -266,8 +266,7 @@ def _loop_sample() -> None:
 
     from . import pipeline as P
 
-    tb, _, st, prev_t, _, _, _, _, _ = _part_types()
-    P.sample_inputs.compile((tb, st, T.int64, T.float64[::1], T.int64[::1], prev_t))
+    P.sample_inputs.compile((_loop_arrays_type(), T.int64, T.float64[::1], T.int64[::1]))
 
 
 def _loop_out() -> None:
@@ -276,9 +275,8 @@ def _loop_out() -> None:
 
     from . import pipeline as P
 
-    _, otab, _, _, lp, lsi, lsf, counters, _ = _part_types()
     i8, b, f1 = T.int64, T.boolean, T.float64[::1]
-    P.step_outputs.compile((lp, lsi, lsf, otab, counters, i8, f1, i8, b, f1, b, T.uint8[:, ::1], f1, f1))
+    P.step_outputs.compile((_loop_arrays_type(), i8, f1, i8, b, f1, b, T.uint8[:, ::1], f1, f1))
 
 
 _GROUPS: dict[str, Callable[[], None]] = {

@@ -197,11 +197,13 @@ def feed_frame(la, g, t_ns, can_id, is_ext, dlc, w_le, anchor):  # pragma: no co
 
 
 @njit(cache=True, **NO_REFCOUNT)
-def sample_inputs(tb, st, tk, vin, age, prev_t):  # pragma: no cover - compiled
+def sample_inputs(la, tk, vin, age):  # pragma: no cover - compiled
     """The inputs at step time ``tk`` [ns] into ``vin`` (SI) and ``age`` [ns]
     (:func:`lde.signals.rx_sample`). Returns (valid mask, fresh mask: the inputs that brought a new
-    sample since the previous step at ``prev_t[0]``, which becomes ``tk``; mdps ok, esc ok)."""
-    mask, ok_m, ok_e = rx_sample(tb, st, tk, vin, age)
+    sample since the previous step at ``prev_t[0]``, which becomes ``tk``; mdps ok, esc ok).
+    ``la``: the loop's :class:`lde.loopargs.LoopArrays` (as :func:`feed_frame`)."""
+    prev_t = field(la, "prev_t")
+    mask, ok_m, ok_e = rx_sample(field(la, "tb"), field(la, "rxst"), tk, vin, age)
     fresh = 0
     for q in range(vin.shape[0]):
         if age[q] >= 0 and tk - age[q] > prev_t[0]:
@@ -211,13 +213,13 @@ def sample_inputs(tb, st, tk, vin, age, prev_t):  # pragma: no cover - compiled
 
 
 @njit(cache=True, **NO_REFCOUNT)
-def step_outputs(
-    lp, lsi, lsf, otab, counters, tk, est, status, enable, vin, encode, frames_row, vals, scratch
-):  # pragma: no cover - compiled
+def step_outputs(la, tk, est, status, enable, vin, encode, frames_row, vals, scratch):  # pragma: no cover
     """After the backend step at ``tk`` [ns] (``est``: its ``O_*`` slots, ``status`` its bits): the
     overlay law and limiter, the finalisation, the output values ``vals`` (``V_*``) and, when
     ``encode``, the output frames into ``frames_row`` (one row per output message). Returns
-    (torque [Nm], status, limiter state)."""
+    (torque [Nm], status, limiter state). ``la``: the loop's :class:`lde.loopargs.LoopArrays`
+    (the limiter's parameters and state, the output table and counters; as :func:`feed_frame`)."""
+    lp, lsi, lsf = field(la, "lp"), field(la, "lsi"), field(la, "lsf")
     gain = est[O_GAIN]
     if math.isfinite(gain) and gain > 0.0:  # the backend's learned tires (else the vehicle file's)
         lp[LP_GAIN] = gain
@@ -249,7 +251,7 @@ def step_outputs(
     vals[V_BANK_DEG] = est[O_BANK] / DEG if math.isfinite(est[O_BANK]) else 0.0
     vals[V_LEARN] = est[O_LEARN]
     if encode:
-        _encode_outputs(otab, vals, counters, frames_row, scratch)
+        _encode_outputs(field(la, "otab"), vals, field(la, "counters"), frames_row, scratch)
     return torque, status, state
 
 
@@ -305,7 +307,7 @@ def _run_loop(
     one argument to unbox per call instead of 51.
     """
     tb, otab, st = la.tb, la.otab, la.rxst
-    prev_t, lp, lsi, lsf, counters, used_since = la.prev_t, la.lp, la.lsi, la.lsf, la.counters, la.used_since
+    used_since = la.used_since
     e2e = st[0]
     malformed = st[1]
     nf = t.shape[0]
@@ -336,15 +338,14 @@ def _run_loop(
                     extra = ex_extra[j]
             vin = o_in[n]
             est = o_est[n]
-            mask, fresh, ok_m, ok_e = sample_inputs(tb, st, tk, vin, o_age[n], prev_t)
+            mask, fresh, ok_m, ok_e = sample_inputs(la, tk, vin, o_age[n])
             status = STEP(bp, bs, tk, vin, fresh, ok_m, ok_e, est)
             status |= extra
             # np.int64 / bool: numba types a call while the loop's types are still partial (the
             # literal 0 or True of their first assignment) and would compile the callee once more
             torque, status, state = step_outputs(
-                lp, lsi, lsf, otab, counters, tk, est, np.int64(status), bool(enable), vin, encode,
-                o_frames[n], vals, scratch,
-            )  # fmt: skip
+                la, tk, est, np.int64(status), bool(enable), vin, encode, o_frames[n], vals, scratch
+            )
             o_t[n] = tk
             o_status[n] = status
             o_tov[n] = torque
