@@ -39,18 +39,23 @@ def install() -> None:
     global _ORIGINAL
     if _ORIGINAL is not None:
         return
-    from numba.core import inline_closurecall as ic
+    from numba.core import inline_closurecall
+
+    ic: Any = inline_closurecall  # its ``copy`` and a method are replaced: not the module's types
 
     original = getattr(ic.InlineWorker, "inline_function", None)
     if original is None or getattr(ic, "copy", None) is not copy or not hasattr(ic.InlineWorker, "inline_ir"):
-        return
+        return  # another inliner than the one this was written for
     no_copy = types.SimpleNamespace(deepcopy=lambda x, memo=None: x, copy=copy.copy)
 
-    def inline_function(self: Any, caller_ir: Any, block: Any, i: Any, function: Any, arg_typs: Any = None) -> Any:
+    def inline_function(
+        self: Any, caller_ir: Any, block: Any, i: Any, function: Any, arg_typs: Any = None
+    ) -> Any:
         callee_ir = self.run_untyped_passes(function)  # fresh for this call site: nothing to protect
+        freevars = function.__code__.co_freevars
         ic.copy = no_copy
         try:
-            return self.inline_ir(caller_ir, block, i, callee_ir, function.__code__.co_freevars, arg_typs=arg_typs)
+            return self.inline_ir(caller_ir, block, i, callee_ir, freevars, arg_typs=arg_typs)
         finally:
             ic.copy = copy
 
