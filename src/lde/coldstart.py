@@ -242,6 +242,13 @@ def _part_types() -> tuple[Any, ...]:
     return tuple(typeof(v) for v in loop_fields())
 
 
+def _loop_arrays_type() -> Any:
+    """The numba type of the loop's :class:`lde.loopargs.LoopArrays` (its fields' types)."""
+    from .loopargs import FIELDS, LoopArraysType
+
+    return LoopArraysType(list(zip(FIELDS, _part_types(), strict=True)))
+
+
 def _loop_feed() -> None:
     """The loop's receiver part per frame (:func:`lde.pipeline.feed_frame`), for the argument
     types the loop (:func:`lde.pipeline.make_loop`) calls it with."""
@@ -249,9 +256,8 @@ def _loop_feed() -> None:
 
     from . import pipeline as P
 
-    tb, _, st, _, _, _, _, _, used_since = _part_types()
     i8, b, i1 = T.int64, T.boolean, T.int64[::1]
-    P.feed_frame.compile((tb, st, i1, i8, i8, b, i8, T.uint64, i8, used_since))
+    P.feed_frame.compile((_loop_arrays_type(), i1, i8, i8, b, i8, T.uint64, i8))
 
 
 def _loop_sample() -> None:
@@ -260,8 +266,7 @@ def _loop_sample() -> None:
 
     from . import pipeline as P
 
-    tb, _, st, prev_t, _, _, _, _, _ = _part_types()
-    P.sample_inputs.compile((tb, st, T.int64, T.float64[::1], T.int64[::1], prev_t))
+    P.sample_inputs.compile((_loop_arrays_type(), T.int64, T.float64[::1], T.int64[::1]))
 
 
 def _loop_out() -> None:
@@ -270,9 +275,8 @@ def _loop_out() -> None:
 
     from . import pipeline as P
 
-    _, otab, _, _, lp, lsi, lsf, counters, _ = _part_types()
     i8, b, f1 = T.int64, T.boolean, T.float64[::1]
-    P.step_outputs.compile((lp, lsi, lsf, otab, counters, i8, f1, i8, b, f1, b, T.uint8[:, ::1], f1, f1))
+    P.step_outputs.compile((_loop_arrays_type(), i8, f1, i8, b, f1, b, T.uint8[:, ::1], f1, f1))
 
 
 _GROUPS: dict[str, Callable[[], None]] = {

@@ -56,6 +56,7 @@ from .grid import (
     grid_frame,
     grid_step_done,
 )
+from .loopargs import field
 from .overlay import LP_GAIN, LS_STATE, overlay_kernel
 from .refcount import NO_REFCOUNT
 from .signals import (
@@ -182,23 +183,27 @@ def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cov
 
 
 @njit(cache=True, **NO_REFCOUNT)
-def feed_frame(tb, st, g, t_ns, can_id, is_ext, dlc, w_le, anchor, used_since):  # pragma: no cover
-    """One received frame (time ``t_ns`` [ns]): the receiver (:func:`lde.signals.rx_feed`), the
-    count of accepted input frames since the previous step, the grid (:func:`lde.grid.grid_frame`;
-    ``anchor``: the row of the anchor message)."""
-    m, code = rx_feed(tb, st, t_ns, can_id, is_ext, dlc, w_le)
+def feed_frame(la, g, t_ns, can_id, is_ext, dlc, w_le, anchor):  # pragma: no cover - compiled
+    """One received frame of an input message (time ``t_ns`` [ns]): the receiver
+    (:func:`lde.signals.rx_feed`), the count of accepted input frames since the previous step, the
+    grid (:func:`lde.grid.grid_frame`; ``anchor``: the row of the anchor message). ``la``: the
+    loop's :class:`lde.loopargs.LoopArrays`, one pointer instead of 26 arrays copied per frame."""
+    st = field(la, "rxst")
+    m, code = rx_feed(field(la, "tb"), st, t_ns, can_id, is_ext, dlc, w_le)
     accepted = code >= 0 and st[0][m, S_ACCEPTED] != 0
     if accepted:
-        used_since[0] += 1
+        field(la, "used_since")[0] += 1
     grid_frame(g, t_ns, m >= 0, m == anchor and accepted)
 
 
 @njit(cache=True, **NO_REFCOUNT)
-def sample_inputs(tb, st, tk, vin, age, prev_t):  # pragma: no cover - compiled
+def sample_inputs(la, tk, vin, age):  # pragma: no cover - compiled
     """The inputs at step time ``tk`` [ns] into ``vin`` (SI) and ``age`` [ns]
     (:func:`lde.signals.rx_sample`). Returns (valid mask, fresh mask: the inputs that brought a new
-    sample since the previous step at ``prev_t[0]``, which becomes ``tk``; mdps ok, esc ok)."""
-    mask, ok_m, ok_e = rx_sample(tb, st, tk, vin, age)
+    sample since the previous step at ``prev_t[0]``, which becomes ``tk``; mdps ok, esc ok).
+    ``la``: the loop's :class:`lde.loopargs.LoopArrays` (as :func:`feed_frame`)."""
+    prev_t = field(la, "prev_t")
+    mask, ok_m, ok_e = rx_sample(field(la, "tb"), field(la, "rxst"), tk, vin, age)
     fresh = 0
     for q in range(vin.shape[0]):
         if age[q] >= 0 and tk - age[q] > prev_t[0]:
@@ -208,13 +213,13 @@ def sample_inputs(tb, st, tk, vin, age, prev_t):  # pragma: no cover - compiled
 
 
 @njit(cache=True, **NO_REFCOUNT)
-def step_outputs(
-    lp, lsi, lsf, otab, counters, tk, est, status, enable, vin, encode, frames_row, vals, scratch
-):  # pragma: no cover - compiled
+def step_outputs(la, tk, est, status, enable, vin, encode, frames_row, vals, scratch):  # pragma: no cover
     """After the backend step at ``tk`` [ns] (``est``: its ``O_*`` slots, ``status`` its bits): the
     overlay law and limiter, the finalisation, the output values ``vals`` (``V_*``) and, when
     ``encode``, the output frames into ``frames_row`` (one row per output message). Returns
-    (torque [Nm], status, limiter state)."""
+    (torque [Nm], status, limiter state). ``la``: the loop's :class:`lde.loopargs.LoopArrays`
+    (the limiter's parameters and state, the output table and counters; as :func:`feed_frame`)."""
+    lp, lsi, lsf = field(la, "lp"), field(la, "lsi"), field(la, "lsf")
     gain = est[O_GAIN]
     if math.isfinite(gain) and gain > 0.0:  # the backend's learned tires (else the vehicle file's)
         lp[LP_GAIN] = gain
@@ -246,7 +251,7 @@ def step_outputs(
     vals[V_BANK_DEG] = est[O_BANK] / DEG if math.isfinite(est[O_BANK]) else 0.0
     vals[V_LEARN] = est[O_LEARN]
     if encode:
-        _encode_outputs(otab, vals, counters, frames_row, scratch)
+        _encode_outputs(field(la, "otab"), vals, field(la, "counters"), frames_row, scratch)
     return torque, status, state
 
 
@@ -302,7 +307,7 @@ def _run_loop(
     one argument to unbox per call instead of 51.
     """
     tb, otab, st = la.tb, la.otab, la.rxst
-    prev_t, lp, lsi, lsf, counters, used_since = la.prev_t, la.lp, la.lsi, la.lsf, la.counters, la.used_since
+    used_since = la.used_since
     e2e = st[0]
     malformed = st[1]
     nf = t.shape[0]
@@ -333,15 +338,14 @@ def _run_loop(
                     extra = ex_extra[j]
             vin = o_in[n]
             est = o_est[n]
-            mask, fresh, ok_m, ok_e = sample_inputs(tb, st, tk, vin, o_age[n], prev_t)
+            mask, fresh, ok_m, ok_e = sample_inputs(la, tk, vin, o_age[n])
             status = STEP(bp, bs, tk, vin, fresh, ok_m, ok_e, est)
             status |= extra
             # np.int64 / bool: numba types a call while the loop's types are still partial (the
             # literal 0 or True of their first assignment) and would compile the callee once more
             torque, status, state = step_outputs(
-                lp, lsi, lsf, otab, counters, tk, est, np.int64(status), bool(enable), vin, encode,
-                o_frames[n], vals, scratch,
-            )  # fmt: skip
+                la, tk, est, np.int64(status), bool(enable), vin, encode, o_frames[n], vals, scratch
+            )
             o_t[n] = tk
             o_status[n] = status
             o_tov[n] = torque
@@ -360,8 +364,11 @@ def _run_loop(
             break
         if g[G_MODE] == MODE_EXPLICIT and g[G_K] >= explicit.shape[0]:
             break  # no step left: later frames wait for the steps they belong to (time order)
-        w = words[i]
-        feed_frame(tb, st, g, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), w, anchor, used_since)
+        if is_input:
+            feed_frame(la, g, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), words[i], anchor)
+        else:  # an id the profile ignores: rx_feed's count and the grid's hook, without the call
+            st[5][0] += 1
+            grid_frame(g, t[i], False, False)
         i += 1
     return i, n
 

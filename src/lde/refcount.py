@@ -14,5 +14,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from .nbinline import install
+
+# every module with kernels of lde and the firmware model imports this one before it compiles: the
+# IR inliner without its redundant copies (lde.nbinline) is in place for all their compilations
+install()
+
 #: ``@njit(cache=True, **NO_REFCOUNT)``: a kernel that allocates no array (module docstring)
 NO_REFCOUNT: dict[str, Any] = {"_nrt": False}
