@@ -145,3 +145,39 @@ def test_learned_with_jobs_or_scheduler_is_one_line(logs, tmp_path, opt):
     assert len(lines) == 1 and lines[0].startswith("lde: error: --learned"), proc.stderr
     assert opt[0] in lines[0]
     assert not learned.exists() and not out.exists()  # nothing read, nothing written
+
+
+def test_a_replay_without_its_helper_threads_writes_the_same_csv(logs, tmp_path):
+    """A Dask worker replays with ``helper_threads=False`` (the log read and the CSV written in the
+    replay's own thread): the same bytes as with the read-ahead and CSV threads."""
+    from lde.fleet import ReplayJob, replay_job
+
+    out = {}
+    for threads in (True, False):
+        csv = tmp_path / f"{threads}.csv"
+        rep = replay_job(ReplayJob(logs[1], csv=csv, backend="float", helper_threads=threads))
+        assert not rep.error, rep.error
+        out[threads] = csv.read_bytes()
+    assert out[True] == out[False] and len(out[True]) > 1000
+
+
+@pytest.mark.slow
+def test_a_local_clusters_workers_keep_glibcs_trim_threshold():
+    """The local cluster's workers run without dask's MALLOC_TRIM_THRESHOLD_=65536 (a replay frees
+    MB-sized pieces all along; the trimming tripled its system time) and keep dask's other
+    settings (one OpenMP thread)."""
+    from distributed import Client
+
+    from lde.fleet_dask import _local_cluster
+
+    cluster = _local_cluster(1)
+    try:
+        with Client(cluster) as client:
+            env = client.run(
+                lambda: (os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("OMP_NUM_THREADS"))
+            )
+    finally:
+        cluster.close()
+    ((trim, omp),) = env.values()
+    assert trim is None
+    assert omp == "1"

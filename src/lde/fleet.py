@@ -63,6 +63,9 @@ class ReplayJob:
     shadow_thread: bool = False
     learned: Path | None = None
     smooth: bool = False  # also the RTS smoother's columns / topic (lde.smoother): a second pass
+    # the log read one piece ahead and the CSV written in threads of their own (on a spare core);
+    # off where every core already replays a log of its own (a Dask worker: lde.fleet_dask)
+    helper_threads: bool = True
 
 
 @dataclass
@@ -210,7 +213,7 @@ def _replay_outputs(
     sinks: list[Any] = []
     try:
         if job.csv is not None:
-            sinks.append(CsvWriter(job.csv, smooth=track))
+            sinks.append(CsvWriter(job.csv, smooth=track, background=job.helper_threads))
         if job.mcap is not None:
             meta = {
                 "source": str(job.log),
@@ -233,6 +236,7 @@ def _replay_outputs(
             extra_status=li.extra_status,
             output_frames=job.mcap is not None,
             shadow_thread=job.shadow_thread,
+            read_ahead=job.helper_threads,
             learned=job.learned,
             learned_start=li.learned_start,
             stop=stop,

@@ -13,6 +13,7 @@ started return without a report and write nothing, as in process.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import time
 import uuid
@@ -20,6 +21,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import dask
 from distributed import Client, Event, LocalCluster, wait
 
 from .errors import LdeError
@@ -46,6 +48,9 @@ def _stoppable_job(job: ReplayJob, event_name: str, poll_s: float) -> LogReport 
     event = Event(event_name)
     if event.is_set():
         return None
+    # a worker's one thread is its core, and the other workers hold the others: the replay's
+    # read-ahead and CSV threads would only take turns with them (docs/service.md, "Fleets")
+    job = dataclasses.replace(job, helper_threads=False)
     last = [time.monotonic(), False]
 
     def stop() -> bool:
@@ -55,6 +60,23 @@ def _stoppable_job(job: ReplayJob, event_name: str, poll_s: float) -> LogReport 
         return bool(last[1])
 
     return replay_job(job, stop)
+
+
+def _local_cluster(n_workers: int) -> LocalCluster:
+    """A cluster of ``n_workers`` one-thread worker processes on this machine. Its workers run
+    without dask's ``MALLOC_TRIM_THRESHOLD_=65536`` (meant for long-lived workers that hold data):
+    a replay allocates and frees MB-sized pieces all along, and the trimming gave them back to the
+    kernel at each free (system time 3.9 -> 10.6 s over 100 logs, docs/service.md "Fleets")."""
+    environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
+    environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+        return LocalCluster(
+            n_workers=n_workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",  # a free port: 8787 may be taken by another cluster
+            worker_dashboard_address=None,
+        )
 
 
 def run_jobs_on_dask(
@@ -95,13 +117,7 @@ def _run(
     local = None
     try:
         if cfg.scheduler is None:
-            local = LocalCluster(
-                n_workers=cfg.n_workers,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=":0",  # a free port: 8787 may be taken by another cluster
-                worker_dashboard_address=None,
-            )
+            local = _local_cluster(cfg.n_workers)
             client = Client(local)
         else:
             client = Client(cfg.scheduler, timeout=cfg.connect_timeout)
