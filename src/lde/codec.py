@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -218,34 +218,15 @@ def words_le(data: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class SignalCodec:
-    """Bit position and scaling of one DBC signal (from the profile's :class:`lde.profiles.SignalDef`)."""
-
-    name: str
-    start: int  # DBC start bit (LSB for Intel, MSB for Motorola)
-    length: int
-    little_endian: bool
-    signed: bool
-    scale: float
-    offset: float
-    minimum: float | None
-    maximum: float | None
+class SignalCodec(SignalDef):
+    """Bit position and scaling of one DBC signal (the profile's :class:`lde.profiles.SignalDef`,
+    integer signals only) with the word shifts and masks the compiled codec uses."""
 
     @classmethod
     def of(cls, sig: SignalDef) -> SignalCodec:
         if sig.is_float:
             raise LdeError(f"signal {sig.name}: IEEE float signals are not supported")
-        return cls(
-            name=sig.name,
-            start=sig.start,
-            length=sig.length,
-            little_endian=sig.little_endian,
-            signed=sig.signed,
-            scale=sig.scale,
-            offset=sig.offset,
-            minimum=sig.minimum,
-            maximum=sig.maximum,
-        )
+        return cls(**{f.name: getattr(sig, f.name) for f in fields(SignalDef)})
 
     @classmethod
     def from_cantools(cls, sig: cantools.database.can.Signal) -> SignalCodec:
