@@ -63,6 +63,7 @@ from .signals import (
     I_COLUMN_TORQUE,
     I_SPEED,
     I_STEERING_ANGLE,
+    rx_count_ignored,
     rx_feed,
     rx_msg_of,
     rx_sample,
@@ -367,7 +368,7 @@ def _run_loop(
         if is_input:
             feed_frame(la, g, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), words[i], anchor)
         else:  # an id the profile ignores: rx_feed's count and the grid's hook, without the call
-            st[5][0] += 1
+            rx_count_ignored(st)
             grid_frame(g, t[i], False, False)
         i += 1
     return i, n

@@ -253,6 +253,13 @@ def rx_msg_of(tb, can_id, is_extended):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
+def rx_count_ignored(st):  # pragma: no cover - compiled
+    """Count one frame the profile ignores (what :func:`rx_feed` does for an id without a row; a
+    caller that has looked the id up already counts it without the call)."""
+    st[5][0] += 1
+
+
+@njit(cache=True, inline="always")
 def rx_feed(tb, st, t_ns, can_id, is_extended, dlc, w_le):  # pragma: no cover - compiled
     """Feed one frame (time ``t_ns``, id, length ``dlc`` in bytes, ``w_le`` its first 8 bytes as
     the little-endian word). Returns (message row or -1, code): :data:`FEED_IGNORED`,
