@@ -77,113 +77,44 @@ def ours(profile):
     return drv(profile)
 
 
+def candump_case(name, r, frames=None, profile="lde", shift=0.0):
+    """``frames`` (default: the drive's own) written as a candump log and replayed against the
+    drive's truth; ``--profile`` given for ``hyundai``."""
+    p = out / f"{name}.log"
+    write_candump(p, r.frames if frames is None else frames)
+    run(name, p, F.truth_of(r), *(("--profile", profile) if profile != "lde" else ()), shift=shift)
+
+
 @case
-def lde_ours():
+def periods():
+    candump_case("lde_ours", ours("lde"))
+    candump_case("hy_ours", ours("hyundai"), profile="hyundai")
+    candump_case("lde_esc20_mdps4", drv("lde", {"ESC_Motion": 20, "MDPS_Sensors": 4}))
+    candump_case("lde_esc20_mdps5", drv("lde", {"ESC_Motion": 20, "MDPS_Sensors": 5}))
+    hy_car = drv("hyundai", {"MDPS12": 10, "SAS11": 10, "ESP12": 20, "WHL_SPD11": 20})
+    candump_case("hy_car_rates", hy_car, profile="hyundai")
+    hy_fast = drv("hyundai", {"MDPS12": 5, "SAS11": 10, "ESP12": 10, "WHL_SPD11": 20})
+    candump_case("hy_mdps5", hy_fast, profile="hyundai")
+
+
+@case
+def rewrites():
+    for prof, jit_us, burst_ms in (("lde", 300, 10), ("hyundai", 1000, 20)):
+        r = ours(prof)
+        tag = "lde" if prof == "lde" else "hy"
+        candump_case(f"{tag}_jitter{jit_us}us", r, F.jitter(r.frames, jit_us), prof)
+        candump_case(f"{tag}_bursts{burst_ms}ms", r, F.bursts(r.frames, burst_ms), prof)
+        candump_case(f"{tag}_midstream", r, F.cut(r.frames, None, 3.0137), prof)
     r = ours("lde")
-    p = out / "lde_ours.log"
-    write_candump(p, r.frames)
-    run("lde_ours", p, F.truth_of(r))
-
-
-@case
-def hy_ours():
-    r = ours("hyundai")
-    p = out / "hy_ours.log"
-    write_candump(p, r.frames)
-    run("hy_ours", p, F.truth_of(r), "--profile", "hyundai")
-
-
-@case
-def lde_esc20_mdps4():
-    r = drv("lde", {"ESC_Motion": 20, "MDPS_Sensors": 4})
-    p = out / "a.log"
-    write_candump(p, r.frames)
-    run("lde_esc20_mdps4", p, F.truth_of(r))
-
-
-@case
-def lde_esc20_mdps5():
-    r = drv("lde", {"ESC_Motion": 20, "MDPS_Sensors": 5})
-    p = out / "b.log"
-    write_candump(p, r.frames)
-    run("lde_esc20_mdps5", p, F.truth_of(r))
-
-
-@case
-def hy_car_rates():
-    r = drv("hyundai", {"MDPS12": 10, "SAS11": 10, "ESP12": 20, "WHL_SPD11": 20})
-    p = out / "c.log"
-    write_candump(p, r.frames)
-    run("hy_car_rates", p, F.truth_of(r), "--profile", "hyundai")
-
-
-@case
-def hy_fast():
-    r = drv("hyundai", {"MDPS12": 5, "SAS11": 10, "ESP12": 10, "WHL_SPD11": 20})
-    p = out / "c2.log"
-    write_candump(p, r.frames)
-    run("hy_mdps5", p, F.truth_of(r), "--profile", "hyundai")
-
-
-@case
-def jitter():
-    r = ours("lde")
-    p = out / "j.log"
-    write_candump(p, F.jitter(r.frames, 300))
-    run("lde_jitter300us", p, F.truth_of(r))
-    r = ours("hyundai")
-    p = out / "jh.log"
-    write_candump(p, F.jitter(r.frames, 1000))
-    run("hy_jitter1ms", p, F.truth_of(r), "--profile", "hyundai")
-
-
-@case
-def bursts():
-    r = ours("lde")
-    p = out / "bu.log"
-    write_candump(p, F.bursts(r.frames, 10))
-    run("lde_bursts10ms", p, F.truth_of(r))
-    r = ours("hyundai")
-    p = out / "buh.log"
-    write_candump(p, F.bursts(r.frames, 20))
-    run("hy_bursts20ms", p, F.truth_of(r), "--profile", "hyundai")
-
-
-@case
-def swapped():
-    r = ours("lde")
-    p = out / "sw.log"
-    write_candump(p, F.swap_neighbours(r.frames, 0.05))
-    run("lde_swap5pct", p, F.truth_of(r))
-
-
-@case
-def relative():
-    r = ours("lde")
+    candump_case("lde_swap5pct", r, F.swap_neighbours(r.frames, 0.05))
     t0 = int(r.frames.t_ns[0])
-    p = out / "rel.log"
-    write_candump(p, F.with_times(r.frames, r.frames.t_ns - t0))
-    run("lde_relative", p, F.truth_of(r), shift=t0 / 1e9)
-
-
-@case
-def midstream():
-    r = ours("lde")
-    p = out / "mid.log"
-    write_candump(p, F.cut(r.frames, None, 3.0137))
-    run("lde_midstream", p, F.truth_of(r))
-    r = ours("hyundai")
-    p = out / "midh.log"
-    write_candump(p, F.cut(r.frames, None, 3.0137))
-    run("hy_midstream", p, F.truth_of(r), "--profile", "hyundai")
-
-
-@case
-def gap():
-    r = ours("lde")
-    p = out / "gap.log"
-    write_candump(p, F.cut(r.frames, 4.0, 7.0))
-    run("lde_gap3s", p, F.truth_of(r))
+    candump_case("lde_relative", r, F.with_times(r.frames, r.frames.t_ns - t0), shift=t0 / 1e9)
+    candump_case("lde_gap3s", r, F.cut(r.frames, 4.0, 7.0))
+    candump_case("lde_no_esc", r, F.drop_ids(r.frames, {0x2A8}))
+    candump_case("lde_no_mdps", r, F.drop_ids(r.frames, {0x2A0}))
+    for prof in ("lde", "hyundai"):
+        r = ours(prof)
+        candump_case(f"{prof}_dbc_limits_4-4.5s", r, F.at_dbc_limits(r.frames, prof, 4.0, 4.5), prof)
 
 
 @case
@@ -238,26 +169,6 @@ def tx_direction():
     p = out / "tx.blf"
     F.write_pycan(p, f, channel=1)
     run("lde_blf_all_Tx", p, F.truth_of(r))
-
-
-@case
-def missing():
-    r = ours("lde")
-    p = out / "noesc.log"
-    write_candump(p, F.drop_ids(r.frames, {0x2A8}))
-    run("lde_no_esc", p, F.truth_of(r))
-    p = out / "nomdps.log"
-    write_candump(p, F.drop_ids(r.frames, {0x2A0}))
-    run("lde_no_mdps", p, F.truth_of(r))
-
-
-@case
-def limits():
-    for prof in ("lde", "hyundai"):
-        r = ours(prof)
-        p = out / f"lim_{prof}.log"
-        write_candump(p, F.at_dbc_limits(r.frames, prof, 4.0, 4.5))
-        run(f"{prof}_dbc_limits_4-4.5s", p, F.truth_of(r), "--profile", prof)
 
 
 @case

@@ -28,6 +28,9 @@ def test_profile_fit_names_the_profile_the_ids_belong_to() -> None:
     assert "fit profile hyundai (4 of its 4" in text
     assert describe_ids(Counter(), load_profile("lde")) == "no frame arrived at all"
     assert "none of them is an input" in describe_ids(Counter({0x7FF: 3}), load_profile("lde"))
+    lde_ids = set(_ids("lde").values())
+    stalled = describe_ids(Counter({i: 10 for i in lde_ids}), load_profile("lde"))
+    assert "all of this profile's (lde) inputs arrived before" in stalled and "only" not in stalled
 
 
 def test_wrong_profile_warns_after_the_timeouts_then_slowly() -> None:

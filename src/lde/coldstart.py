@@ -428,6 +428,7 @@ def compile_split(
                     _GROUPS[name]()
                 rep.main_s[name] = time.perf_counter() - t0
                 continue
+            group = name[len(_WAIT) :]
             if helper is not None and not rep.waits and not rec.buffer:
                 helper.stop()  # all loaded: this process's cache was warm after all
                 rep.helper_failed = "not needed (the cache was warm)"
@@ -436,17 +437,17 @@ def compile_split(
                 # compiled here, before the group that needs it: numba would otherwise compile the
                 # firmware's kernels inside the joining step, with its flags (no reference counting:
                 # the coefficient set, which allocates, then fails to type)
-                _GROUPS[name[len(_WAIT) :]]()
+                _GROUPS[group]()
                 continue
             t_wait = time.perf_counter()
             if not rep.waits:
                 rep.main_cpu_at_wait = time.process_time()
-            why = helper.wait_for(name[len(_WAIT) :], t0 + timeout_s)
-            rep.waits[name[len(_WAIT) :]] = time.perf_counter() - t_wait
-            if why:
+            why = helper.wait_for(group, t0 + timeout_s)
+            rep.waits[group] = time.perf_counter() - t_wait
+            if why:  # given up on: compiled here, as above
                 rep.helper_failed = why
                 helper = None
-                _GROUPS[name[len(_WAIT) :]]()
+                _GROUPS[group]()
     rep.waited_s = sum(rep.waits.values())
     if started is not None:
         rep.helper_s = dict(started.ready)

@@ -400,9 +400,9 @@ def _parse_dbc(path: Path, data: bytes) -> cantools.database.can.Database:
     return db
 
 
-def _cache_key(data: bytes, key: str, params: tuple[int, int, int]) -> str:
-    """The DBC's bytes, which definition it is read with, the receiver parameters, this module's
-    and lde.e2e's sources (what a profile is built from) and the interpreter (pickle)."""
+def _cache_key(dbc_sha: str, key: str, params: tuple[int, int, int]) -> str:
+    """The DBC's bytes (their SHA-256), which definition it is read with, the receiver parameters,
+    this module's and lde.e2e's sources (what a profile is built from) and the interpreter (pickle)."""
     h = hashlib.sha256()
     h.update(f"{_CACHE_FORMAT}|{key if key in _DEFS else '<path>'}|{params}|{sys.version_info[:2]}|".encode())
     for src in (Path(__file__), Path(__file__).with_name("e2e.py")):
@@ -410,7 +410,7 @@ def _cache_key(data: bytes, key: str, params: tuple[int, int, int]) -> str:
             h.update(src.read_bytes())
         except OSError:
             return ""  # sources not readable as files (a zip): no cache
-    h.update(hashlib.sha256(data).digest())
+    h.update(dbc_sha.encode())
     return h.hexdigest()
 
 
@@ -484,7 +484,7 @@ def load_profile(
     dbc_sha = hashlib.sha256(data).hexdigest()
     params = (int(timeout_periods), int(max_delta), int(sync_frames))
     where = profile_cache_dir()
-    ckey = _cache_key(data, key, params) if where is not None else ""
+    ckey = _cache_key(dbc_sha, key, params) if where is not None else ""
     parts = _cache_get(where, ckey, dbc_sha)
     db = None
     if parts is None:

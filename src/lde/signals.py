@@ -287,10 +287,10 @@ def rx_feed(tb, st, t_ns, can_id, is_extended, dlc, w_le):  # pragma: no cover -
         sig_scale,
         sig_offset,
     ) = tb
-    e2e, malformed, acc_t, acc_have, value, ignored = st
+    e2e, malformed, acc_t, acc_have, value, _ignored = st
     m = rx_msg_of(tb, can_id, is_extended)
     if m < 0:
-        ignored[0] += 1
+        rx_count_ignored(st)
         return -1, FEED_IGNORED
     n = length[m]
     if dlc != n:

@@ -78,8 +78,10 @@ def describe_ids(counts: Counter[int] | dict[int, int], profile: Profile) -> str
     own = sorted({spec.frame_id for spec in profile.messages.values()})
     fits = [f for f in profile_fit(frozenset(counts)) if f.profile != profile.name]
     came = [f"0x{fid:X}" for fid in own if fid in counts]
-    if came:
+    if came and len(came) < len(own):
         text += f"; of this profile's ({profile.name}) inputs only {', '.join(came)} arrived"
+    elif came:  # every input came before: what is missing now stopped or comes late
+        text += f"; all of this profile's ({profile.name}) inputs arrived before: they stopped or come late"
     elif fits:
         f = fits[0]
         text += (
