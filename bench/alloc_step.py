@@ -19,12 +19,12 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 from bench_service_step import ListBus  # noqa: E402
 
+from lde.can.codec import MessageEncoder, si_to_dbc  # noqa: E402
+from lde.can.profiles import load_profile  # noqa: E402
 from lde.clock import SimulatedClock  # noqa: E402
-from lde.codec import MessageEncoder, si_to_dbc  # noqa: E402
+from lde.io.recording import Recorder  # noqa: E402
 from lde.params import load_vehicle  # noqa: E402
-from lde.profiles import load_profile  # noqa: E402
-from lde.recording import Recorder  # noqa: E402
-from lde.service import Service  # noqa: E402
+from lde.service.service import Service  # noqa: E402
 from lde.units import DEG, KMH, STEP_NS  # noqa: E402
 
 N = 2560

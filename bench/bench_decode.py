@@ -1,10 +1,11 @@
 """Benchmark of the CAN layer: batch decode, step grid, batch encode and the live receiver.
 
 Measured, not invented: synthetic lde-profile traffic (MDPS_Sensors every 3.9 ms with jitter,
-ESC_Motion every 10 ms; one hour = about 1.28 M input frames) is encoded with lde.codec, then
-:func:`lde.signals.decode_batch` and :func:`lde.grid.build_grid` run ``--repeat`` times after one
+ESC_Motion every 10 ms; one hour = about 1.28 M input frames) is encoded with lde.can.codec, then
+:func:`lde.engine.receiver.decode_batch` and :func:`lde.engine.grid.build_grid` run ``--repeat`` times after
+one
 warm-up (numba compilation / cache load). Prints medians (and min/max) in milliseconds, the
-throughput, and the live :class:`lde.signals.Receiver` cost per fed frame and per sample.
+throughput, and the live :class:`lde.engine.receiver.Receiver` cost per fed frame and per sample.
 
     python bench/bench_decode.py                      # one hour of traffic, 7 repeats
     python bench/bench_decode.py --hours 0.25 --repeat 5 --profile hyundai --json out.json
@@ -21,11 +22,11 @@ import time
 
 import numpy as np
 
-from lde.codec import encode_frames, si_to_dbc
-from lde.frames import FrameBatch
-from lde.grid import build_grid
-from lde.profiles import load_profile
-from lde.signals import Receiver, decode_batch
+from lde.can.codec import encode_frames, si_to_dbc
+from lde.can.frames import FrameBatch
+from lde.can.profiles import load_profile
+from lde.engine.grid import build_grid
+from lde.engine.receiver import Receiver, decode_batch
 
 T0 = 1_700_000_000_000_000_000  # ns
 
@@ -95,7 +96,7 @@ def main() -> int:
 
     first = next(iter(p.messages.values()))
     cols = {s: np.zeros(len(fb)) for s in p.inputs[first.inputs[0]].signals}
-    from lde.codec import encode_batch
+    from lde.can.codec import encode_batch
 
     t_enc, _ = timed(lambda: encode_batch(p, first.name, cols), args.repeat)
     results.append(summary(f"encode_batch {first.name}", t_enc, len(fb)))

@@ -3,7 +3,7 @@
 Measured, never invented. Three parts, all in one run:
 
 1. The Q-format table (from the generated constants of the vehicle).
-2. Per simulator scenario (``vcan_sim``, seed 0, the replay pipeline ``lde.replay.replay`` with
+2. Per simulator scenario (``vcan_sim``, seed 0, the replay pipeline ``lde.replay.replay.replay`` with
    ``backend="paper-fixed"`` and ``"paper"``): worst |dFw| [N] and |dMw| [Nm] of fixed vs float at any
    step, and the same for the steady-state-gain alternative (float, ``firmware_model.float_ref``)
    vs the float filter, over all steps and after the first second.
@@ -13,7 +13,7 @@ Measured, never invented. Three parts, all in one run:
      time / steps, median over the repeats;
    - live: ``step(t_ns, inputs)`` per call, each call timed with ``perf_counter_ns``, median over
      all steps (>= 100k);
-   for the float filter (``lde.step``), the fixed model without shadow and the fixed model with
+   for the float filter (``lde.estimator.paper``), the fixed model without shadow and the fixed model with
    its float shadow (the default of ``--backend fixed``); plus the pure-Python reference on
    ``--ref-steps`` steps.
 
@@ -37,9 +37,9 @@ from firmware_model.fast import run_batch as fixed_run_batch
 from firmware_model.float_ref import run_batch_steady_state
 from firmware_model.step import ReferenceEstimator
 from firmware_model.tables import tables_for
+from lde.estimator.paper import Estimator, EstimatorInputs
+from lde.estimator.paper import run_batch as float_run_batch
 from lde.params import load_vehicle
-from lde.step import Estimator, EstimatorInputs
-from lde.step import run_batch as float_run_batch
 from lde.units import STEP_NS
 
 FIELDS = (
@@ -113,8 +113,8 @@ def qformat_rows(vehicle) -> list[tuple[str, str, str, str, str]]:
 
 
 def scenario_grids(vehicle, names):
-    from lde.profiles import load_profile
-    from lde.replay import replay
+    from lde.can.profiles import load_profile
+    from lde.replay.replay import replay
     from vcan_sim.run import simulate
 
     profile = load_profile("lde")
@@ -171,7 +171,7 @@ def concat_inputs(runs, min_steps: int) -> dict[str, np.ndarray]:
 def bench_batch(vehicle, inp, repeat: int) -> dict[str, dict]:
     n = len(inp["t_ns"])
     cases = {
-        "float (lde.step.run_batch)": lambda: float_run_batch(*(inp[f] for f in FIELDS), vehicle),
+        "float (lde.estimator.paper.run_batch)": lambda: float_run_batch(*(inp[f] for f in FIELDS), vehicle),
         "fixed, no shadow": lambda: fixed_run_batch(*(inp[f] for f in FIELDS), vehicle, shadow=False),
         "fixed + float shadow (default)": lambda: fixed_run_batch(*(inp[f] for f in FIELDS), vehicle),
     }
@@ -210,7 +210,7 @@ def bench_live(vehicle, inp, ref_steps: int) -> dict[str, dict]:
     ]
     t = [int(x) for x in inp["t_ns"]]
     cases = {
-        "float (lde.step.Estimator.step)": (Estimator(vehicle), n),
+        "float (lde.estimator.paper.Estimator.step)": (Estimator(vehicle), n),
         "fixed, no shadow (FixedEstimator.step)": (FixedEstimator(vehicle, shadow=False), n),
         "fixed + float shadow (default)": (FixedEstimator(vehicle), n),
         "pure-Python integer reference": (ReferenceEstimator(vehicle), min(ref_steps, n)),

@@ -5,7 +5,7 @@
 Replays the first ``--minutes`` of LOG with the ``float`` backend to get every step's sampled inputs,
 fresh flags and group validity, then times, per step (CPU, median of ``--repeat`` after a warm-up):
 the boundary (``firmware_model.lateral.quantise_kernel``), the integer lateral step after it
-(``step_kernel``), and the float lateral step (``lde.estimator.step_kernel``, the fixed backend's
+(``step_kernel``), and the float lateral step (``lde.estimator.lateral.step_kernel``, the fixed backend's
 shadow). The kernels run outside the data-path loop (no receiver, learner, overlay): what each costs,
 not the loop's total.
 """
@@ -22,12 +22,9 @@ from numba import njit
 
 from firmware_model import lateral as FX
 from firmware_model.tables import lateral_tables_for
-from lde import estimator as E
-from lde.engine import Engine
-from lde.logio import read_log
-from lde.params import load_vehicle
-from lde.profiles import load_profile
-from lde.signals import (
+from lde.can.profiles import load_profile
+from lde.engine.engine import Engine
+from lde.engine.receiver import (
     I_ASSIST_TORQUE,
     I_COLUMN_TORQUE,
     I_LAT_ACCEL,
@@ -35,6 +32,9 @@ from lde.signals import (
     I_STEERING_ANGLE,
     I_YAW_RATE,
 )
+from lde.estimator import lateral as E
+from lde.io import read_log
+from lde.params import load_vehicle
 from lde.units import STEP_NS
 
 FR = 1 << I_YAW_RATE
@@ -99,7 +99,7 @@ def measure(log: Path, minutes: float = 10.0, repeat: int = 5) -> dict:
     blk = Engine(load_profile("lde"), vehicle, "float", encode_outputs=False).feed(frames, final=True)
     t, inp, ok, ages = blk.t_ns, np.ascontiguousarray(blk.inputs), blk.ok.copy(), blk.ages
     prev = np.concatenate([[np.iinfo(np.int64).min], t[:-1]])
-    fresh_bits = (ages >= 0) & ((t[:, None] - ages) > prev[:, None])  # as lde.pipeline computes it
+    fresh_bits = (ages >= 0) & ((t[:, None] - ages) > prev[:, None])  # as lde.engine.loop computes it
     fresh = (fresh_bits * (1 << np.arange(ages.shape[1]))).sum(axis=1).astype(np.int64)
     p = E.params_vector(vehicle, STEP_NS * 1e-9)
     tv, ft = FX.tables_vectors(lateral_tables_for(vehicle, STEP_NS))

@@ -1,6 +1,7 @@
 """Benchmark of the live loop: the service on a kernel bus, fed by the simulator in its own process.
 
-Measured, not invented, and only the service: this process runs :class:`lde.service.Service` exactly as
+Measured, not invented, and only the service: this process runs :class:`lde.service.service.Service` exactly
+as
 ``lde run`` does (its loop in the main thread, no other thread; the recorder, when asked for, in its
 own process); the simulator (``lde sim``, closed loop on ``LDE_Overlay``, real-time pacing) runs as a
 separate process and talks to it through the kernel: python-can's ``udp_multicast`` bus on a host
@@ -59,11 +60,11 @@ from pathlib import Path
 import can
 import numpy as np
 
+from lde.can.profiles import load_profile
 from lde.clock import MonotonicClock, enable_realtime
+from lde.io.recording import Recorder
 from lde.params import load_vehicle
-from lde.profiles import load_profile
-from lde.recording import Recorder
-from lde.service import Service
+from lde.service.service import Service
 from lde.testing.bus import private_multicast
 from lde.units import STEP_NS
 
@@ -106,7 +107,8 @@ class Phases:
     """``--phases``: the time spent in each part of a step, per step (only inside ``step_once``; a
     wrapper costs about 0.2 us per call, so the step cost of such a run is a little higher)."""
 
-    #: "handoff": the compiled hand-off after the sends (timing, LDE_Diag, recorder rings: lde.handoff);
+    #: "handoff": the compiled hand-off after the sends (timing, LDE_Diag, recorder rings:
+    #: lde.service.handoff);
     #: "diag": the LDE_Diag encoding of a service before it (run the same harness on an older checkout)
     NAMES = ("recv", "take", "engine", "send", "handoff", "diag", "rec_step", "rec_frame")
 
@@ -282,7 +284,7 @@ def main(argv: list[str] | None = None) -> int:
         "--cpu-latency-us", type=int, default=0, help="with --realtime: PM QoS bound as lde run (-1: none)"
     )
     ap.add_argument(
-        "--no-fast-io", action="store_true", help="python-can's recv/send (lde.busio generic path)"
+        "--no-fast-io", action="store_true", help="python-can's recv/send (lde.service.busio generic path)"
     )
     ap.add_argument(
         "--no-prewarm",
@@ -298,7 +300,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--busy", type=int, nargs="?", const=1, default=0, help="busy loops on the other core(s)")
     ap.add_argument("--sim-rt-priority", type=int, default=90, help="the simulator's SCHED_FIFO (0: normal)")
-    ap.add_argument("--phases", action="store_true", help="time each part of the step (lde.busio I/O too)")
+    ap.add_argument(
+        "--phases", action="store_true", help="time each part of the step (lde.service.busio I/O too)"
+    )
     ap.add_argument("--io-split", action="store_true", help="time python-can's send/recv inside the step")
     ap.add_argument(
         "--hop-limit",

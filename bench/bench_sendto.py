@@ -1,5 +1,5 @@
 """What one output frame's send costs: python-can's ``udp_multicast`` datagram on the multicast socket
-(as the live service sends it, :mod:`lde.busio`) against the same bytes on a plain unicast UDP socket.
+(as the live service sends it, :mod:`lde.service.busio`) against the same bytes on a plain unicast UDP socket.
 
 Two multicast buses: ``multicast`` with ``hop_limit`` 0 (the IPv4 TTL; what
 :func:`lde.testing.bus.private_multicast` and ``bench/bench_loop.py`` use: the datagram is delivered
@@ -13,7 +13,7 @@ Per round the four output datagrams of a step (``LDE_Estimate``, ``LDE_Overlay``
 sleep before each round (as live, once per 3.9 ms period), "hot": rounds back to back. The multicast
 group has two members besides the sender's loopback, as in ``bench/bench_loop.py``: the simulator's
 socket (here one in this process, drained between rounds) and the service's own, which the service's
-socket filter (:func:`lde.service.set_input_filters`) drops in the kernel; the unicast socket sends to
+socket filter (:func:`lde.service.service.set_input_filters`) drops in the kernel; the unicast socket sends to
 one bound receiver on 127.0.0.1, drained the same way.
 
     python bench/bench_sendto.py [--rounds 3000] [--idle sleep|spin] [--json]
@@ -36,9 +36,9 @@ import time
 import can
 import numpy as np
 
-from lde.busio import bus_io
-from lde.profiles import load_profile
-from lde.service import set_input_filters
+from lde.can.profiles import load_profile
+from lde.service.busio import bus_io
+from lde.service.service import set_input_filters
 from lde.testing.bus import private_multicast
 
 _SLEEP_S = 0.0035
@@ -74,7 +74,10 @@ def main(argv: list[str] | None = None) -> int:
         ]
         msocks.append(member._multicast._socket)  # type: ignore[attr-defined]
     if any(tx.buf is None for tt in txs.values() for tx in tt):
-        print("bench_sendto: python-can's datagram layout is not the one lde.busio patches", file=sys.stderr)
+        print(
+            "bench_sendto: python-can's datagram layout is not the one lde.service.busio patches",
+            file=sys.stderr,
+        )
         return 2
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))

@@ -1,4 +1,4 @@
-"""The service's own per-step cost, without a bus: :meth:`lde.service.Service.step_once` on a bus
+"""The service's own per-step cost, without a bus: :meth:`lde.service.service.Service.step_once` on a bus
 that takes frames from a list and throws sent frames away, recorder on (its writer process drains the
 rings as live).
 
@@ -38,12 +38,12 @@ from pathlib import Path
 import can
 import numpy as np
 
+from lde.can.codec import MessageEncoder, si_to_dbc
+from lde.can.profiles import load_profile
 from lde.clock import SimulatedClock, enable_realtime
-from lde.codec import MessageEncoder, si_to_dbc
+from lde.io.recording import Recorder
 from lde.params import load_vehicle
-from lde.profiles import load_profile
-from lde.recording import Recorder
-from lde.service import Service
+from lde.service.service import Service
 from lde.units import DEG, KMH, STEP_NS
 
 
@@ -142,7 +142,7 @@ def run(n: int, backend: str, gap_s: float, phases: bool, rec_dir: Path) -> dict
 def empty_call(n: int, backend: str) -> dict[str, object]:
     """The engine's live call with no frame and no step time (``Engine.run_live`` as the service
     makes it): what numba's unboxing of the loop's arguments costs, hot and after a 0.5 ms sleep."""
-    from lde.engine import Engine, StepBlock
+    from lde.engine.engine import Engine, StepBlock
 
     eng = Engine(load_profile("lde"), load_vehicle("reference"), backend, explicit=True)
     cols = tuple(np.zeros(0, dt) for dt in (np.int64, np.uint32, np.bool_, np.uint8, np.uint64, np.bool_))

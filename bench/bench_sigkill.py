@@ -48,7 +48,7 @@ import can
 import numpy as np
 
 from lde.errors import LogFormatError
-from lde.recording import read_recording
+from lde.io.recording import read_recording
 from lde.testing.bus import private_multicast
 
 
@@ -162,8 +162,8 @@ def _arrival(heard: list[tuple[int, int, bytes]], frames, n: int) -> int:
 
 
 def one_sim_run(tmp: Path, k: int, rng: random.Random) -> dict:
-    from lde.fleet import ReplayJob, replay_job
-    from lde.logio import read_log, read_mcap
+    from lde.io import read_log, read_mcap
+    from lde.replay.fleet import ReplayJob, replay_job
     from vcan_sim.truth import read_truth_csv
 
     kw = private_multicast(rng)

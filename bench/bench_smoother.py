@@ -31,10 +31,10 @@ ROOT = Path(__file__).resolve().parents[1]
 def filterpy_vs_numba(log: Path, limit: int | None) -> dict:
     from filterpy.kalman import KalmanFilter
 
-    from lde import smoother as S
-    from lde.logio import open_log
+    from lde.can.profiles import load_profile
+    from lde.io import open_log
     from lde.params import load_vehicle
-    from lde.profiles import load_profile
+    from lde.replay import smoother as S
 
     spill = S.TraceSpill()
     try:

@@ -3,8 +3,8 @@
 Measured, not invented: one hour of steps on the 3.9 ms grid (923,077 steps) of synthetic inputs
 (100 km/h with speed changes every step so the model is re-scheduled each time, steering sines,
 noisy yaw rate and torques, a few MDPS/ESC faults and a low-speed stretch so every branch runs)
-through :func:`lde.step.run_batch`, ``--repeat`` times after one warm-up (numba compilation or
-cache load). Then ``--calls`` single :meth:`lde.step.Estimator.step` calls, each timed with
+through :func:`lde.estimator.paper.run_batch`, ``--repeat`` times after one warm-up (numba compilation or
+cache load). Then ``--calls`` single :meth:`lde.estimator.paper.Estimator.step` calls, each timed with
 ``perf_counter_ns``, ``--repeat`` times. Prints medians with min/max (batch) and p10/p50/p90/p99
 (per call), and the CPU time of the batch runs (``process_time``: on a shared machine the wall
 time also counts waiting for a core; see the load average). Target (task brief): an hour of
@@ -26,9 +26,9 @@ import time
 
 import numpy as np
 
-from lde import kalman, model
+from lde.estimator import kalman, model
+from lde.estimator.paper import Estimator, EstimatorInputs, run_batch
 from lde.params import load_vehicle
-from lde.step import Estimator, EstimatorInputs, run_batch
 from lde.units import DEG, KMH, STEP_NS, STEP_S
 
 T0 = 1_700_000_000_000_000_000  # ns

@@ -15,9 +15,9 @@ import time
 import numpy as np
 from numba import njit
 
-from lde.engine import Engine
+from lde.can.profiles import load_profile
+from lde.engine.engine import Engine
 from lde.params import load_vehicle
-from lde.profiles import load_profile
 
 
 @njit

@@ -18,9 +18,9 @@ import dataclasses
 import statistics
 import time
 
-from lde.frames import FrameBatch
+from lde.can.frames import FrameBatch
 from lde.params import load_vehicle
-from lde.replay import read_inputs, run_replay
+from lde.replay.replay import read_inputs, run_replay
 
 #: an 11-bit id that no shipped profile uses
 UNKNOWN_ID = 0x7FE

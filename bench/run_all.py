@@ -18,8 +18,8 @@ float / fixed estimator step           filterpy ``KalmanFilter`` predict + updat
 receiver: E2E + decode to SI           cantools ``Database.decode_message``
 output encoder (counters, CRC)         cantools ``Database.encode_message``
 compiled Profile 1 CRC check           ``autosar-e2e``'s ``e2e.p01.e2e_p01_check`` (why lde has its own)
-candump reader (``lde.logio``)         python-can ``CanutilsLogReader``
-MCAP reader (``lde.logio``)            the ``mcap`` library's ``iter_messages``
+candump reader (``lde.io``)         python-can ``CanutilsLogReader``
+MCAP reader (``lde.io``)            the ``mcap`` library's ``iter_messages``
 replay of 1 h to CSV                   a straightforward replay: cantools decode + a numpy Kalman step
                                        per frame (run on 2 min of the log, scaled to the hour)
 =====================================  ================================================================
@@ -48,18 +48,18 @@ import numpy as np
 from traffic import write_logs
 
 import lde
-from lde import model
-from lde.codec import encode_batch
-from lde.e2e import P01_SCHEME, check_batch
-from lde.frames import FrameBatch
-from lde.grid import build_grid
+from lde.can.codec import encode_batch
+from lde.can.e2e import P01_SCHEME, check_batch
+from lde.can.frames import FrameBatch
+from lde.can.profiles import load_profile
+from lde.engine.grid import build_grid
+from lde.engine.receiver import decode_batch
+from lde.estimator import model
+from lde.estimator.paper import run_batch as float_run_batch
+from lde.io import McapWriter, open_log, read_log
 from lde.kalman_reference import FilterpyReference
-from lde.logio import McapWriter, open_log, read_log
 from lde.params import load_vehicle
-from lde.profiles import load_profile
-from lde.replay import CsvWriter, read_inputs, run_replay
-from lde.signals import decode_batch
-from lde.step import run_batch as float_run_batch
+from lde.replay.replay import CsvWriter, read_inputs, run_replay
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "tests" / "data" / "sample_linear.log"
@@ -154,7 +154,7 @@ def bench_kalman(vehicle, grid, repeat: int) -> dict:
 
 def bench_lateral(log: Path, repeat: int) -> dict:
     """The `fixed` backend's own step: the boundary + the integer lateral step
-    (:mod:`firmware_model.lateral`) and its float shadow (:func:`lde.estimator.step_kernel`) alone,
+    (:mod:`firmware_model.lateral`) and its float shadow (:func:`lde.estimator.lateral.step_kernel`) alone,
     per step, on the first 10 minutes of the hour's inputs (``bench/bench_lateral_kernels.py``)."""
     from bench_lateral_kernels import measure
 
@@ -242,7 +242,7 @@ def bench_readers(log: Path, mcap: Path, repeat: int, tmp: Path) -> dict:
     part = frames[: len(frames) // 10]
     slog = tmp / "slice.log"
     smcap = tmp / "slice.mcap"
-    from lde.logio import write_candump
+    from lde.io import write_candump
 
     write_candump(slog, part)
     with McapWriter(smcap) as w:
@@ -401,11 +401,11 @@ def bench_replay_cli(paths: dict[str, Path], repeat: int, tmp: Path) -> dict:
 _PHASES = (
     "import json, sys, time\n"
     "t0 = time.perf_counter()\n"
-    "import lde.cli, lde.cli.replay, lde.fleet, lde.replay\n"
+    "import lde.cli, lde.cli.replay, lde.replay.fleet, lde.replay.replay\n"
     "t1 = time.perf_counter()\n"
     "from lde.lazyblas import defer_blas_import\n"
     "defer_blas_import()\n"
-    "from lde.logio.candump import parse_candump_bytes\n"
+    "from lde.io.candump import parse_candump_bytes\n"
     "parse_candump_bytes(b'(1.000000) can0 2A0#0000000000000000\\n')\n"
     "t2 = time.perf_counter()\n"
     "rc = lde.cli.main(sys.argv[1:])\n"

@@ -2,9 +2,9 @@
 to): NRMSE after 2 s of Fw and Mw against the simulator's truth, causal vs smoothed, per plant x
 profile x scenario, cold (only the spec-sheet vehicle file) with backend ``float``.
 
-The drives are the zoo's (``scripts/tune_zoo.py``'s cache of ``lde.study`` simulations, seed 0);
-each is replayed in process by :func:`lde.replay.replay` with ``smooth=True`` (the same two passes
-as ``lde replay --smooth``) and scored with :func:`lde.metrics.accuracy` (Mw about the vehicle
+The drives are the zoo's (``scripts/tune_zoo.py``'s cache of ``lde.analysis.study`` simulations, seed 0);
+each is replayed in process by :func:`lde.replay.replay.replay` with ``smooth=True`` (the same two passes
+as ``lde replay --smooth``) and scored with :func:`lde.analysis.metrics.accuracy` (Mw about the vehicle
 file's CG, as issue 11's targets; disturbance-free drives: the RMS of the estimate in N / Nm).
 
     PYTHONPATH=src:. python bench/smooth_zoo.py [--plants a,b] [--profiles lde,hyundai] [--out F.json]
@@ -24,8 +24,8 @@ from tune_zoo import simulated, spec_vehicle  # noqa: E402
 
 
 def figures(t, fw, mw, valid, truth, scenario):
-    from lde import metrics
-    from lde.study.engine import scenario_kind
+    from lde.analysis import metrics
+    from lde.analysis.study.execute import scenario_kind
 
     tr = metrics.Truth(t=truth["t"], fw=truth["Fw"], mw=truth["Mw"], mw_ref=truth["Mw_ref"])
     acc = metrics.accuracy(t, fw, mw, tr, valid=valid, kind=scenario_kind(scenario))
@@ -34,11 +34,11 @@ def figures(t, fw, mw, valid, truth, scenario):
 
 
 def main() -> int:
-    from lde.profiles import load_profile
-    from lde.replay import replay
-    from lde.smoother import S_FW, S_MW
+    from lde.analysis.study.zoo import ZOO_SCENARIOS, plants
+    from lde.can.profiles import load_profile
+    from lde.replay.replay import replay
+    from lde.replay.smoother import S_FW, S_MW
     from lde.status import VALID
-    from lde.study.zoo import ZOO_SCENARIOS, plants
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--plants", default=",".join(plants()))

@@ -2,7 +2,7 @@
 
 MDPS_Sensors every 3.9 ms with 0..100 us of jitter, ESC_Motion every 10 ms (2 ms after it), about
 1.28 M frames per hour, at ~100 km/h with small steering and noise, encoded with
-:func:`lde.codec.encode_batch` (E2E counters and CRCs, counters continuous across pieces). Every
+:func:`lde.can.codec.encode_batch` (E2E counters and CRCs, counters continuous across pieces). Every
 random source is seeded (``seed`` and the piece's index), so a 10-hour log starts with the same
 hour as a 1-hour one.
 
@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from lde.codec import encode_batch, si_to_dbc
-from lde.frames import FrameBatch
-from lde.logio import McapWriter, format_candump
-from lde.profiles import Profile, load_profile
+from lde.can.codec import encode_batch, si_to_dbc
+from lde.can.frames import FrameBatch
+from lde.can.profiles import Profile, load_profile
+from lde.io import McapWriter, format_candump
 from lde.units import DEG, KMH, STEP_NS
 
 T0 = 1_700_000_000_000_000_000  # ns: the logs' epoch start

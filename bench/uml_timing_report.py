@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lde.e2e import p01_check
-from lde.logio import read_log
-from lde.profiles import load_profile
+from lde.can.e2e import p01_check
+from lde.can.profiles import load_profile
+from lde.io import read_log
 from lde.units import STEP_NS
 
 

@@ -16,9 +16,9 @@ from __future__ import annotations
 import can
 import numpy as np
 
-from lde.codec import MessageCodec, MessageEncoder
-from lde.e2e import p01_check
-from lde.profiles import load_profile
+from lde.can.codec import MessageCodec, MessageEncoder
+from lde.can.e2e import p01_check
+from lde.can.profiles import load_profile
 from lde.testing import STEP_S, Bench, Rank, assert_e2e_valid, assert_in_range, assert_periodic
 
 # --------------------------------------------------------------------------- the user's controller

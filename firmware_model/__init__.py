@@ -2,9 +2,10 @@
 
 Public API (the fixed backend of ``lde replay`` / ``lde run``):
 
-- :func:`run_batch` - same signature and :class:`lde.step.BatchResult` as :func:`lde.step.run_batch`,
+- :func:`run_batch` - same signature and :class:`lde.estimator.paper.BatchResult` as
+:func:`lde.estimator.paper.run_batch`,
   with the float filter as shadow check (``Status.SHADOW_DEVIATION``) by default.
-- :class:`FixedEstimator` - ``step(t_ns, inputs)`` / ``reset()`` like :class:`lde.step.Estimator`.
+- :class:`FixedEstimator` - ``step(t_ns, inputs)`` / ``reset()`` like :class:`lde.estimator.paper.Estimator`.
 - :func:`shadow_check`, :class:`ShadowChecker`, :func:`run_batch_with_shadow` - the deviation check.
 - :func:`tables_for` - the generated constants for a vehicle.
 

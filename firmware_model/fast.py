@@ -22,16 +22,15 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
-from lde.conditioning import (
+from lde.estimator.conditioning import (
     condition_arrays,
     condition_kernel,
     corrections_vector,
     is_active,
     without_corrections,
 )
-from lde.model import params_vector
-from lde.params import Vehicle
-from lde.step import (
+from lde.estimator.model import params_vector
+from lde.estimator.paper import (
     BatchResult,
     Estimator,
     EstimatorInputs,
@@ -42,7 +41,8 @@ from lde.step import (
     as_bool,
     as_f64,
 )
-from lde.step import run_batch as float_run_batch
+from lde.estimator.paper import run_batch as float_run_batch
+from lde.params import Vehicle
 from lde.units import STEP_S
 
 from .shadow import ShadowChecker, ShadowReport, shadow_check
@@ -508,7 +508,7 @@ class FastState:
     plus the float shadow filter's state and the shadow-check counters (batch runs with shadow).
 
     Attributes:
-        shadow_state: the float filter's :class:`lde.step.EstimatorState` (created on first use).
+        shadow_state: the float filter's :class:`lde.estimator.paper.EstimatorState` (created on first use).
         shadow_count: steps whose deviation exceeded the bound, over all batches since creation.
         shadow_max_dfw, shadow_max_dmw: largest |dFw| [N] and |dMw| [Nm] seen.
         last_report: the :class:`firmware_model.shadow.ShadowReport` of the last batch.
@@ -626,17 +626,17 @@ def run_batch(
     shadow: bool = True,
     steering_rate: np.ndarray | None = None,
 ) -> BatchResult:
-    """The fixed-point backend with the signature and result type of :func:`lde.step.run_batch`.
+    """The fixed-point backend with the signature and result type of :func:`lde.estimator.paper.run_batch`.
 
-    Inputs in SI on the step grid (see :func:`lde.step.run_batch`); they are quantised at the
+    Inputs in SI on the step grid (see :func:`lde.estimator.paper.run_batch`); they are quantised at the
     boundary, stepped in integers and the raw estimates converted back to SI. ``state`` continues
     from (and advances) a :class:`FastState`; its ``sat`` counts saturations per variable.
 
-    ``shadow`` (default): the float filter (:func:`lde.step.run_batch`, its state kept in
+    ``shadow`` (default): the float filter (:func:`lde.estimator.paper.run_batch`, its state kept in
     ``state.shadow_state``) runs beside it; steps where |dFw| > 5 N or |dMw| > 2 Nm get
     ``Status.SHADOW_DEVIATION`` and are counted in ``state.shadow_count``.
 
-    The vehicle's input corrections (:mod:`lde.conditioning`, ``steering_rate`` for the friction
+    The vehicle's input corrections (:mod:`lde.estimator.conditioning`, ``steering_rate`` for the friction
     term) are applied once, in float before the quantisation, and both filters see the same
     conditioned inputs.
     """
@@ -701,9 +701,9 @@ def run_batch(
 
 
 class FixedEstimator:
-    """The fixed-point estimator for the live loop, interface of :class:`lde.step.Estimator`.
+    """The fixed-point estimator for the live loop, interface of :class:`lde.estimator.paper.Estimator`.
 
-    With ``shadow`` (default) the float :class:`lde.step.Estimator` steps beside it and
+    With ``shadow`` (default) the float :class:`lde.estimator.paper.Estimator` steps beside it and
     :attr:`shadow` (a :class:`firmware_model.shadow.ShadowChecker`) flags each step whose deviation
     exceeds the bound with ``Status.SHADOW_DEVIATION`` and counts it.
     """

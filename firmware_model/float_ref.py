@@ -2,7 +2,7 @@
 scheduled on speed (the generated table over 30-180 km/h, linear interpolation, clamped at the
 ends), no covariance at run time.
 
-Per step, with the semantics of :func:`lde.step.step_kernel` (hold below min speed / without ESC,
+Per step, with the semantics of :func:`lde.estimator.paper.step_kernel` (hold below min speed / without ESC,
 update then output then predict, last valid delta_f on an MDPS fault):
 
     Kg = interp(vx, table)                    (4x2; a-priori steady state of the DARE)
@@ -19,9 +19,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from lde.model import discrete_into, params_vector
+from lde.estimator.model import discrete_into, params_vector
+from lde.estimator.paper import BatchResult
 from lde.params import Vehicle
-from lde.step import BatchResult
 from lde.units import KMH, STEP_S
 
 from .tables import tables_for

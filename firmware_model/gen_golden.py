@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from lde.estimator.paper import EstimatorInputs
 from lde.params import load_vehicle
-from lde.step import EstimatorInputs
 from lde.units import DEG, KMH, STEP_NS
 
 from . import gen_tables as gen

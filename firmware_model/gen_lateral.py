@@ -30,9 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from lde import estimator as E
 from lde.errors import ConfigError
-from lde.learner import PLAUSIBLE
+from lde.estimator import lateral as E
+from lde.estimator.learner import PLAUSIBLE
 from lde.params import Vehicle
 from lde.units import KMH, STEP_NS
 
@@ -71,8 +71,9 @@ RICCATI_PERIODS = (0.010, 0.0039, 0.010)
 RICCATI_KMH = tuple(range(30, 181, 10))
 
 #: What ``p`` can hold for the learned tire and sensor values: the plausibility bounds of a
-#: learned-state file (:data:`lde.learner.PLAUSIBLE`, checked by :func:`lde.learned.load_learned`),
-#: which contain the learner's push bounds (:func:`lde.learner.push`; tested). (low, high).
+#: learned-state file (:data:`lde.estimator.learner.PLAUSIBLE`, checked by
+#: :func:`lde.estimator.learned.load_learned`),
+#: which contain the learner's push bounds (:func:`lde.estimator.learner.push`; tested). (low, high).
 PARAM_BOX = PLAUSIBLE
 _BOX_SLOTS = {"cf": E.P_CF, "cr": E.P_CR, "k": E.P_K, "s": E.P_S}
 

@@ -1,7 +1,7 @@
 """Generate the firmware model's constants from the float model: ``python -m firmware_model.gen_tables``.
 
 Nothing in ``tables_<vehicle>.json`` is typed by hand: this script derives every scaling and
-constant from :mod:`lde.model` (the float model) and :mod:`lde.params` (the vehicle file), writes
+constant from :mod:`lde.estimator.model` (the float model) and :mod:`lde.params` (the vehicle file), writes
 them with a SHA-256 of its inputs, and ``tests/test_firmware_tables.py`` fails when the file
 differs from a fresh generation (stale tables): :func:`stale_entries` compares the input hash and every
 integer (raw constants, Q formats, exponents) exactly and the floats within :data:`FLOAT_TOL_ULP`,
@@ -23,7 +23,7 @@ Speed-scheduled coefficients
 ----------------------------
 Every entry of the normalised ``Phi``, ``E``, ``H``, ``D`` is a polynomial in ``w = 1/vx``:
 ``c(w) = c0 + c1 w + c2 w**2`` (:func:`coefficient_polys`; the test checks it against
-:func:`lde.model.discrete_matrices`). The step computes ``w`` with one integer division per step
+:func:`lde.estimator.model.discrete_matrices`). The step computes ``w`` with one integer division per step
 and evaluates the polynomials: exact scheduling, no interpolation error, no table in RAM. Each
 constant gets its own Q format (the most fractional bits that hold it), each coefficient a result
 format that holds its range over the supported speeds.
@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from lde.errors import ConfigError
-from lde.model import discrete_matrices
+from lde.estimator.model import discrete_matrices
 from lde.params import Vehicle, load_vehicle
 from lde.units import KMH, STEP_NS
 
@@ -131,7 +131,7 @@ def coefficient_polys(
 ) -> dict[str, tuple[float, float, float]]:
     """(c0, c1, c2) of every runtime coefficient: c(w) = c0 + c1 w + c2 w^2 with w = 1/vx [s/m].
 
-    From lde.model (Phi = I + A dt, E = B dt) in normalised units X_i = x_i / s_i:
+    From lde.estimator.model (Phi = I + A dt, E = B dt) in normalised units X_i = x_i / s_i:
     Phi_n[i, j] = Phi[i, j] s_j / s_i;  E_n[i] = E[i] / (N s_i);  H_n[1, j] = H[1, j] s_j / s_T;
     D_n[1] = D[1] / (N s_T)   (E_n, D_n per rad of steering-wheel angle: delta_f = delta_sw / N).
     """

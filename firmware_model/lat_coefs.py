@@ -1,4 +1,4 @@
-"""The lateral filter's model (:mod:`lde.estimator`) as polynomials in ``w = 1/vx``, normalised.
+"""The lateral filter's model (:mod:`lde.estimator.lateral`) as polynomials in ``w = 1/vx``, normalised.
 
 Every speed-dependent entry of the lateral filter's ``Phi = I + A dt``, ``E = B dt`` and of its
 aligning-torque and accelerometer rows ``H``, ``D`` is ``c0 + c1 w + c2 w^2`` whose coefficients
@@ -19,7 +19,7 @@ angle ``delta_f`` times N)::
 The same function serves the generator (format ranges over the parameter box, the Riccati scales),
 the slow task that quantises a coefficient set whenever the learner pushes parameters
 (:func:`firmware_model.lateral.coef_set_kernel`) and the tests, which check it against the float
-step (:func:`lde.estimator.step_kernel`) itself. F_wind and F_bank share one scale (the model's
+step (:func:`lde.estimator.lateral.step_kernel`) itself. F_wind and F_bank share one scale (the model's
 output Fw is their sum), so one coefficient ``phi02`` serves both columns of (7).
 """
 
@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from lde import estimator as E
+from lde.estimator import lateral as E
 
 #: the coefficients, in this order (``K_*`` slots). phiIJ: Phi_n[I, J]; e0, e1: E_n per rad of
 #: corrected steering-wheel angle; ht*: the aligning-torque row (beta, r), dt: its D; ha*: the
@@ -67,7 +67,7 @@ N_EX = 7
 @njit(cache=True)
 def coef_polys(p, ex, c):  # pragma: no cover - compiled
     """Fill ``c`` (N_K, 3) with (c0, c1, c2) of every coefficient for the parameters ``p``
-    (:mod:`lde.estimator` ``P_*`` slots) in the units scaled by ``2**ex`` (``X_*`` slots)."""
+    (:mod:`lde.estimator.lateral` ``P_*`` slots) in the units scaled by ``2**ex`` (``X_*`` slots)."""
     m, iz, lf, lr, n, dt = p[E.P_M], p[E.P_IZ], p[E.P_LF], p[E.P_LR], p[E.P_N], p[E.P_DT]
     cf, cr, k, s = p[E.P_CF], p[E.P_CR], p[E.P_K], p[E.P_S]
     sb, sr = 2.0 ** ex[X_B], 2.0 ** ex[X_R]

@@ -1,4 +1,4 @@
-"""The lateral filter (:mod:`lde.estimator`) in fixed point: the integer step an MDPS ECU without FPU
+"""The lateral filter (:mod:`lde.estimator.lateral`) in fixed point: the integer step an MDPS ECU without FPU
 would run, its slow task, and the boundary (docs/firmware_lateral.md).
 
 Three parts, each a compiled kernel:
@@ -10,7 +10,7 @@ Three parts, each a compiled kernel:
   into the integer **coefficient set** ``cs``. It runs at reset, after every push of the learner
   and after a learned-state file is loaded; the fast step uses the set it finds.
 - :func:`step_kernel`, the **fast step** (integers only: no float, no true division; tested by
-  ``tests/test_firmware_integer_only.py``): the same step as :func:`lde.estimator.step_kernel`:
+  ``tests/test_firmware_integer_only.py``): the same step as :func:`lde.estimator.lateral.step_kernel`:
   validity, hold, the friction sign (a 10 Hz state-variable filter of the pinion angle and a tanh
   table), ``w = 1/vx`` by the normalised reciprocal, the coefficients, the three fresh-gated scalar
   updates (yaw rate, aligning torque, lateral acceleration; one reciprocal each), the outputs (the
@@ -38,7 +38,7 @@ import math
 import numpy as np
 from numba import njit
 
-from lde import estimator as E
+from lde.estimator import lateral as E
 from lde.refcount import NO_REFCOUNT
 from lde.status import DEGRADED, ESC_FAULT, LOW_SPEED, MDPS_FAULT, NOT_CONVERGED, VALID
 
@@ -576,7 +576,7 @@ def step_kernel(
     tv, ft, cs, x, P, aux, sat, ws, t_ns, v, steer, yaw, tcol, tas, ay, flags,
     fresh_r, fresh_t, fresh_a, mdps_ok, esc_ok, iout,
 ):  # fmt: skip  # pragma: no cover - compiled
-    """One integer step, the twin of :func:`lde.estimator.step_kernel` (module docstring); inputs
+    """One integer step, the twin of :func:`lde.estimator.lateral.step_kernel` (module docstring); inputs
     raw (:func:`quantise_kernel`), fills ``iout`` (``IO_*``), returns the status bits. ``ws``: int64
     scratch (4, 16). A saturation in this step, or a saturated coefficient set, sets DEGRADED."""
     aux[A_STEPS] += 1

@@ -7,7 +7,7 @@ shadow=True)`` and ``FixedEstimator(vehicle, shadow=True)``), so a replay or a l
 ``--backend fixed`` reports deviations in ``Status`` without further wiring; the counts are kept
 in ``FastState.shadow_count`` / ``FixedEstimator.shadow.count``.
 
-Batch: :func:`shadow_check` on two :class:`lde.step.BatchResult`, or
+Batch: :func:`shadow_check` on two :class:`lde.estimator.paper.BatchResult`, or
 :func:`firmware_model.fast.run_batch_with_shadow`.
 Live: :class:`ShadowChecker` per step.
 """
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lde.step import BatchResult, EstimatorOutput, Status
+from lde.estimator.paper import BatchResult, EstimatorOutput, Status
 
 FW_BOUND_N = 5.0  #: |Fw_fixed - Fw_float| bound [N]
 MW_BOUND_NM = 2.0  #: |Mw_fixed - Mw_float| bound [Nm]

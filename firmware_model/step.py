@@ -5,10 +5,10 @@ No floats and no numpy in :func:`step_raw`: Python ints with the int32/int64 sem
 saturating int64 accumulator, right shifts rounded HALF_UP). Floats appear only at the boundary
 (:func:`quantise_inputs` and :meth:`FixedEstimator.step`'s output conversion).
 
-Algorithm: the same time-varying Kalman filter as :mod:`lde.step` (a covariance update in fixed
+Algorithm: the same time-varying Kalman filter as :mod:`lde.estimator.paper` (a covariance update in fixed
 point, chosen over steady-state scheduled gains: see ``docs/firmware.md`` for the measurements),
 in normalised units (``X_i = x_i / sigma_i`` and ``Pn_ij = P_ij / (sigma_i sigma_j)``, both Q15.16;
-:mod:`firmware_model.gen_tables`). Per step, mirroring :func:`lde.step.step_kernel`:
+:mod:`firmware_model.gen_tables`). Per step, mirroring :func:`lde.estimator.paper.step_kernel`:
 
 1. Validity: the ESC group is usable when ``esc_ok`` and the yaw rate is inside its format; the
    MDPS group when ``mdps_ok`` and steering angle and torques are inside theirs (an input outside
@@ -30,7 +30,7 @@ in normalised units (``X_i = x_i / sigma_i`` and ``Pn_ij = P_ij / (sigma_i sigma
        X  = Phi_n X + e delta
        Pn = Phi_n Pn Phi_n^T + Qdn
 
-Status bits are those of :class:`lde.step.Status`, set as the float step sets them; in addition a
+Status bits are those of :class:`lde.estimator.paper.Status`, set as the float step sets them; in addition a
 saturation inside the step (speed above the model maximum, any arithmetic saturation) sets
 DEGRADED (and so clears VALID). Input faults are counted per input and reported by their group's
 fault bit, as in the float step.
@@ -41,9 +41,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from lde.conditioning import condition_kernel, corrections_vector, without_corrections
+from lde.estimator.conditioning import condition_kernel, corrections_vector, without_corrections
+from lde.estimator.paper import EstimatorInputs, EstimatorOutput, Status
 from lde.params import Vehicle
-from lde.step import EstimatorInputs, EstimatorOutput, Status
 
 from .qformat import INT32_MAX, INT32_MIN, add_sat64, div_round, shift_round
 from .tables import (
@@ -125,7 +125,7 @@ class FixedState:
         P: normalised covariance, row-major 16 ints, Q15.16.
         delta: last valid steering-wheel angle, Q(f_steer) rad.
         t_align: last output T_align_hat, normalised Q15.16.
-        steps, held, conv_start (t_ns or -1), updates: as in :class:`lde.step.EstimatorState`.
+        steps, held, conv_start (t_ns or -1), updates: as in :class:`lde.estimator.paper.EstimatorState`.
         sat: saturation events per ``SAT_NAMES`` slot since reset.
     """
 
@@ -448,7 +448,7 @@ def quantise_inputs(
 
 
 class ReferenceEstimator:
-    """The pure-Python reference model with the :class:`lde.step.Estimator` interface (slow;
+    """The pure-Python reference model with the :class:`lde.estimator.paper.Estimator` interface (slow;
     for tests and golden vectors. The service uses :class:`firmware_model.fast.FixedEstimator`)."""
 
     def __init__(self, vehicle: Vehicle, tables: FixedTables | None = None) -> None:

@@ -1,6 +1,6 @@
 """Synthetic drives for testing and benchmarking the firmware model without the simulator.
 
-The plant is the estimator's own linear 2-DOF model (:func:`lde.model.continuous_matrices`)
+The plant is the estimator's own linear 2-DOF model (:func:`lde.estimator.model.continuous_matrices`)
 integrated with 4 Euler sub-steps per grid step, plus seeded Gaussian sensor noise: speed sweeps
 within 30-180 km/h, steps and gusts of Fw up to 6000 N and Mw up to 6000 Nm, steering within
 15 deg at the wheel. This tests the arithmetic, not the model's realism (that is vcan_sim's job).
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lde.model import continuous_matrices
+from lde.estimator.model import continuous_matrices
 from lde.params import Vehicle
 from lde.units import DEG, KMH, STEP_NS
 

@@ -19,7 +19,7 @@ DATA = Path(__file__).resolve().parents[1] / "tests" / "data"
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    from lde.logio import read_log
+    from lde.io import read_log
     from lde.params import load_vehicle
 
     frames = read_log(DATA / "sample_linear.log").frames

@@ -2,7 +2,7 @@
 vs float while the learners learn").
 
 Diagnosis only, not the evaluation. Simulates one zoo run as ``lde evaluate --zoo`` does (spec sheet
-only: the cold run), samples its inputs once through the data path (``lde.replay``), then steps both
+only: the cold run), samples its inputs once through the data path (``lde.replay.replay``), then steps both
 lateral backends per step from Python on the same sampled inputs (``lateral_fixed_step``,
 ``lateral_step``: the same rows as the replay, checked) and prints
 
@@ -11,8 +11,8 @@ lateral backends per step from Python on the same sampled inputs (``lateral_fixe
 - a trace: the Mw and F_wind differences, the learner's band-passed wind change ``e2`` (the input of
   ``L_WIND_Q``) and its difference, Cf, Cr, K as fixed/float - 1, the excited-sample counters;
 - the variants: ``L_WIND_Q`` 0 in both learners, and the float backend whose learner reads the fixed
-  filter's wind estimate (F_wind, M_wind) instead of its own (by hand: ``lde.estimator.step_kernel``
-  then ``lde.learner.learner_step``, which reproduces ``lateral_step`` exactly when fed its own).
+  filter's wind estimate (F_wind, M_wind) instead of its own (by hand: ``lde.estimator.lateral.step_kernel``
+  then ``lde.estimator.learner.learner_step``, which reproduces ``lateral_step`` exactly when fed its own).
 
     PYTHONPATH=src:. python scripts/backend_divergence.py --plant suv_slow --scenario heavy_load
 """
@@ -25,13 +25,12 @@ import tempfile
 import numpy as np
 
 from firmware_model.tables import lateral_tables_for
-from lde import backends as B
-from lde import estimator as E
-from lde import learner as Ln
-from lde.params import Vehicle
-from lde.profiles import load_profile
-from lde.replay import replay
-from lde.signals import (
+from lde.analysis.study.execute import load_sim_vehicle, simulate_run
+from lde.analysis.study.spec import SPEC_SHEET, RunSpec
+from lde.analysis.study.specsheet import spec_sheet_vehicle
+from lde.can.profiles import load_profile
+from lde.engine import backends as B
+from lde.engine.receiver import (
     I_ASSIST_TORQUE,
     I_COLUMN_TORQUE,
     I_LAT_ACCEL,
@@ -39,16 +38,17 @@ from lde.signals import (
     I_STEERING_ANGLE,
     I_YAW_RATE,
 )
+from lde.estimator import lateral as E
+from lde.estimator import learner as Ln
+from lde.estimator.paper import N_OUT, O_FW, O_FW_WIND, O_MW, O_MW_WIND
+from lde.params import Vehicle
+from lde.replay.replay import replay
 from lde.status import VALID
-from lde.step import N_OUT, O_FW, O_FW_WIND, O_MW, O_MW_WIND
-from lde.study.engine import load_sim_vehicle, simulate_run
-from lde.study.spec import SPEC_SHEET, RunSpec
-from lde.study.specsheet import spec_sheet_vehicle
 from lde.units import STEP_NS
 
 
 def fresh_masks(block) -> np.ndarray:
-    """The inputs that brought a new sample since the previous step (``lde.pipeline.sample_inputs``)."""
+    """The inputs that brought a new sample since the previous step (``lde.engine.loop.sample_inputs``)."""
     t, ages = block.t_ns, block.ages
     prev = np.concatenate([[np.iinfo(np.int64).min], t[:-1]])
     new = (ages >= 0) & ((t[:, None] - ages) > prev[:, None])

@@ -40,8 +40,8 @@ def true_values(plant: str) -> dict[str, str]:
 def make_hook(plant: str, profile: str, variant: str, extra: str):
     from tune_zoo import make_hook as tz_hook
 
-    from lde import estimator as E
-    from lde import learner as Ln
+    from lde.estimator import lateral as E
+    from lde.estimator import learner as Ln
 
     tv = true_values(plant)
     twist = math.radians(float(tv["torsion_deg_per_Nm"])) if tv[f"angle_{profile}"] == "wheel" else 0.0
@@ -72,7 +72,7 @@ def make_hook(plant: str, profile: str, variant: str, extra: str):
 
 def split(block: Any, truth: dict[str, np.ndarray], man_rate: float) -> dict[str, float]:
     """Bias and share of the squared error of Fw and Mw in steady driving and in manoeuvres."""
-    from lde import metrics
+    from lde.analysis import metrics
     from lde.status import VALID
 
     t = block.t_ns * 1e-9
@@ -117,7 +117,7 @@ def one(args: tuple) -> list[dict[str, Any]]:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    from lde.study.zoo import ZOO_SCENARIOS, plants
+    from lde.analysis.study.zoo import ZOO_SCENARIOS, plants
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--plants", default=",".join(plants()))

@@ -12,7 +12,7 @@ events) with the longest own time first: ``own`` excludes the compilations a ker
 (a kernel compiles the kernels it calls), ``incl`` includes them; ``own CPU``: this process's CPU
 seconds in it (what a loaded machine changes least). A kernel listed twice was compiled
 for two signatures; ``--args`` shows them (``Literal[int](0)`` and the like: a call numba typed
-while the caller's types were still partial, see :mod:`lde.pipeline`). ``--passes NAME,...`` adds
+while the caller's types were still partial, see :mod:`lde.engine.loop`). ``--passes NAME,...`` adds
 numba's pass times and LLVM time of those kernels.
 """
 

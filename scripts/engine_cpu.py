@@ -15,11 +15,11 @@ import statistics
 import sys
 import time
 
-from lde.engine import Engine
-from lde.frames import FrameBatch
-from lde.logio import open_log
+from lde.can.frames import FrameBatch
+from lde.can.profiles import load_profile
+from lde.engine.engine import Engine
+from lde.io import open_log
 from lde.params import load_vehicle
-from lde.profiles import load_profile
 
 
 def main(argv: list[str]) -> int:

@@ -14,7 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import foreign_logs as F
 
 from lde.cli import main
-from lde.logio import write_candump
+from lde.io import write_candump
 
 args = sys.argv[1:]
 out = Path(args[args.index("--out") + 1]) if "--out" in args else Path("foreign_logs_cases")
@@ -175,7 +175,7 @@ def tx_direction():
 def fd_remote_error():
     import can
 
-    import lde.logio.candump as c
+    import lde.io.candump as c
 
     r = ours("lde")
     fd = F.fd_messages(r.frames, [0x2A0, 0x2A8, 0x300], 300)

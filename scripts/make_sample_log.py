@@ -2,11 +2,12 @@
 """Generate the sample drive ``tests/data/sample_linear.{log,mcap}`` + ``sample_linear_truth.csv``.
 
 A 20 s straight drive at 100 km/h on the LINEAR 2-DOF bicycle model (written here from the paper's
-eqs. (7)-(9), (12) with the SPEC's errata, independently of :mod:`lde.model`), simulated with scipy's
+eqs. (7)-(9), (12) with the SPEC's errata, independently of :mod:`lde.estimator.model`), simulated with
+scipy's
 exact (zero-order-hold) discretisation on a 0.1 ms grid. From t = 5 s a constant lateral
 disturbance acts: Fw = 800 N, Mw = -300 Nm (left positive). The driver holds a small sinusoidal
 steering input; sensors add seeded white noise, then the DBC quantises. Frames are encoded with
-:func:`lde.codec.encode_batch` (E2E Profile 1 counters and CRCs) at their periods (MDPS 3.9 ms,
+:func:`lde.can.codec.encode_batch` (E2E Profile 1 counters and CRCs) at their periods (MDPS 3.9 ms,
 ESC 10 ms) with up to 100 us of transmit jitter, timestamps in epoch microseconds.
 
 Model, state x = [beta, r] (side slip [rad], yaw rate [rad/s]), ISO 8855 (left positive)::
@@ -41,11 +42,11 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 
-from lde.codec import encode_batch, si_to_dbc
-from lde.frames import FrameBatch
-from lde.logio import McapWriter, write_candump
+from lde.can.codec import encode_batch, si_to_dbc
+from lde.can.frames import FrameBatch
+from lde.can.profiles import load_profile
+from lde.io import McapWriter, write_candump
 from lde.params import load_vehicle
-from lde.profiles import load_profile
 from lde.units import DEG, KMH, STEP_NS
 
 T0_NS = 1_700_000_000_000_000_000  # log start, epoch ns (2023-11-14 22:13:20 UTC)

@@ -22,11 +22,11 @@ import argparse
 
 import numpy as np
 
-from lde.frames import FrameBatch
-from lde.overlay import feedforward_gain
+from lde.can.frames import FrameBatch
+from lde.can.profiles import load_profile
+from lde.estimator.overlay import feedforward_gain
 from lde.params import load_vehicle
-from lde.profiles import load_profile
-from lde.replay import replay
+from lde.replay.replay import replay
 from lde.units import STEP_S
 from vcan_sim.run import Simulation
 

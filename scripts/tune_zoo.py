@@ -1,7 +1,7 @@
 """Tuning harness of the lateral filter and learner on the zoo (docs/estimator.md, "How it was tuned").
 
 Not the evaluation (that is ``lde evaluate --zoo --backends lateral [--warm]``, which runs ``lde
-replay`` on written logs): this runs the same engine (:class:`lde.engine.Engine`, backend
+replay`` on written logs): this runs the same engine (:class:`lde.engine.engine.Engine`, backend
 ``lateral``) in process on cached simulations, so that learner constants (``lp``) and filter
 constants (``p``) can be changed per run without recompiling. Simulations are cached as pickles in
 ``$LDE_TUNE_CACHE`` (default ``/tmp/lde_zoo_cache``).
@@ -30,8 +30,8 @@ PRIOR_SEED_OFFSET = 500
 
 def simulated(plant: str, scenario: str, profile: str, seed: int) -> tuple[Any, dict[str, np.ndarray]]:
     """(frames, truth) of one zoo drive, simulated once and cached."""
-    from lde.study.engine import check_plant, simulate_run
-    from lde.study.spec import SPEC_SHEET, RunSpec
+    from lde.analysis.study.execute import check_plant, simulate_run
+    from lde.analysis.study.spec import SPEC_SHEET, RunSpec
 
     CACHE.mkdir(parents=True, exist_ok=True)
     path = CACHE / f"{plant}__{scenario}__{profile}__{seed}.pkl"
@@ -59,8 +59,8 @@ def simulated(plant: str, scenario: str, profile: str, seed: int) -> tuple[Any, 
 
 
 def spec_vehicle(plant: str) -> Any:
-    from lde.study.engine import load_sim_vehicle
-    from lde.study.specsheet import spec_sheet_vehicle
+    from lde.analysis.study.execute import load_sim_vehicle
+    from lde.analysis.study.specsheet import spec_sheet_vehicle
 
     return spec_sheet_vehicle(load_sim_vehicle(f"zoo:{plant}"), tempfile.mkdtemp(prefix="lde-tune-"))
 
@@ -77,9 +77,9 @@ def run_engine(
     hook: Hook | None,
     after_load: Hook | None = None,
 ):
-    from lde.engine import Engine
-    from lde.learner import init_state
-    from lde.profiles import load_profile
+    from lde.can.profiles import load_profile
+    from lde.engine.engine import Engine
+    from lde.estimator.learner import init_state
 
     prof = load_profile(profile)
     eng = Engine(prof, vehicle, "lateral", encode_outputs=False)
@@ -99,9 +99,9 @@ def run_engine(
 
 
 def score(block: Any, truth: dict[str, np.ndarray], scenario: str) -> dict[str, float]:
-    from lde import metrics
+    from lde.analysis import metrics
+    from lde.analysis.study.execute import scenario_kind
     from lde.status import VALID
-    from lde.study.engine import scenario_kind
 
     t = block.t_ns * 1e-9
     valid = (block.status & int(VALID)) != 0
@@ -147,8 +147,8 @@ def one(args: tuple) -> list[dict[str, Any]]:
 
 
 def _learned_summary(info: dict[str, Any]) -> dict[str, float]:
-    from lde import estimator as E
-    from lde import learner as Ln
+    from lde.estimator import lateral as E
+    from lde.estimator import learner as Ln
 
     p, ls = info["p"], info["learner"]
     return {
@@ -171,8 +171,8 @@ def make_hook(spec: str) -> Hook | None:
     """``"L_EXC_SW=0.0026,P_QFA=3e4"``: learner (``L_*``) and filter (``P_*``) constants to set."""
     if not spec:
         return None
-    from lde import estimator as E
-    from lde import learner as Ln
+    from lde.estimator import lateral as E
+    from lde.estimator import learner as Ln
 
     sets = []
     for item in spec.split(","):
@@ -198,7 +198,7 @@ def map_runs(fn: Callable[[Any], list[dict[str, Any]]], tasks: list[Any], jobs: 
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    from lde.study.zoo import ZOO_SCENARIOS, plants
+    from lde.analysis.study.zoo import ZOO_SCENARIOS, plants
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--plants", default=",".join(plants()))

@@ -24,8 +24,8 @@ import numpy as np
 
 
 def prior_truth(plant: str, profile: str) -> dict[str, np.ndarray]:
-    from lde.study.engine import simulate_run
-    from lde.study.spec import SPEC_SHEET, RunSpec
+    from lde.analysis.study.execute import simulate_run
+    from lde.analysis.study.spec import SPEC_SHEET, RunSpec
 
     spec = RunSpec(
         scenario="prior_drive", est_vehicle=SPEC_SHEET, sim_vehicle=f"zoo:{plant}", seed=500, profile=profile
@@ -60,7 +60,7 @@ def fits(tr: dict[str, np.ndarray], n: float, w_eps: float) -> list[tuple[str, f
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    from lde.study.engine import load_sim_vehicle, sim_params_from_vehicle
+    from lde.analysis.study.execute import load_sim_vehicle, sim_params_from_vehicle
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--plants", default="tires_minus25,indep_twin")

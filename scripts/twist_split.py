@@ -37,8 +37,8 @@ def truth(plant: str, profile: str) -> tuple[float, float]:
 
 
 def split(plant: str, profile: str, hook_spec: str, seed: int) -> dict[str, float]:
-    from lde import estimator as E
-    from lde import learner as Ln
+    from lde.estimator import lateral as E
+    from lde.estimator import learner as Ln
 
     frames, _ = simulated(plant, "prior_drive", profile, seed + PRIOR_SEED_OFFSET)
     vehicle = spec_vehicle(plant)
@@ -49,8 +49,8 @@ def split(plant: str, profile: str, hook_spec: str, seed: int) -> dict[str, floa
     th = ls[Ln.LS_T3 : Ln.LS_T3 + n3]
     P = ls[Ln.LS_P3 : Ln.LS_P3 + n3 * n3].reshape(n3, n3)
     # the prior R3 started from: the same init_state on the starting parameters
-    from lde.engine import Engine
-    from lde.profiles import load_profile
+    from lde.can.profiles import load_profile
+    from lde.engine.engine import Engine
 
     eng0 = Engine(load_profile(profile), vehicle, "lateral", encode_outputs=False)
     if hook is not None:

@@ -1,7 +1,7 @@
 """Logs as another producer could write them (SPEC sections 3-4), for ``tests/test_foreign_logs.py``.
 
 A drive is simulated by ``vcan_sim`` with the input messages at *other* periods than lde's DBCs
-give (a :class:`~lde.profiles.Profile` whose ``period_ns`` are replaced: the plant is sampled at
+give (a :class:`~lde.can.profiles.Profile` whose ``period_ns`` are replaced: the plant is sampled at
 those times, not resampled from our own log), then rewritten the way an independent tool could:
 jitter, bursts, slight disorder, a relative time base, a start mid-stream, a gap, other channel
 names, foreign / extended / remote / error / CAN FD frames, a missing input message, and written
@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lde.frames import FrameBatch
-from lde.metrics import Accuracy, Truth, accuracy
-from lde.profiles import Profile, load_profile
+from lde.analysis.metrics import Accuracy, Truth, accuracy
+from lde.can.frames import FrameBatch
+from lde.can.profiles import Profile, load_profile
 from vcan_sim.run import SimResult, simulate
 
 MS = 1_000_000
@@ -141,7 +141,7 @@ def at_dbc_limits(f: FrameBatch, profile: str, t0_s: float, t1_s: float) -> Fram
     """The input frames with relative time in [t0, t1) re-encoded with all their physical signals
     at the DBC's maximum and minimum value in turn, counters and checksums kept right (sensors
     pinned at their range ends). Returns a copy."""
-    from lde.codec import MessageEncoder
+    from lde.can.codec import MessageEncoder
 
     p = load_profile(profile)
     data = f.data.copy()
@@ -237,7 +237,7 @@ def write_mcap_library(path: Path, f: FrameBatch, opt: McapOptions | None = None
     own ``Writer`` (its chunking, compression, indexes and summary), not by lde."""
     from mcap.writer import CompressionType, Writer
 
-    from lde.logio import CAN_SCHEMA_NAME, CAN_SCHEMA_TEXT, can_payloads
+    from lde.io import CAN_SCHEMA_NAME, CAN_SCHEMA_TEXT, can_payloads
 
     opt = opt or McapOptions()
     comp = {"lz4": CompressionType.LZ4, "zstd": CompressionType.ZSTD, "none": CompressionType.NONE}

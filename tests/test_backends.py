@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from lde.backends import ALIASES, BACKENDS, DEFAULT_BACKEND, get_backend
 from lde.cli import BACKEND_CHOICES
+from lde.engine.backends import ALIASES, BACKENDS, DEFAULT_BACKEND, get_backend
 from lde.errors import ConfigError
 
 

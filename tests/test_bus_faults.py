@@ -3,7 +3,7 @@ item 1; the same faults on a real vcan0 run inside user-mode Linux: tests/uml/te
 
 For each fault: the loop keeps stepping (one step per grid point), the overlay ramps to zero within its
 rate limit where the fault takes the inputs away, the service resumes by itself when the fault clears,
-and its log has one line when the fault starts and one when it clears (lde.busfaults).
+and its log has one line when the fault starts and one when it clears (lde.service.busfaults).
 """
 
 from __future__ import annotations
@@ -16,11 +16,11 @@ import can
 import numpy as np
 import pytest
 
-from lde.busfaults import BusFaults, FaultTracker, WindowCounts, describe_error_frame
 from lde.clock import SimulatedClock
-from lde.overlay import OverlayTiming
+from lde.estimator.overlay import OverlayTiming
 from lde.params import load_vehicle
-from lde.service import Service, StepResult
+from lde.service.busfaults import BusFaults, FaultTracker, WindowCounts, describe_error_frame
+from lde.service.service import Service, StepResult
 from lde.testing import InputFeeder
 from lde.units import DEG, KMH, STEP_NS
 
@@ -100,7 +100,7 @@ class FaultyBus:
 @dataclass
 class LiveRun:
     steps: list[StepResult] = field(default_factory=list)
-    lines: list[tuple[str, str]] = field(default_factory=list)  # (level, text) of lde.service
+    lines: list[tuple[str, str]] = field(default_factory=list)  # (level, text) of lde.service.service
     outputs_t: list[float] = field(default_factory=list)  # bus times of the LDE_Overlay frames [s]
     svc: Service | None = None
 
@@ -150,9 +150,11 @@ def _run(caplog, fault, *, silent=None, extra=None, restart_at_s: float | None =
             before(res.t_ns + STEP_NS)
 
         before(T0 + STEP_NS)
-        with caplog.at_level("INFO", logger="lde.service"):
+        with caplog.at_level("INFO", logger="lde.service.service"):
             svc.run(max_steps=int(END_S * S / STEP_NS), on_step=on_step, t0_ns=T0 + STEP_NS)
-        run.lines = [(r.levelname.lower(), r.getMessage()) for r in caplog.records if r.name == "lde.service"]
+        run.lines = [
+            (r.levelname.lower(), r.getMessage()) for r in caplog.records if r.name == "lde.service.service"
+        ]
         fid = svc.profile.output_id("LDE_Overlay")
         while (m := obs.recv(0.0)) is not None:
             if m.arbitration_id == fid:

@@ -1,4 +1,5 @@
-"""lde.busio: the socket fast paths read and write exactly what python-can's recv/send would, and every
+"""lde.service.busio: the socket fast paths read and write exactly what python-can's recv/send would, and
+every
 bus that is not one of them (or a frame they do not recognise) goes through python-can."""
 
 from __future__ import annotations
@@ -9,10 +10,10 @@ import can
 import numpy as np
 import pytest
 
-from lde.busio import ERROR_FRAME, NOT_DATA, BusIO, bus_io, message_fields, socketcan_fields
-from lde.frames import seconds_to_ns
+from lde.can.frames import seconds_to_ns
+from lde.can.profiles import load_profile
 from lde.params import load_vehicle
-from lde.profiles import load_profile
+from lde.service.busio import ERROR_FRAME, NOT_DATA, BusIO, bus_io, message_fields, socketcan_fields
 from lde.testing.bus import private_multicast
 
 msgpack = pytest.importorskip("msgpack")
@@ -86,7 +87,7 @@ def test_udp_prebuilt_datagram_is_python_cans_byte_for_byte(udp) -> None:
     io = bus_io(udp[0])
     tx = io.tx(can.Message(arbitration_id=0x3D1, is_extended_id=False, dlc=8, data=bytes(8)))
     tx.view[:] = np.arange(8, dtype=np.uint8) * 31
-    from lde.busio import _BE_DOUBLE
+    from lde.service.busio import _BE_DOUBLE
 
     _BE_DOUBLE.pack_into(tx.buf, tx.ts_at, TS)
     ref = can.Message(timestamp=TS, arbitration_id=0x3D1, is_extended_id=False, data=bytes(tx.view))
@@ -122,9 +123,9 @@ def test_udp_round_trip_both_ways_through_the_kernel(udp) -> None:
 
 def test_service_over_udp_multicast_with_and_without_the_fast_path_gives_the_same_steps(udp) -> None:
     """The same frames in the same pending columns on both paths, so the same estimator steps."""
+    from lde.can.codec import MessageEncoder, si_to_dbc
     from lde.clock import SimulatedClock
-    from lde.codec import MessageEncoder, si_to_dbc
-    from lde.service import Service
+    from lde.service.service import Service
     from lde.units import DEG, KMH
 
     a, b = udp

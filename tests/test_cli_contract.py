@@ -119,7 +119,7 @@ def replayed(sim) -> Path:
     vehicle file; the hyundai log with ``--profile hyundai`` and (wrongly) with the default one."""
     import can
 
-    from lde.logio import read_log
+    from lde.io import read_log
 
     d, _ = sim
     msgs = read_log(d / "a.log").frames.to_messages(channel=0)
@@ -171,7 +171,7 @@ def test_sim_writes_candump_truth_and_mcap_in_one_time_base(sim):
     t = t_us(rows)
     assert t[0] == T0_S * 1_000_000 and np.all(np.diff(t) == STEP_US)
     assert t[-1] - t[0] >= 4_000_000 - STEP_US
-    from lde.logio import read_log
+    from lde.io import read_log
 
     mcap = read_log(d / "a.mcap").frames
     assert np.array_equal(mcap.t_ns // 1000, log_times_us(d / "a.log"))

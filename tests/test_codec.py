@@ -1,4 +1,4 @@
-"""Signal bit layout and encoding with automatic counters and CRCs (lde.codec)."""
+"""Signal bit layout and encoding with automatic counters and CRCs (lde.can.codec)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lde.codec import (
+from lde.can.codec import (
     EncodeError,
     MessageCodec,
     MessageEncoder,
@@ -19,8 +19,8 @@ from lde.codec import (
     si_to_dbc,
     words_le,
 )
-from lde.e2e import check_frame, p01_check, read_counter
-from lde.profiles import load_profile
+from lde.can.e2e import check_frame, p01_check, read_counter
+from lde.can.profiles import load_profile
 from lde.units import DEG, KMH
 
 

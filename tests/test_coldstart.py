@@ -15,11 +15,11 @@ import pytest
 from numba import typeof
 
 from lde import coldstart as C
-from lde.backends import DEFAULT_BACKEND, get_backend, make_backend_state
-from lde.engine import Engine
-from lde.loopargs import FIELDS, LoopArraysType
+from lde.can.profiles import PROFILE_NAMES, load_profile
+from lde.engine.backends import DEFAULT_BACKEND, get_backend, make_backend_state
+from lde.engine.engine import Engine
+from lde.engine.loopargs import FIELDS, LoopArraysType
 from lde.params import load_vehicle
-from lde.profiles import PROFILE_NAMES, load_profile
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -122,7 +122,7 @@ print(rep.helper_failed)
 
 def test_the_split_goes_on_without_its_helper() -> None:
     """A helper that fails at once: this process compiles (or loads) everything itself."""
-    from lde.backends import lateral_step
+    from lde.engine.backends import lateral_step
 
     h = _fake("import sys; sys.exit(1)")
     rep = C.compile_split("float", h)
@@ -147,9 +147,9 @@ for g in ("fx-step", "float-step", "learner", "resets", "loop-args", "loop-feed"
     C._GROUPS[g]()
 event.register("numba:compile", L())
 C._join("fixed")
-from lde.engine import Engine
+from lde.engine.engine import Engine
 from lde.params import load_vehicle
-from lde.profiles import load_profile
+from lde.can.profiles import load_profile
 from vcan_sim.run import simulate
 e = Engine(load_profile("lde"), load_vehicle("reference"), "fixed", shadow_thread=False)
 e.feed(simulate("straight", seed=0, duration=0.3).frames, final=True)
@@ -193,7 +193,8 @@ LIVE_EARLY = """
 import sys
 import lde.coldstart as C
 def fake(backend, live=False):
-    heavy = [m for m in ("numba", "can", "lde.engine", "lde.service", "lde.demo") if m in sys.modules]
+    heavy = ("numba", "can", "lde.engine.engine", "lde.service.service", "lde.demo")
+    heavy = [m for m in heavy if m in sys.modules]
     print("helper", backend, live, heavy, flush=True)
     sys.exit(0)
 C.start_helper = fake
@@ -223,7 +224,7 @@ def test_a_live_command_compiles_the_split_before_its_work(cmd: str, monkeypatch
     import lde.coldstart
     import lde.demo
     import lde.jitcache
-    import lde.service
+    import lde.service.service
     from lde.cli import main
     from lde.errors import ConfigError
 
@@ -240,7 +241,7 @@ def test_a_live_command_compiles_the_split_before_its_work(cmd: str, monkeypatch
         lde.coldstart, "compile_split", lambda b, h, logs=None: calls.append(("split", b, logs))
     )
     monkeypatch.setattr(lde.demo, "run_demo", work)
-    monkeypatch.setattr(lde.service, "open_bus", work)
+    monkeypatch.setattr(lde.service.service, "open_bus", work)
     argv = [cmd, "--backend", "fixed", *(["-i", "virtual"] if cmd == "run" else ["--no-mcap", "--no-plot"])]
     for warm in (False, True):
         calls.clear()

@@ -1,4 +1,4 @@
-"""Input corrections (lde.conditioning, the vehicle file's [corrections]): math, signs, live ==
+"""Input corrections (lde.estimator.conditioning, the vehicle file's [corrections]): math, signs, live ==
 replay on both backends, the profile check, and the effect on simulated faults."""
 
 from __future__ import annotations
@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lde.conditioning import check_profile, condition_arrays, condition_kernel, corrections_vector
 from lde.errors import ConfigError
+from lde.estimator.conditioning import check_profile, condition_arrays, condition_kernel, corrections_vector
+from lde.estimator.paper import Estimator, EstimatorInputs, run_batch
 from lde.params import load_vehicle, vehicle_from_dict, with_corrections
-from lde.step import Estimator, EstimatorInputs, run_batch
 from lde.units import DEG, STEP_NS
 
 
@@ -157,7 +157,7 @@ def test_fixed_backend_follows_the_float_filter_with_corrections():
 
 def _lane_change(sim_options, est_options, seed=0):
     pytest.importorskip("vcan_sim")
-    from lde.study import ClusterConfig, RunSpec, run_specs
+    from lde.analysis.study import ClusterConfig, RunSpec, run_specs
 
     spec = RunSpec(
         scenario="lane_change", seed=seed, duration=20.0, sim_options=sim_options, est_options=est_options

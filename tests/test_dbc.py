@@ -8,9 +8,9 @@ from pathlib import Path
 import cantools
 import pytest
 
-from lde.e2e import IntegrityKind
+from lde.can.e2e import IntegrityKind
+from lde.can.profiles import ESC_INPUTS, INPUT_NAMES, MDPS_INPUTS, OUTPUT_MESSAGES, dbc_dir, load_profile
 from lde.errors import ConfigError
-from lde.profiles import ESC_INPUTS, INPUT_NAMES, MDPS_INPUTS, OUTPUT_MESSAGES, dbc_dir, load_profile
 from lde.units import DEG, KMH
 
 REPO = Path(__file__).resolve().parents[1]

@@ -1,4 +1,4 @@
-"""The parsed-profile cache (lde.profiles.load_profile): keyed by the DBC's bytes, never serving a
+"""The parsed-profile cache (lde.can.profiles.load_profile): keyed by the DBC's bytes, never serving a
 changed DBC; a corrupt, foreign or unwritable cache falls back to parsing the DBC."""
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lde.codec import MessageCodec
+from lde.can.codec import MessageCodec
+from lde.can.profiles import OUTPUT_MESSAGES, dbc_dir, load_profile, profile_cache_dir
+from lde.engine.receiver import RxTables
 from lde.errors import ConfigError
-from lde.profiles import OUTPUT_MESSAGES, dbc_dir, load_profile, profile_cache_dir
-from lde.signals import RxTables
 
 REPO = Path(__file__).resolve().parents[1]
 

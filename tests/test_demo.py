@@ -9,10 +9,10 @@ import pytest
 
 from lde.cli import main
 from lde.demo import run_closed_loop, run_demo, run_without_overlay_fast
+from lde.io.recording import read_recording
 from lde.params import load_vehicle
-from lde.recording import read_recording
-from lde.replay import replay_log
-from lde.service import STATUS_DEADLINE_MISS
+from lde.replay.replay import replay_log
+from lde.service.service import STATUS_DEADLINE_MISS
 from lde.units import STEP_S
 
 
@@ -157,8 +157,8 @@ def test_cli_demo_bad_output_paths_fail_before_the_run(
 
 
 def test_plot_write_error_is_an_lde_error(tmp_path: Path) -> None:
+    from lde.analysis.plots import plot_demo
     from lde.errors import LdeError
-    from lde.plots import plot_demo
 
     keys = ("t", "fw_hat", "fw_true", "mw_hat", "mw_true", "driver_torque", "lateral_position")
     run = {k: np.linspace(0.0, 1.0, 5) for k in (*keys, "t_overlay", "speed")}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lde.e2e import (
+from lde.can.e2e import (
     P01_SCHEME,
     E2EStatus,
     IntegrityKind,

@@ -1,4 +1,4 @@
-"""The lateral filter (lde.estimator) against an independently written linear model.
+"""The lateral filter (lde.estimator.lateral) against an independently written linear model.
 
 The model below is written from the equations (ISO 8855, per-tire stiffnesses, eq. 9 slips), not from
 the filter's code, and discretised exactly (matrix exponential). Its measurements are the filter's
@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from lde import estimator as E
+from lde.estimator import lateral as E
+from lde.estimator.paper import N_OUT, O_BANK, O_BETA, O_FW, O_FW_WIND, O_MW, O_MW_WIND, O_T_ALIGN, O_YAW
 from lde.params import load_vehicle
 from lde.status import VALID
-from lde.step import N_OUT, O_BANK, O_BETA, O_FW, O_FW_WIND, O_MW, O_MW_WIND, O_T_ALIGN, O_YAW
 from lde.units import DEG, STEP_NS, STEP_S, G
 
 VX = 100.0 / 3.6

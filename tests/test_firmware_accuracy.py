@@ -1,5 +1,5 @@
 """The check of issue 5: the fixed-point estimate stays within 5 N (Fw) and 2 Nm (Mw) of the
-float filter (lde.step) at every step, with the same status bits, and the shadow check that
+float filter (lde.estimator.paper) at every step, with the same status bits, and the shadow check that
 flags and counts deviations (Status bit 6)."""
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ from firmware_model.shadow import (
 )
 from firmware_model.synthetic import make_drive
 from firmware_model.tables import tables_for
+from lde.estimator.paper import BatchResult, Estimator, Status
+from lde.estimator.paper import run_batch as float_run_batch
 from lde.params import load_vehicle
-from lde.step import BatchResult, Estimator, Status
-from lde.step import run_batch as float_run_batch
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +77,7 @@ def test_shadow_check_rejects_different_grids(vehicle):
 
 
 def test_live_shadow_checker(vehicle):
-    from lde.step import EstimatorInputs
+    from lde.estimator.paper import EstimatorInputs
 
     d = make_drive(vehicle, "steer", duration_s=2.0, seed=4)
     fx, fl, chk = FixedEstimator(vehicle), Estimator(vehicle), ShadowChecker()
@@ -105,7 +105,7 @@ def test_live_shadow_checker(vehicle):
 
 
 def test_step_and_run_batch_can_be_mixed_with_the_shadow(vehicle):
-    from lde.step import EstimatorInputs
+    from lde.estimator.paper import EstimatorInputs
 
     d = make_drive(vehicle, "gusts", duration_s=3.0, seed=8)
     whole = run_batch(*d.inputs(), vehicle)

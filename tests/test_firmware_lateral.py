@@ -32,11 +32,8 @@ from firmware_model import lateral as FX
 from firmware_model.shadow import FW_BOUND_N, MW_BOUND_NM
 from firmware_model.synthetic import make_drive
 from firmware_model.tables import lateral_tables_for
-from lde import estimator as E
-from lde import learner as Ln
-from lde.backends import FRESH_A, FRESH_R, FRESH_T, lateral_fixed_step, make_backend_state
-from lde.params import load_vehicle
-from lde.signals import (
+from lde.engine.backends import FRESH_A, FRESH_R, FRESH_T, lateral_fixed_step, make_backend_state
+from lde.engine.receiver import (
     I_ASSIST_TORQUE,
     I_COLUMN_TORQUE,
     I_LAT_ACCEL,
@@ -45,8 +42,11 @@ from lde.signals import (
     I_YAW_RATE,
     INPUT_NAMES,
 )
+from lde.estimator import lateral as E
+from lde.estimator import learner as Ln
+from lde.estimator.paper import N_OUT, O_FW, O_GAIN, O_MW
+from lde.params import load_vehicle
 from lde.status import DEGRADED, SHADOW_DEVIATION, VALID
-from lde.step import N_OUT, O_FW, O_GAIN, O_MW
 from lde.units import KMH
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -141,7 +141,7 @@ def extreme_drive(vehicle, seed: int = 3) -> tuple[np.ndarray, ...]:
 
 
 def _float_run(p, inputs):
-    """The float lateral filter (lde.estimator) over a drive; Fw, Mw and status per step."""
+    """The float lateral filter (lde.estimator.lateral) over a drive; Fw, Mw and status per step."""
     x, P = np.zeros(E.NX), np.zeros((E.NX, E.NX))
     fs, ints = np.zeros(E.N_F), np.zeros(E.N_I, np.int64)
     E.reset_kernel(p, x, P, fs, ints)
@@ -167,7 +167,7 @@ import numpy as np
 sys.path[:0] = {paths!r}
 from firmware_model import lateral as FX
 from firmware_model.tables import lateral_tables_for
-from lde import estimator as E
+from lde.estimator import lateral as E
 from lde.params import load_vehicle
 sys.path.insert(0, {tests!r})
 from test_firmware_lateral import extreme_drive

@@ -20,14 +20,14 @@ import tempfile
 import numpy as np
 import pytest
 
-from lde import estimator as E
-from lde import learner as Ln
-from lde.backends import SH_COUNT, SH_MAX_DFW, SH_MAX_DMW
-from lde.engine import Engine
-from lde.profiles import load_profile
-from lde.study.engine import load_sim_vehicle, simulate_run
-from lde.study.spec import SPEC_SHEET, RunSpec
-from lde.study.specsheet import spec_sheet_vehicle
+from lde.analysis.study.execute import load_sim_vehicle, simulate_run
+from lde.analysis.study.spec import SPEC_SHEET, RunSpec
+from lde.analysis.study.specsheet import spec_sheet_vehicle
+from lde.can.profiles import load_profile
+from lde.engine.backends import SH_COUNT, SH_MAX_DFW, SH_MAX_DMW
+from lde.engine.engine import Engine
+from lde.estimator import lateral as E
+from lde.estimator import learner as Ln
 
 PLANT, SCENARIO = "zoo:suv_slow", "heavy_load"
 

@@ -13,8 +13,8 @@ from firmware_model.fast import FastState, FixedEstimator, run_batch, run_batch_
 from firmware_model.step import ReferenceEstimator
 from firmware_model.synthetic import make_drive
 from firmware_model.tables import tables_for
+from lde.estimator.paper import EstimatorInputs
 from lde.params import load_vehicle
-from lde.step import EstimatorInputs
 from lde.units import STEP_NS
 
 

@@ -11,9 +11,9 @@ from hypothesis import strategies as st
 from firmware_model.fast import O_XF, O_XM, FastState, FixedEstimator, run_batch_raw, tables_vector
 from firmware_model.step import SAT_NAMES
 from firmware_model.tables import tables_for
+from lde.estimator.paper import EstimatorInputs, Status
+from lde.estimator.paper import run_batch as float_run_batch
 from lde.params import load_vehicle
-from lde.step import EstimatorInputs, Status
-from lde.step import run_batch as float_run_batch
 from lde.units import KMH, STEP_NS
 
 INT32 = 2**31

@@ -16,9 +16,9 @@ from firmware_model.shadow import FW_BOUND_N, MW_BOUND_NM, SHADOW_DEVIATION
 vcan_run = pytest.importorskip("vcan_sim.run")
 scenarios = pytest.importorskip("vcan_sim.scenarios")
 
+from lde.can.profiles import load_profile  # noqa: E402
 from lde.params import load_vehicle  # noqa: E402
-from lde.profiles import load_profile  # noqa: E402
-from lde.replay import replay  # noqa: E402
+from lde.replay.replay import replay  # noqa: E402
 
 NAMES = [name for name, _ in scenarios.scenario_list()]
 
@@ -52,12 +52,12 @@ def test_fixed_and_float_replays_agree_on_scenario(setup, name, pair):
 
 
 def test_default_backend_is_fixed():
-    from lde.backends import DEFAULT_BACKEND, run_lateral_fixed
-    from lde.replay import resolve_backend
+    from lde.engine.backends import DEFAULT_BACKEND, run_lateral_fixed
+    from lde.replay.replay import resolve_backend
 
     name, _, _ = resolve_backend(None)
     assert name == DEFAULT_BACKEND == "fixed"
-    from lde.backends import get_backend
+    from lde.engine.backends import get_backend
 
     assert get_backend(name).run is run_lateral_fixed
     import firmware_model

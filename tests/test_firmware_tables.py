@@ -21,7 +21,7 @@ from firmware_model import tables
 from firmware_model.qformat import q32
 from firmware_model.riccati import solve_dare, steady_state_kf
 from firmware_model.tables import FixedTables, tables_for
-from lde.model import discrete_matrices
+from lde.estimator.model import discrete_matrices
 from lde.params import load_vehicle
 from lde.units import KMH
 
@@ -53,7 +53,7 @@ def test_shipped_tables_are_not_stale(vehicle):
 
 
 def _shift_model(monkeypatch, rel: float) -> None:
-    """The float model changes a little (lde.model is not among the hashed inputs)."""
+    """The float model changes a little (lde.estimator.model is not among the hashed inputs)."""
     real = gen.discrete_matrices
 
     def shifted(vehicle, vx):
@@ -198,7 +198,7 @@ def test_sda_matches_scipy(vehicle, kmh):
 
 @pytest.mark.parametrize("kmh", [30, 47.5, 100, 180, 250])
 def test_coefficient_polynomials_equal_the_float_model(vehicle, kmh):
-    """c0 + c1 w + c2 w^2 (normalised) reproduces lde.model's Phi, E, H, D at any speed."""
+    """c0 + c1 w + c2 w^2 (normalised) reproduces lde.estimator.model's Phi, E, H, D at any speed."""
     tb = tables_for(vehicle)
     e, et = list(tb.sigma_exp), tb.sigma_t_exp
     s = [math.ldexp(1.0, k) for k in e]

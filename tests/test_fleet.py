@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from lde.cli import main
-from lde.logio import McapWriter, read_log, write_candump
+from lde.io import McapWriter, read_log, write_candump
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "tests" / "data" / "sample_linear.log"
@@ -150,7 +150,7 @@ def test_learned_with_jobs_or_scheduler_is_one_line(logs, tmp_path, opt):
 def test_a_replay_without_its_helper_threads_writes_the_same_csv(logs, tmp_path):
     """A Dask worker replays with ``helper_threads=False`` (the log read and the CSV written in the
     replay's own thread): the same bytes as with the read-ahead and CSV threads."""
-    from lde.fleet import ReplayJob, replay_job
+    from lde.replay.fleet import ReplayJob, replay_job
 
     out = {}
     for threads in (True, False):
@@ -168,7 +168,7 @@ def test_a_local_clusters_workers_keep_glibcs_trim_threshold():
     settings (one OpenMP thread)."""
     from distributed import Client
 
-    from lde.fleet_dask import _local_cluster
+    from lde.replay.fleet_dask import _local_cluster
 
     cluster = _local_cluster(1)
     try:

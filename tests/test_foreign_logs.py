@@ -40,8 +40,8 @@ from foreign_logs import (
 )
 
 from lde.cli import main
-from lde.logio import write_candump
-from lde.logio.candump import format_candump_bytes
+from lde.io import write_candump
+from lde.io.candump import format_candump_bytes
 
 #: a valid variant's NRMSE (Fw and Mw) may exceed our own timing's by this much (fraction):
 #: measured +0.1 .. +1.5 points (docs/reliability.md); the margin keeps the test off the last digits

@@ -1,12 +1,12 @@
 """Fuzz the whole data path (issue 13 item 6) with seeded random faults on a simulated drive, three ways:
 
-* **engine** (the computation live and replay share): :class:`lde.engine.Engine` fed the faulty
+* **engine** (the computation live and replay share): :class:`lde.engine.engine.Engine` fed the faulty
   frames in random pieces - the decoder, the E2E receiver, the grid, the estimator, the overlay
-  limiter and the output encoder; :func:`lde.signals.decode_batch` (the batch decoder) over the
+  limiter and the output encoder; :func:`lde.engine.receiver.decode_batch` (the batch decoder) over the
   same frames must count every frame the same way;
 * **replay**: the faulty frames written to an MCAP log and replayed as ``lde replay`` does
-  (:func:`lde.fleet.replay_job`: the log reader, :func:`lde.replay.run_replay`, the CSV sink);
-* **live**: :class:`lde.service.Service` stepped every 3.9 ms on python-can's virtual bus (a
+  (:func:`lde.replay.fleet.replay_job`: the log reader, :func:`lde.replay.replay.run_replay`, the CSV sink);
+* **live**: :class:`lde.service.service.Service` stepped every 3.9 ms on python-can's virtual bus (a
   simulated clock), the faulty frames sent on the bus before each step.
 
 For every case (both profiles; the engine on every backend):
@@ -44,13 +44,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lde.engine import Engine, StepBlock
-from lde.fleet import ReplayJob, replay_job
-from lde.frames import FrameBatch
-from lde.logio import McapWriter
+from lde.can.frames import FrameBatch
+from lde.can.profiles import load_profile
+from lde.engine.engine import Engine, StepBlock
+from lde.engine.receiver import decode_batch
+from lde.io import McapWriter
 from lde.params import Vehicle, load_vehicle
-from lde.profiles import load_profile
-from lde.signals import decode_batch
+from lde.replay.fleet import ReplayJob, replay_job
 from lde.status import Status
 from lde.testing import Bench
 from lde.units import STEP_NS, STEP_S

@@ -1,15 +1,15 @@
-"""The 3.9 ms step grid: anchoring, sample-and-hold, staleness, trust (lde.grid)."""
+"""The 3.9 ms step grid: anchoring, sample-and-hold, staleness, trust (lde.engine.grid)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lde.codec import encode_frames
-from lde.frames import FrameBatch
-from lde.grid import build_grid, step_times
-from lde.profiles import INPUT_NAMES, load_profile
-from lde.signals import decode_batch
+from lde.can.codec import encode_frames
+from lde.can.frames import FrameBatch
+from lde.can.profiles import INPUT_NAMES, load_profile
+from lde.engine.grid import build_grid, step_times
+from lde.engine.receiver import decode_batch
 from lde.units import STEP_NS
 
 T0 = 1_700_000_000_000_000_000
@@ -113,7 +113,7 @@ def test_empty_and_mdps_less_input_give_an_empty_grid(lde):
 
 
 def test_merge_lookup_equals_searchsorted():
-    from lde.grid import latest_at_or_before
+    from lde.engine.grid import latest_at_or_before
 
     rng = np.random.default_rng(9)
     ref = np.sort(rng.integers(0, 1000, 300))  # with duplicates

@@ -1,4 +1,4 @@
-"""The MDPS-locked grid (lde.grid.new_lock / lock_anchor / lock_timeout / locked_step_times): each
+"""The MDPS-locked grid (lde.engine.grid.new_lock / lock_anchor / lock_timeout / locked_step_times): each
 step right after the MDPS frame it consumes; a step at 1.5 periods when none comes; one rule for the
 live loop and for a replay of the bare frames."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lde.grid import (
+from lde.engine.grid import (
     L_TIMEOUTS,
     L_TRIGGERED,
     lock_anchor,
@@ -94,7 +94,7 @@ def test_deadline_counters_and_unsorted_input() -> None:
 
 
 def test_lock_frame_is_the_timeout_check_and_the_anchor_in_one_call() -> None:
-    """The live service's one call per MDPS frame (lde.grid.lock_frame) gives the same steps and the
+    """The live service's one call per MDPS frame (lde.engine.grid.lock_frame) gives the same steps and the
     same lock state as lock_timeout then lock_anchor, and leaves the state alone when a timeout is due."""
     rng = np.random.default_rng(11)
     t = T0 + 300_000 + np.arange(300) * P + rng.integers(-2_500_000, 2_500_000, 300)

@@ -1,11 +1,13 @@
-"""lde.kalman: the compiled filter against filterpy over long random sequences, and its invariants."""
+"""lde.estimator.kalman: the compiled filter against filterpy over long random sequences, and its
+invariants."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lde import kalman, kalman_reference, model
+from lde import kalman_reference
+from lde.estimator import kalman, model
 from lde.params import load_vehicle
 from lde.units import KMH
 

@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lde.can.frames import FrameBatch
 from lde.errors import ConfigError
-from lde.frames import FrameBatch
-from lde.learned import LearnedKeeper, LearnedSnapshot
+from lde.estimator.learned import LearnedKeeper, LearnedSnapshot
 from lde.params import load_vehicle
-from lde.replay import read_inputs, replay, replay_log
+from lde.replay.replay import read_inputs, replay, replay_log
 from lde.status import Status
 from lde.testing import Bench
 from lde.units import STEP_NS, STEP_S
@@ -72,7 +72,7 @@ def test_live_starts_from_the_file_and_counts_the_drive(tmp_path, lde_bench: Ben
     with Bench() as bench:
         bench.simulator("lane_change", duration=4.0)
         svc = bench.service(backend="lateral", learned=learned, record=rec)
-        from lde import estimator as E
+        from lde.estimator import lateral as E
 
         assert svc.service.engine.est.info["p"][E.P_CF] == 61234.0
         assert svc.service.engine.learned_from is not None
@@ -109,8 +109,8 @@ def test_learned_needs_a_learning_backend_and_the_same_car(tmp_path, lde_bench: 
 
 
 def _snap(seconds: float) -> LearnedSnapshot:
-    from lde import estimator as E
-    from lde import learner as Ln
+    from lde.estimator import lateral as E
+    from lde.estimator import learner as Ln
 
     p = E.params_vector(load_vehicle("reference"))
     return LearnedSnapshot("reference", "lde", p, np.zeros(Ln.N_LS), 1, seconds)
@@ -146,10 +146,10 @@ def test_overlay_law_uses_the_learned_tires(tmp_path) -> None:
     """The overlay's holding-torque gain K / (N Cf L) comes from the backend's current (learned)
     tires: a learned file with Cf doubled halves the gain, and in ACTIVE steady state the request
     follows -g (lr Fw + Mw) with that gain, not with the vehicle file's."""
-    from lde import estimator as E
-    from lde.overlay import OverlayState, feedforward_gain
-    from lde.profiles import load_profile
-    from lde.step import O_GAIN
+    from lde.can.profiles import load_profile
+    from lde.estimator import lateral as E
+    from lde.estimator.overlay import OverlayState, feedforward_gain
+    from lde.estimator.paper import O_GAIN
     from vcan_sim.run import simulate
 
     vehicle = load_vehicle("reference")
@@ -175,7 +175,8 @@ def test_overlay_law_uses_the_learned_tires(tmp_path) -> None:
     lr = vehicle.body.lr
 
     def law_input(res) -> np.ndarray:
-        # the law's input low-pass (lde.overlay: backward Euler, tau = [overlay] law_time_constant_s,
+        # the law's input low-pass (lde.estimator.overlay: backward Euler, tau = [overlay]
+        # law_time_constant_s,
         # restarted while the estimate is not usable)
         tau, dt = vehicle.overlay.law_time, STEP_S
         moment = lr * res.fw + res.mw

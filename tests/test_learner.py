@@ -1,4 +1,4 @@
-"""lde.learner beside the lateral filter, on an independently written linear truth model.
+"""lde.estimator.learner beside the lateral filter, on an independently written linear truth model.
 
 The truth is the linear bicycle model with per-tire stiffnesses that differ from the filter's
 prior (the vehicle file's tires), discretised exactly; its aligning torque is 2 K alpha_f. The
@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from lde import estimator as E
-from lde import learner as Ln
+from lde.estimator import lateral as E
+from lde.estimator import learner as Ln
+from lde.estimator.paper import N_OUT
 from lde.params import load_vehicle
 from lde.status import VALID
-from lde.step import N_OUT
 from lde.units import DEG, STEP_NS, STEP_S
 
 VX = 100.0 / 3.6

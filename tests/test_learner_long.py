@@ -1,4 +1,4 @@
-"""lde.learner on ten-minute drives with a steady disturbance (issue 11 item 4).
+"""lde.estimator.learner on ten-minute drives with a steady disturbance (issue 11 item 4).
 
 A steady crosswind and a long banked road look, over minutes, like the things the learner is there
 to find (tire values, an angle offset, a gyro bias). Neither may be learned away: after ten minutes
@@ -23,11 +23,11 @@ import pytest
 from scipy.linalg import expm
 from test_learner import VX, _sense
 
-from lde import estimator as E
-from lde import learner as Ln
+from lde.estimator import lateral as E
+from lde.estimator import learner as Ln
+from lde.estimator.paper import N_OUT, O_BANK, O_FW, O_FW_WIND, O_MW
 from lde.params import load_vehicle
 from lde.status import VALID
-from lde.step import N_OUT, O_BANK, O_FW, O_FW_WIND, O_MW
 from lde.units import DEG, STEP_NS, STEP_S
 
 G = 9.80665

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from test_learner import _sense, _weave, rig_on_truth
 
-from lde import estimator as E
-from lde import learner as Ln
+from lde.estimator import lateral as E
+from lde.estimator import learner as Ln
 from lde.params import load_vehicle
 from lde.units import DEG, STEP_S
 

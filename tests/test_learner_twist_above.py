@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from test_learner import _weave, rig_on_truth
 
-from lde import estimator as E
-from lde import learner as Ln
+from lde.estimator import lateral as E
+from lde.estimator import learner as Ln
 from lde.params import load_vehicle
 from lde.units import DEG, STEP_S
 
@@ -87,11 +87,11 @@ def _zoo_prior_drive(plant: str, r3_acc: float | None):
     import tempfile
     from pathlib import Path
 
-    from lde.engine import Engine
-    from lde.profiles import load_profile
-    from lde.study.engine import load_sim_vehicle, simulate_run
-    from lde.study.spec import SPEC_SHEET, RunSpec
-    from lde.study.specsheet import spec_sheet_vehicle
+    from lde.analysis.study.execute import load_sim_vehicle, simulate_run
+    from lde.analysis.study.spec import SPEC_SHEET, RunSpec
+    from lde.analysis.study.specsheet import spec_sheet_vehicle
+    from lde.can.profiles import load_profile
+    from lde.engine.engine import Engine
 
     truth_csv = Path(__file__).resolve().parents[1] / "vcan_sim" / "zoo" / "true_values.csv"
     with truth_csv.open() as fh:

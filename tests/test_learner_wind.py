@@ -1,4 +1,5 @@
-"""lde.learner in a crosswind slalom on a zoo plant (issue 11, docs/estimator.md "The wind's onset").
+"""lde.estimator.learner in a crosswind slalom on a zoo plant (issue 11, docs/estimator.md "The wind's
+onset").
 
 A crosswind that starts while the car weaves steps R1's intercept (``c1 = lr F_wind/s + M_wind``) by
 about 2 kNm within a second and then varies with the heading in every weave; an intercept that is a
@@ -16,13 +17,13 @@ from pathlib import Path
 
 import pytest
 
-from lde import estimator as E
-from lde import learner as Ln
-from lde.engine import Engine
-from lde.profiles import load_profile
-from lde.study.engine import load_sim_vehicle, simulate_run
-from lde.study.spec import SPEC_SHEET, RunSpec
-from lde.study.specsheet import spec_sheet_vehicle
+from lde.analysis.study.execute import load_sim_vehicle, simulate_run
+from lde.analysis.study.spec import SPEC_SHEET, RunSpec
+from lde.analysis.study.specsheet import spec_sheet_vehicle
+from lde.can.profiles import load_profile
+from lde.engine.engine import Engine
+from lde.estimator import lateral as E
+from lde.estimator import learner as Ln
 
 PLANT = "zoo:indep_twin"
 

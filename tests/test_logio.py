@@ -1,4 +1,4 @@
-"""lde.logio: candump -L, MCAP (fast path vs the mcap library), python-can formats, bad files."""
+"""lde.io: candump -L, MCAP (fast path vs the mcap library), python-can formats, bad files."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from mcap_util import chunk_spans
 
+from lde.can.frames import FrameBatch
 from lde.errors import LogFormatError
-from lde.frames import FrameBatch
-from lde.logio import (
+from lde.io import (
     CAN_SCHEMA_NAME,
     McapWriter,
     detect_format,
@@ -23,7 +23,7 @@ from lde.logio import (
     read_mcap,
     write_candump,
 )
-from lde.logio.mcap_can import McapCanReader, McapCanWriter
+from lde.io.mcap_can import McapCanReader, McapCanWriter
 
 T0 = 1_700_000_000_000_000_000  # ns
 
@@ -199,7 +199,7 @@ def test_mcap_fast_path_matches_independent_library_iteration(tmp_path: Path):
 def test_mcap_without_chunks_uses_library_fallback(tmp_path: Path):
     from mcap.writer import Writer
 
-    from lde.logio import CAN_SCHEMA_TEXT, can_payload
+    from lde.io import CAN_SCHEMA_TEXT, can_payload
 
     frames = random_frames(200, seed=5)
     path = tmp_path / "plain.mcap"
@@ -366,7 +366,7 @@ def test_json_only_mcap_names_its_topics(tmp_path: Path):
 
 
 def test_mcap_writer_payload_layout_is_fixed_size():
-    from lde.logio import can_payloads
+    from lde.io import can_payloads
 
     frames = random_frames(10, seed=10)
     p = can_payloads(frames)
@@ -378,7 +378,7 @@ def test_mcap_writer_payload_layout_is_fixed_size():
 
 # ----------------------------------------------------------------------------- text formatter
 def test_format_rows_matches_python_formatting():
-    from lde.logio.textfmt import Column, format_rows, time_column
+    from lde.io.textfmt import Column, format_rows, time_column
 
     rng = np.random.default_rng(11)
     n = 500
@@ -569,7 +569,7 @@ def test_mcap_metadata_is_indexed_for_the_mcap_library(tmp_path: Path):
 def test_candump_read_in_blocks_equals_one_parse(tmp_path: Path):
     """Blocks cut anywhere inside lines (and a line longer than a block) give the frames and counts
     of one parse of the whole text."""
-    from lde.logio.candump import CandumpBlocks
+    from lde.io.candump import CandumpBlocks
 
     frames = random_frames(3000, seed=51)
     text = format_candump(frames).encode()

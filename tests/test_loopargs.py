@@ -1,4 +1,4 @@
-"""lde.loopargs: the compiled loop's fixed arrays as one StructRef hold the arrays themselves (stores
+"""lde.engine.loopargs: the compiled loop's fixed arrays as one StructRef hold the arrays themselves (stores
 seen both ways), and the engine makes a new one when it replaces its arrays."""
 
 from __future__ import annotations
@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from numba import njit
 
-from lde.engine import Engine, StepBlock
-from lde.loopargs import FIELDS, field, loop_arrays
+from lde.can.profiles import load_profile
+from lde.engine.engine import Engine, StepBlock
+from lde.engine.loopargs import FIELDS, field, loop_arrays
 from lde.params import load_vehicle
-from lde.profiles import load_profile
 from lde.refcount import NO_REFCOUNT
 
 
@@ -21,7 +21,7 @@ def _touch(la):  # a store through the struct, and what it reads
 
 
 @njit(**NO_REFCOUNT)
-def _touch_uncounted(la):  # the same through lde.loopargs.field, in a kernel without NRT
+def _touch_uncounted(la):  # the same through lde.engine.loopargs.field, in a kernel without NRT
     field(la, "counters")[1] = 78
     tb, otab, rxst = field(la, "tb"), field(la, "otab"), field(la, "rxst")
     return field(la, "prev_t")[0], tb[0].shape[0], otab[18].shape[0], rxst[5][0]

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from test_logio import random_frames
 
-from lde.logio import McapWriter, can_payloads
+from lde.io import McapWriter, can_payloads
 
 TS = Path(__file__).parent / "ts"
 

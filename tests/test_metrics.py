@@ -1,4 +1,4 @@
-"""lde.metrics on synthetic arrays: each test pins a number a wrong formula would miss."""
+"""lde.analysis.metrics on synthetic arrays: each test pins a number a wrong formula would miss."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from lde import metrics
-from lde.metrics import Kind, MetricsError, Truth
+from lde.analysis import metrics
+from lde.analysis.metrics import Kind, MetricsError, Truth
 
 
 def _truth(t, fw, mw, mw_ref=None):

@@ -1,4 +1,4 @@
-"""lde.model: each SPEC section 2 erratum has a test here that fails if it is reintroduced.
+"""lde.estimator.model: each SPEC section 2 erratum has a test here that fails if it is reintroduced.
 
 The expected values are worked out in the tests by hand from eqs. (7)-(9) and (12), not with
 the functions under test.
@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lde import model
 from lde.errors import ConfigError
+from lde.estimator import model
 from lde.params import load_vehicle, shipped_vehicles
 from lde.units import KMH, STEP_S
 

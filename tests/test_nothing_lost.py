@@ -27,12 +27,12 @@ import can
 import numpy as np
 import pytest
 
+from lde.can.frames import FrameBatch
 from lde.errors import OutputError
-from lde.fleet import ReplayJob, replay_job
-from lde.frames import FrameBatch
-from lde.logio import McapWriter, open_log, read_log, write_candump
-from lde.recording import Recorder, read_recording
-from lde.replay import end_note
+from lde.io import McapWriter, open_log, read_log, write_candump
+from lde.io.recording import Recorder, read_recording
+from lde.replay.fleet import ReplayJob, replay_job
+from lde.replay.replay import end_note
 
 DATA = Path(__file__).parent / "data"
 SAMPLE = DATA / "sample_linear.log"
@@ -173,7 +173,7 @@ _CHILD = """
 import sys, time
 sys.path.insert(0, {tests!r})
 from test_recording import _record
-from lde.recording import Recorder
+from lde.io.recording import Recorder
 rec = Recorder({path!r})
 print("ready", flush=True)
 k = 0

@@ -18,16 +18,16 @@ import can
 import numpy as np
 import pytest
 
+from lde.can.codec import MessageEncoder, si_to_dbc
+from lde.can.frames import FrameBatch
+from lde.can.profiles import Profile, load_profile
 from lde.clock import SimulatedClock
-from lde.codec import MessageEncoder, si_to_dbc
-from lde.diagnostics import DEADLINE_MISS_NS
-from lde.frames import FrameBatch
-from lde.grid import locked_step_times
+from lde.engine.grid import locked_step_times
+from lde.io.recording import Recorder, read_recording
 from lde.params import load_vehicle
-from lde.profiles import Profile, load_profile
-from lde.recording import Recorder, read_recording
-from lde.replay import CSV_COLUMNS, replay, replay_log, write_csv
-from lde.service import Service
+from lde.replay.replay import CSV_COLUMNS, replay, replay_log, write_csv
+from lde.service.diagnostics import DEADLINE_MISS_NS
+from lde.service.service import Service
 from lde.status import DEADLINE_MISS, ESC_FAULT, MDPS_FAULT, NOT_CONVERGED, VALID
 from lde.testing import Bench, InputFeeder
 from lde.testing.bench import DEFAULT_START_NS
@@ -190,8 +190,8 @@ def _feed_jittered(bus: can.BusABC, profile, t_to: int, state: dict) -> list[int
 @pytest.mark.parametrize("backend", ["float", "fixed"])
 def test_live_on_the_mdps_grid_and_replay_give_identical_rows(tmp_path: Path, backend: str) -> None:
     """The live loop (:meth:`Service.run`, ``grid="mdps"``) steps at the MDPS frames' receive times;
-    a replay of its recording, and of the bare frames on the step times that :mod:`lde.grid`'s rule
-    gives for them (:func:`lde.grid.locked_step_times`), give the same rows."""
+    a replay of its recording, and of the bare frames on the step times that :mod:`lde.engine.grid`'s rule
+    gives for them (:func:`lde.engine.grid.locked_step_times`), give the same rows."""
     profile, vehicle = load_profile("lde"), load_vehicle("reference")
     ch = f"lde-one-path-{next(_channels)}"
     feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)

@@ -1,4 +1,4 @@
-"""Overlay law and limiter (lde.overlay, SPEC section 5).
+"""Overlay law and limiter (lde.estimator.overlay, SPEC section 5).
 
 The limit tests follow openpilot's safety tests (opendbc/safety/tests/common.py): a reusable mixin
 sweeps every limit at its boundary, and concrete classes run it on vehicles with different limits.
@@ -15,15 +15,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lde.errors import ConfigError
-from lde.overlay import (
+from lde.estimator.overlay import (
     OverlayLimiter,
     OverlayState,
     OverlayTiming,
     feedforward_torque,
     run_batch_overlay,
 )
+from lde.estimator.paper import Status
 from lde.params import OverlayLimits, load_vehicle, shipped_vehicles
-from lde.step import Status
 from lde.units import DEG, KMH, STEP_NS
 
 T0 = 1_700_000_000_000_000_000  # ns, an epoch-like start time
@@ -72,7 +72,7 @@ def test_law_sign_left_force_needs_right_torque():
 
 
 def test_law_matches_model_straight_line_hold():
-    model = pytest.importorskip("lde.model")
+    model = pytest.importorskip("lde.estimator.model")
     v = load_vehicle("reference")
     for fw, mw in [(800.0, -300.0), (-1500.0, 2000.0), (0.0, 500.0)]:
         ss = model.straight_line_hold(v, fw, mw)
@@ -127,10 +127,10 @@ def test_law_holds_linear_model_straight(vx_kmh):
 
 
 def _lateral_filter_on_constant_inputs(v, vx: float, t_col: float, seconds: float = 20.0):
-    """The lateral filter (lde.estimator, float) on a straight drive whose only non-zero input is
+    """The lateral filter (lde.estimator.lateral, float) on a straight drive whose only non-zero input is
     the column torque: (Fw, Mw) at the end."""
-    from lde import estimator as E
-    from lde.step import N_OUT, O_FW, O_MW
+    from lde.estimator import lateral as E
+    from lde.estimator.paper import N_OUT, O_FW, O_MW
 
     p = E.params_vector(v)
     x, P = np.zeros(E.NX), np.zeros((E.NX, E.NX))

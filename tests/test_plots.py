@@ -15,10 +15,10 @@ def test_plots_leave_the_callers_backend_and_pyplot_alone(tmp_path):
         import matplotlib
         matplotlib.use("pdf")  # the caller's choice
         import numpy as np
-        from lde.plots import plot_demo
-        from lde import study
-        from lde.metrics import Accuracy, Kind
-        from lde.study import CandidateScore, RunResult, RunSpec, TireIdentification
+        from lde.analysis.plots import plot_demo
+        from lde.analysis import study
+        from lde.analysis.metrics import Accuracy, Kind
+        from lde.analysis.study import CandidateScore, RunResult, RunSpec, TireIdentification
 
         t = np.linspace(0.0, 5.0, 50)
         run = {{k: np.sin(t) for k in ("fw_hat", "fw_true", "mw_hat", "mw_true", "driver_torque",

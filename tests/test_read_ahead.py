@@ -1,4 +1,4 @@
-"""The replay's reader thread (:class:`lde.logio.stream.ReadAhead`): same pieces in the same order,
+"""The replay's reader thread (:class:`lde.io.stream.ReadAhead`): same pieces in the same order,
 errors where they happened, bounded look-ahead, a clean stop; and the same rows as reading in line."""
 
 from __future__ import annotations
@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lde.engine import StepBlock
-from lde.frames import FrameBatch
-from lde.logio.stream import ReadAhead
+from lde.can.frames import FrameBatch
+from lde.engine.engine import StepBlock
+from lde.io.stream import ReadAhead
 from lde.params import load_vehicle
-from lde.replay import read_inputs, run_replay
+from lde.replay.replay import read_inputs, run_replay
 
 DATA = Path(__file__).parent / "data"
 

@@ -16,14 +16,14 @@ import can
 import numpy as np
 import pytest
 
-from lde.diagnostics import StepTiming
-from lde.engine import StepBlock
+from lde.can.frames import seconds_to_ns
+from lde.can.profiles import INPUT_NAMES
+from lde.engine.engine import StepBlock
 from lde.errors import LogFormatError
-from lde.frames import seconds_to_ns
-from lde.logio import read_mcap
-from lde.profiles import INPUT_NAMES
-from lde.recording import DIAG_TOPIC, ESTIMATE_TOPIC, INPUTS_TOPIC, Recorder, Timing, read_recording
-from lde.service import StepResult
+from lde.io import read_mcap
+from lde.io.recording import DIAG_TOPIC, ESTIMATE_TOPIC, INPUTS_TOPIC, Recorder, Timing, read_recording
+from lde.service.diagnostics import StepTiming
+from lde.service.service import StepResult
 from lde.units import STEP_NS
 
 T0 = 1_700_000_000_000_000_000  # ns, an epoch-like time base
@@ -124,7 +124,7 @@ def test_round_trip_all_channels(tmp_path: Path) -> None:
 
 
 def test_file_is_readable_by_logio_and_flat_json(tmp_path: Path) -> None:
-    """The same file through lde.logio's reader: CAN frames and flat numeric JSON columns."""
+    """The same file through lde.io's reader: CAN frames and flat numeric JSON columns."""
     path = tmp_path / "run.mcap"
     with Recorder(path) as rec:
         _record(rec, 50)
@@ -175,7 +175,7 @@ _CHILD = textwrap.dedent(
     import numpy as np
     sys.path.insert(0, {tests!r})
     from test_recording import _result, _inputs, _row
-    from lde.recording import Recorder
+    from lde.io.recording import Recorder
     from lde.units import STEP_NS
     import dataclasses
     rec = Recorder({path!r})

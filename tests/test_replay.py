@@ -1,4 +1,4 @@
-"""lde.replay and `lde replay`: the acceptance test on the linear-model sample log, CSV contract,
+"""lde.replay.replay and `lde replay`: the acceptance test on the linear-model sample log, CSV contract,
 MCAP recordings that replay to the same estimates, CLI behaviour."""
 
 from __future__ import annotations
@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lde.can.profiles import load_profile
 from lde.cli import main
-from lde.logio import read_log, read_mcap
+from lde.io import read_log, read_mcap
 from lde.params import load_vehicle
-from lde.profiles import load_profile
-from lde.replay import CSV_COLUMNS, replay, replay_log, write_csv, write_recording
+from lde.replay.replay import CSV_COLUMNS, replay, replay_log, write_csv, write_recording
 
 DATA = Path(__file__).parent / "data"
 SAMPLE = DATA / "sample_linear.log"
@@ -43,7 +43,7 @@ def sample_replay(profile, vehicle):
 
 def _backend_or_skip(name: str) -> str:
     from lde.errors import ConfigError
-    from lde.replay import resolve_backend
+    from lde.replay.replay import resolve_backend
 
     try:
         resolve_backend(name)
@@ -181,7 +181,7 @@ def test_csv_writer_thread_writes_the_same_bytes_in_order(sample_replay, tmp_pat
     block after block in order, and a write error surfaces as one OutputError (an OSError naming
     the file: lde replay keeps what was written, issue 13)."""
     from lde.errors import OutputError
-    from lde.replay import CsvWriter
+    from lde.replay.replay import CsvWriter
 
     _, res = sample_replay
     block = res.block
@@ -392,7 +392,7 @@ def test_recorded_profile_of_a_dbc_file(tmp_path: Path, profile, sample_replay):
     """A profile from a user's DBC is recorded with its path; a recording naming a DBC that is not
     there is a ConfigError asking for --profile; logs without metadata name none."""
     from lde.errors import ConfigError
-    from lde.replay import profile_metadata, recorded_profile
+    from lde.replay.replay import profile_metadata, recorded_profile
 
     dbc = tmp_path / "mine.dbc"
     dbc.write_bytes(Path(profile.dbc_path).read_bytes())
@@ -427,8 +427,8 @@ def test_cli_replays_a_gzip_compressed_log(tmp_path: Path):
 def test_summary_of_a_log_with_two_time_bases(tmp_path: Path, capsys, sample_replay):
     """Two joined recordings (relative, then epoch timestamps): the summary gives the stepped time
     (steps x 3.9 ms) and 2 segments, not the ~1.7e9 s between the first and last step."""
-    from lde.frames import FrameBatch
-    from lde.logio import write_candump
+    from lde.can.frames import FrameBatch
+    from lde.io import write_candump
     from lde.units import STEP_NS
 
     log, _ = sample_replay
@@ -461,10 +461,10 @@ def test_cli_start_up_imports_only_the_named_subcommand(command: str):
     loaded = set(proc.stdout.split())
     assert f"lde.cli.{command}" in loaded
     heavy = {
-        "lde.service",
-        "lde.adaptive",
-        "lde.calibrate",
-        "lde.study",
+        "lde.service.service",
+        "lde.analysis.adaptive",
+        "lde.analysis.calibrate",
+        "lde.analysis.study",
         "lde.cli.run",
         "numba",
         "dask",

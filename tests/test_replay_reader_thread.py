@@ -16,13 +16,13 @@ from pathlib import Path
 import pytest
 from mcap_util import chunk_spans
 
+from lde.can.frames import FrameBatch
 from lde.cli import main
-from lde.engine import StepBlock
+from lde.engine.engine import StepBlock
 from lde.errors import LogFormatError
-from lde.frames import FrameBatch
-from lde.logio import McapWriter, read_log
+from lde.io import McapWriter, read_log
 from lde.params import load_vehicle
-from lde.replay import read_inputs, run_replay
+from lde.replay.replay import read_inputs, run_replay
 
 DATA = Path(__file__).parent / "data"
 ROOT = Path(__file__).resolve().parents[1]

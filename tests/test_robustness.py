@@ -4,7 +4,7 @@ Covers broken files (missing, empty, a directory, garbage, truncated candump and
 lines (odd hex length, too long, CAN FD, error and remote frames, 29-bit ids), odd traffic (out of
 order, duplicated, wrong CRC, counter jumps, mid-drive start, only ESC frames, unknown ids only, low
 speed, a long silence, two time bases in one log), bad vehicle files and bad ``lde sim`` options,
-and fuzzes the candump parser and :func:`lde.signals.decode_batch` with hypothesis.
+and fuzzes the candump parser and :func:`lde.engine.receiver.decode_batch` with hypothesis.
 
 Most checks call :func:`lde.cli.main` in-process (the same code path as the ``lde`` command, without
 the start-up cost of a subprocess); ``tests/test_cli_contract.py`` runs the real command.
@@ -19,18 +19,18 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from lde.can.e2e import protect_frame
+from lde.can.frames import FrameBatch
+from lde.can.profiles import load_profile
 from lde.cli import main
-from lde.e2e import protect_frame
+from lde.engine.grid import MAX_GAP_NS, build_grid
+from lde.engine.receiver import Receiver, decode_batch
 from lde.errors import LogFormatError
-from lde.frames import FrameBatch
-from lde.grid import MAX_GAP_NS, build_grid
-from lde.logio import read_log, write_candump
-from lde.logio.candump import format_candump, parse_candump_bytes
+from lde.estimator.paper import Status
+from lde.io import read_log, write_candump
+from lde.io.candump import format_candump, parse_candump_bytes
 from lde.params import load_vehicle
-from lde.profiles import load_profile
-from lde.replay import replay
-from lde.signals import Receiver, decode_batch
-from lde.step import Status
+from lde.replay.replay import replay
 from lde.units import STEP_NS
 
 MDPS_ID = 0x2A0
@@ -305,7 +305,7 @@ def test_absurd_timestamp_does_not_allocate_a_huge_grid(drive, profile, vehicle)
 
 
 def test_a_grid_beyond_max_steps_is_a_clear_error():
-    from lde.grid import MAX_STEPS, segmented_step_times
+    from lde.engine.grid import MAX_STEPS, segmented_step_times
 
     every = np.arange(MAX_STEPS // (MAX_GAP_NS // STEP_NS) + 2, dtype=np.int64) * MAX_GAP_NS
     with pytest.raises(LogFormatError, match="estimator steps"):

@@ -1,7 +1,7 @@
 """The live service on python-can's virtual bus, stepped by a simulated clock (no timing assertions).
 
 A feeder (:class:`lde.testing.InputFeeder`) sends MDPS_Sensors every 3.9 ms and ESC_Motion every
-10 ms (profile ``lde``, counters and CRCs by lde.codec) with explicit timestamps; the service, on an
+10 ms (profile ``lde``, counters and CRCs by lde.can.codec) with explicit timestamps; the service, on an
 lde test bench (the ``lde_bench`` fixture: a fresh virtual channel, the simulated clock), steps in
 lockstep, driven by hand.
 """
@@ -16,13 +16,13 @@ import can
 import numpy as np
 import pytest
 
+from lde.can.codec import MessageCodec, si_to_dbc
+from lde.can.e2e import p01_check
+from lde.can.profiles import Profile, load_profile
 from lde.clock import SimulatedClock
-from lde.codec import MessageCodec, si_to_dbc
-from lde.diagnostics import DEADLINE_MISS_NS
-from lde.e2e import p01_check
 from lde.params import load_vehicle
-from lde.profiles import Profile, load_profile
-from lde.service import STATUS_DEADLINE_MISS, Service
+from lde.service.diagnostics import DEADLINE_MISS_NS
+from lde.service.service import STATUS_DEADLINE_MISS, Service
 from lde.testing import Bench, InputFeeder
 from lde.testing.bench import DEFAULT_START_NS
 from lde.units import DEG, KMH, STEP_NS
@@ -189,7 +189,7 @@ def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path, lde_bench: Bench) 
     import time
 
     from lde.cli import main
-    from lde.recording import read_recording
+    from lde.io.recording import read_recording
 
     ch = lde_bench.channel  # a fresh channel; the bench checks that every bus on it was closed
     feed_bus = can.Bus(interface="virtual", channel=ch)  # stamps with time.time(), like a kernel
@@ -248,7 +248,7 @@ def test_sigterm_ends_lde_run_cleanly(tmp_path) -> None:
     import time
 
     from lde.errors import LogFormatError
-    from lde.recording import read_recording
+    from lde.io.recording import read_recording
 
     path, learned = tmp_path / "term.mcap", tmp_path / "car.learned"
     cmd = [
@@ -313,7 +313,7 @@ def test_bus_timestamps_in_another_time_base_are_restamped(rig) -> None:
 def test_replay_of_a_run_stopped_by_a_signal_reproduces_the_ramp_out(tmp_path, lde_bench: Bench) -> None:
     """The shutdown ramp-out is driven by the limiter's enable input, which no CAN frame carries: the
     recording's sparse ``/lde/events`` channel gives it back to the replay, step for step."""
-    from lde.replay import replay_log
+    from lde.replay.replay import replay_log
 
     profile, vehicle = load_profile("lde"), load_vehicle("reference")
     clock = lde_bench.clock
@@ -349,7 +349,7 @@ def test_frame_delivered_after_its_step_is_restamped_fed_next_step_and_counted(r
     the recorded step times feeds it at the same step as the live run did."""
     svc, feeder, feed_bus, clock = rig
 
-    class Capture:  # the recorder's hot-path interface (lde.recording.Recorder.frame / .step)
+    class Capture:  # the recorder's hot-path interface (lde.io.recording.Recorder.frame / .step)
         def __init__(self) -> None:
             self.rx_t_ns: list[int] = []
 
@@ -466,7 +466,7 @@ def test_udp_multicast_socket_filter_drops_foreign_frames_in_the_kernel() -> Non
     pytest.importorskip("msgpack")
     import time
 
-    from lde.service import set_input_filters
+    from lde.service.service import set_input_filters
     from lde.testing.bus import private_multicast
 
     kw = private_multicast()
@@ -499,7 +499,7 @@ def test_run_states_the_defaults_a_vehicle_file_leaves_out(tmp_path, caplog) -> 
     from importlib.resources import files
 
     from lde.cli import main
-    from lde.recording import read_recording
+    from lde.io.recording import read_recording
 
     text = (files("lde") / "vehicles" / "reference.toml").read_text()
     cut = re.sub(r"(?ms)^\[estimator\].*?(?=^\[|\Z)", "", text)
@@ -507,7 +507,7 @@ def test_run_states_the_defaults_a_vehicle_file_leaves_out(tmp_path, caplog) -> 
     car = tmp_path / "no_tuning.toml"
     car.write_text(cut)
     path = tmp_path / "run.mcap"
-    with caplog.at_level("INFO", logger="lde.service"):
+    with caplog.at_level("INFO", logger="lde.service.service"):
         rc = main(
             ["run", "-i", "virtual", "-c", "lde-defaults", "--vehicle", str(car), "--duration", "0.2"]
             + ["--backend", "float", "--record", str(path)]
@@ -521,7 +521,7 @@ def test_run_states_the_defaults_a_vehicle_file_leaves_out(tmp_path, caplog) -> 
 def test_a_blind_service_says_which_input_is_missing_and_what_arrived(caplog) -> None:
     """Wrong profile: the bus carries the hyundai profile's messages, the service decodes lde's. The
     log names the missing message, its id, the bus and the profile, and the profile the traffic fits
-    (issue 13 item 2; lde.watch)."""
+    (issue 13 item 2; lde.can.watch)."""
     ch = f"lde-test-service-{next(_channels)}"
     feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
     svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
@@ -538,7 +538,7 @@ def test_a_blind_service_says_which_input_is_missing_and_what_arrived(caplog) ->
                         data=bytes(spec.length),
                     )
                 )
-        with caplog.at_level("INFO", logger="lde.service"):
+        with caplog.at_level("INFO", logger="lde.service.service"):
             svc.run(max_steps=300)  # 1.17 s of steps
         warns = [
             r.getMessage()
@@ -607,12 +607,12 @@ class _CallRecorder:
 
 
 def test_the_compiled_hand_off_sends_and_records_what_the_python_path_does(tmp_path) -> None:
-    """The step's compiled hand-off (lde.handoff: timing, LDE_Diag, the recorder's rings) against a
+    """The step's compiled hand-off (lde.service.handoff: timing, LDE_Diag, the recorder's rings) against a
     recorder called from Python, on the same inputs and start times: the same LDE_Diag frames (and
-    their values those of lde.diagnostics.diag_values, saturations included), the same sent frames and
+    their values those of lde.service.diagnostics.diag_values, saturations included), the same sent frames and
     step rows in the recording."""
-    from lde.diagnostics import diag_signals
-    from lde.recording import Recorder, read_recording
+    from lde.io.recording import Recorder, read_recording
+    from lde.service.diagnostics import diag_signals
 
     runs = []
     for ringed in (True, False):

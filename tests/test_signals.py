@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from lde.codec import encode_frames, si_to_dbc
-from lde.e2e import E2EStatus
-from lde.frames import FrameBatch
-from lde.grid import build_grid
-from lde.profiles import INPUT_NAMES, load_profile
-from lde.signals import Receiver, decode_batch
+from lde.can.codec import encode_frames, si_to_dbc
+from lde.can.e2e import E2EStatus
+from lde.can.frames import FrameBatch
+from lde.can.profiles import INPUT_NAMES, load_profile
+from lde.engine.grid import build_grid
+from lde.engine.receiver import Receiver, decode_batch
 from lde.units import STEP_NS
 
 T0 = 1_700_000_000_000_000_000  # ns, an epoch-based log time base
@@ -295,7 +295,7 @@ def test_receiver_timed_out_reports_nonewdata_per_message(lde):
 def test_frame_batch_messages_round_trip_and_microsecond_timestamps():
     import can
 
-    from lde.frames import ns_to_seconds, seconds_to_ns
+    from lde.can.frames import ns_to_seconds, seconds_to_ns
 
     msgs = [
         can.Message(

@@ -1,4 +1,5 @@
-"""The RTS smoother (:mod:`lde.smoother`, ``lde replay --smooth``): the backward pass against filterpy's
+"""The RTS smoother (:mod:`lde.replay.smoother`, ``lde replay --smooth``): the backward pass against
+filterpy's
 ``rts_smoother`` and against the exact posterior of a small linear-Gaussian model (with the input
 term filterpy lacks), the traced forward pass against the causal float replay, a crosswind step's
 edge, and the CLI."""
@@ -11,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lde import estimator as E
-from lde import smoother as S
+from lde.can.profiles import load_profile
 from lde.cli import main
-from lde.logio import McapLog, read_log
+from lde.estimator import lateral as E
+from lde.io import McapLog, read_log
 from lde.params import load_vehicle
-from lde.profiles import load_profile
-from lde.replay import CSV_COLUMNS, replay
+from lde.replay import smoother as S
+from lde.replay.replay import CSV_COLUMNS, replay
 from lde.status import VALID
 
 DATA = Path(__file__).parent / "data"
@@ -31,7 +32,7 @@ SMOOTH_NAMES = [name for name, _, _ in S.SMOOTHED]
 
 
 def _phi_entries(vx: float, p: np.ndarray) -> np.ndarray:
-    """Phi's 7 entries (T_F order) of the lateral model at speed vx (lde.estimator's propagation)."""
+    """Phi's 7 entries (T_F order) of the lateral model at speed vx (lde.estimator.lateral's propagation)."""
     m, iz, lf, lr, dt, cf, cr = (p[i] for i in (E.P_M, E.P_IZ, E.P_LF, E.P_LR, E.P_DT, E.P_CF, E.P_CR))
     a00 = -2.0 * (cf + cr) / (m * vx)
     a01 = -1.0 - 2.0 * (lf * cf - lr * cr) / (m * vx * vx)
@@ -313,7 +314,7 @@ def test_cli_smooth_with_jobs_gives_the_sequential_files(tmp_path, capsys):
     """--smooth runs in each job: on a local Dask cluster the same files as one after the other."""
     logs = []
     frames = read_log(SAMPLE).frames
-    from lde.logio import write_candump
+    from lde.io import write_candump
 
     for name, part in (("a.log", frames), ("b.log", frames[len(frames) // 3 :])):
         write_candump(tmp_path / name, part)

@@ -1,4 +1,4 @@
-"""lde.step: the shared estimator step (live per-call and batch), its status logic, and the
+"""lde.estimator.paper: the shared estimator step (live per-call and batch), its status logic, and the
 filter's accuracy on data simulated from the linear model with an exact (expm) discretisation."""
 
 from __future__ import annotations
@@ -9,10 +9,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.linalg import expm
 
-from lde import model, step
 from lde.errors import LdeError
+from lde.estimator import model
+from lde.estimator import paper as step
+from lde.estimator.paper import Status
 from lde.params import load_vehicle
-from lde.step import Status
 from lde.units import DEG, KMH, STEP_NS, STEP_S
 
 T0_NS = 1_700_000_000_000_000_000  # an epoch-like log time base
@@ -25,7 +26,7 @@ def veh():
 
 
 def _physics_A_B(veh, vx: float):
-    """Continuous A, B written from the forces of eqs. (7)-(9) (not from lde.model): columns of the
+    """Continuous A, B written from the forces of eqs. (7)-(9) (not from lde.estimator.model): columns of the
     linear map x -> x_dot taken one unit vector at a time."""
     m, iz, lf, lr = veh.body.mass, veh.body.yaw_inertia, veh.body.lf, veh.body.lr
     cf, cr = veh.tires.cf, veh.tires.cr

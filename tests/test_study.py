@@ -1,4 +1,4 @@
-"""lde.study: the Dask sweep machinery, summaries and outputs (synthetic engine, no simulator)."""
+"""lde.analysis.study: the Dask sweep machinery, summaries and outputs (synthetic engine, no simulator)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import csv
 
 import pytest
 
-from lde import study
-from lde.study import ClusterConfig, RunSpec
+from lde.analysis import study
+from lde.analysis.study import ClusterConfig, RunSpec
 
 
 def test_local_cluster_runs_four_specs_in_order(tmp_path):
@@ -57,13 +57,13 @@ def test_spec_label_and_row_carry_options():
 
 
 def _acc(kind, f, m):
-    from lde.metrics import Accuracy
+    from lde.analysis.metrics import Accuracy
 
     return Accuracy(kind, 100, f * 1000, m * 500, m * 500, 1000.0, 500.0, 500.0, f, m, m)
 
 
 def test_pivot_markdown_means_over_seeds_and_marks_failures():
-    from lde.metrics import Kind
+    from lde.analysis.metrics import Kind
 
     res = [
         study.RunResult(RunSpec("heavy_load", seed=0, group="A"), _acc(Kind.DISTURBED, 0.02, 0.04)),

@@ -10,13 +10,13 @@ import math
 import numpy as np
 import pytest
 
-from lde import metrics
-from lde.cli import engine as cli_engine
+from lde.analysis import metrics
+from lde.analysis.study import EstOptions, RunResult, RunSpec, SimOptions, zoo
+from lde.analysis.study.specsheet import SPEC_SHEET_KEYS, spec_sheet_vehicle
+from lde.cli import replay_in_process as cli_engine
 from lde.cli import main
 from lde.errors import ConfigError
 from lde.params import load_vehicle
-from lde.study import EstOptions, RunResult, RunSpec, SimOptions, zoo
-from lde.study.specsheet import SPEC_SHEET_KEYS, spec_sheet_vehicle
 
 vcan_zoo = pytest.importorskip("vcan_sim.zoo")
 
@@ -82,7 +82,7 @@ def test_options_are_typed_and_iterate_as_pairs():
 
 
 def test_unknown_option_fails_its_run_not_the_sweep():
-    from lde.study import ClusterConfig, run_specs
+    from lde.analysis.study import ClusterConfig, run_specs
 
     res = run_specs(
         [RunSpec("lane_change", duration=3.0, sim_options=(("warp_factor", 9),))],
@@ -112,7 +112,7 @@ def _zoo_spec(tmp_path, **kw):
 def test_cli_engine_scores_exactly_the_users_replay(tmp_path):
     """The engine's CSV is byte for byte what `lde replay LOG --profile P --backend B --vehicle
     SPEC_SHEET --csv OUT` writes, and its score is the metric of that CSV against the truth."""
-    from lde.study.engine import run_one
+    from lde.analysis.study.execute import run_one
 
     spec = _zoo_spec(tmp_path, profile="hyundai")
     res = run_one(spec, cli_engine.engine)
@@ -144,7 +144,7 @@ def test_cli_engine_scores_exactly_the_users_replay(tmp_path):
 
 
 def test_cli_engine_reports_lde_errors_as_a_failed_run(tmp_path):
-    from lde.study.engine import run_one
+    from lde.analysis.study.execute import run_one
 
     res = run_one(
         _zoo_spec(tmp_path, est_vehicle=str(tmp_path / "missing.toml"), work_dir=""), cli_engine.engine
@@ -167,7 +167,7 @@ def test_warm_mode_learns_on_the_prior_drive_then_replays_with_it(tmp_path, monk
         ["indep_twin"], scenarios=("wind_step",), profiles=("lde",), backends=("lateral",), mode=zoo.Mode.WARM
     )
     assert spec.est_options.learned_prior == zoo.PRIOR_SCENARIO
-    from lde.study.engine import run_one
+    from lde.analysis.study.execute import run_one
 
     res = run_one(RunSpec(**{**spec.__dict__, "duration": 8.0, "work_dir": str(tmp_path)}), cli_engine.engine)
     assert res.ok, res.error
@@ -287,8 +287,8 @@ def test_lde_evaluate_zoo_end_to_end(tmp_path, capsys):
 def test_a_disturbance_free_scenario_is_scored_by_rms_whatever_the_aero_side_force():
     """A large car's own side slip makes ~20 N of aero side force on a lane change; the run is still
     scored as disturbance-free (RMS), not as an NRMSE over a 20 N maximum."""
-    from lde.study import Estimate
-    from lde.study.engine import run_one
+    from lde.analysis.study import Estimate
+    from lde.analysis.study.execute import run_one
 
     def engine(spec):
         t = np.arange(0.0, 10.0, 0.01)
@@ -380,7 +380,7 @@ def test_tables_and_summary_report_each_prior_apart():
     assert "met in 0 of 1" in lines[2]
     # the shipped prior's lines do not change when another prior is run beside it
     assert zoo.summary_lines([cold, shipped]) == lines[:2]
-    from lde.study import zooreport
+    from lde.analysis.study import zooreport
 
     info = zooreport.RunInfo("cmd", 3, 1.0, 2, "m", 0.0, 0.0, "today")
     doc = zooreport.doc_block(results, info)

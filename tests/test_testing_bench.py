@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 import lde.testing
-from lde.codec import MessageEncoder
+from lde.can.codec import MessageEncoder
+from lde.can.frames import seconds_to_ns
 from lde.errors import ConfigError
-from lde.frames import seconds_to_ns
 from lde.testing import (
     STEP_S,
     Bench,
@@ -254,7 +254,7 @@ def test_service_options_are_checked() -> None:
 
 
 def test_bench_encoders_match_the_codec(lde_bench: Bench) -> None:
-    """A frame the user encodes with lde.codec decodes back through the capture."""
+    """A frame the user encodes with lde.can.codec decodes back through the capture."""
     bus = lde_bench.bus("user")
     enc = MessageEncoder(lde_bench.profile, "LDE_Overlay")
     for k in range(20):

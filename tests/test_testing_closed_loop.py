@@ -6,12 +6,12 @@ import can
 import numpy as np
 import pytest
 
-from lde.codec import MessageCodec, MessageEncoder
+from lde.can.codec import MessageCodec, MessageEncoder
+from lde.can.e2e import p01_check
+from lde.can.profiles import load_profile
 from lde.demo import run_closed_loop
-from lde.e2e import p01_check
 from lde.params import load_vehicle
-from lde.profiles import load_profile
-from lde.replay import replay_log
+from lde.replay.replay import replay_log
 from lde.testing import STEP_S, Bench, Rank, assert_e2e_valid, assert_periodic
 from lde.units import STEP_NS
 from vcan_sim.run import default_t0_ns, simulate
@@ -57,7 +57,7 @@ def test_same_seed_same_frames_and_open_loop_equals_the_fast_path() -> None:
 
 
 class ConstantOverlay:
-    """A user's controller: requests ``torque`` Nm from 1 s on through LDE_Overlay (E2E by lde.codec)."""
+    """A user's controller: requests ``torque`` Nm from 1 s on through LDE_Overlay (E2E by lde.can.codec)."""
 
     def __init__(self, bus: can.BusABC, torque: float) -> None:
         self.bus = bus

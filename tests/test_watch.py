@@ -1,4 +1,4 @@
-"""lde.watch: a missing input message is reported (name, id, where, profile, what arrived instead),
+"""lde.can.watch: a missing input message is reported (name, id, where, profile, what arrived instead),
 repeated at a slow rate, and its return is reported."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ from collections import Counter
 
 import numpy as np
 
-from lde.profiles import load_profile
-from lde.watch import InputWatch, describe_ids, profile_fit
+from lde.can.profiles import load_profile
+from lde.can.watch import InputWatch, describe_ids, profile_fit
 
 MS = 10**6
 S = 10**9

@@ -1,14 +1,15 @@
-"""The reported wind moment's centre-of-pressure blend (lde.estimator.wind_moment_output; issue 11 cold)."""
+"""The reported wind moment's centre-of-pressure blend (lde.estimator.lateral.wind_moment_output; issue 11
+cold)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lde import estimator as E
 from lde.errors import ConfigError
+from lde.estimator import lateral as E
+from lde.estimator.paper import N_OUT, O_FW_WIND, O_MW, O_MW_WIND
 from lde.params import load_vehicle
-from lde.step import N_OUT, O_FW_WIND, O_MW, O_MW_WIND
 
 
 def _out(fw_wind: float, mw_wind: float) -> np.ndarray:
@@ -53,9 +54,9 @@ def test_both_backends_report_the_blend_and_keep_the_filter(backend):
     from dataclasses import replace
     from pathlib import Path
 
-    from lde.logio import read_log
-    from lde.profiles import load_profile
-    from lde.replay import replay
+    from lde.can.profiles import load_profile
+    from lde.io import read_log
+    from lde.replay.replay import replay
 
     data = Path(__file__).parent / "data"
     frames = read_log(data / "sample_linear.log").frames

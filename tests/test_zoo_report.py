@@ -1,5 +1,6 @@
 """The zoo table from one command: its columns, the targets per mode, the payload about both CGs, the
-document markers and `lde evaluate --zoo`'s options for them (lde.study.zoo, lde.study.zooreport)."""
+document markers and `lde evaluate --zoo`'s options for them (lde.analysis.study.zoo,
+lde.analysis.study.zooreport)."""
 
 from __future__ import annotations
 
@@ -7,10 +8,10 @@ import math
 
 import pytest
 
-from lde import metrics
+from lde.analysis import metrics
+from lde.analysis.study import SPEC_SHEET, SPEC_SHEET_LOADED, EstOptions, RunResult, RunSpec, zoo, zooreport
 from lde.cli import main
 from lde.errors import ConfigError
-from lde.study import SPEC_SHEET, SPEC_SHEET_LOADED, EstOptions, RunResult, RunSpec, zoo, zooreport
 
 pytest.importorskip("vcan_sim.zoo")
 

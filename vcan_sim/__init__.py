@@ -3,7 +3,7 @@
 Entry points: :func:`vcan_sim.run.simulate` (fast path: frames + ground truth),
 :class:`vcan_sim.run.Simulation` (step by step, closed loop), :data:`vcan_sim.scenarios.SCENARIOS`,
 :func:`vcan_sim.identify.identify` (linear-equivalent C_f, C_r, K), and ``lde sim`` on the command line.
-The plant is deliberately independent of the estimator's linear model (no lde.model/kalman/step).
+The plant is deliberately independent of the estimator's linear model (no lde.estimator.model/kalman/step).
 """
 
 from __future__ import annotations

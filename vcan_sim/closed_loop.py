@@ -1,5 +1,5 @@
 """Closed loop: the MDPS side of ``LDE_Overlay``. Received frames pass the E2E Profile 1 check
-(:class:`lde.e2e.P01Receiver`: CRC, counter sequence, MaxDeltaCounter, re-synchronisation after
+(:class:`lde.can.e2e.P01Receiver`: CRC, counter sequence, MaxDeltaCounter, re-synchronisation after
 faults) before their ``OverlayTorque`` is applied; ``Active = 0`` requests zero.
 
 When the request is not trustworthy (no frame within the message timeout, receiver not trusted
@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import can
 
-from lde.codec import MessageCodec
-from lde.e2e import E2EStatus, P01Receiver
-from lde.profiles import Profile
+from lde.can.codec import MessageCodec
+from lde.can.e2e import E2EStatus, P01Receiver
+from lde.can.profiles import Profile
 
 from .emitter import to_messages
 

@@ -1,5 +1,5 @@
 """Frames at their periods: the profile's input messages, encoded through the DBC with counters and
-CRCs (:func:`lde.codec.encode_frames`), and the pump that puts them on a python-can bus.
+CRCs (:func:`lde.can.codec.encode_frames`), and the pump that puts them on a python-can bus.
 
 Schedule: every input message of the profile is sent at its DBC period (``lde``: MDPS_Sensors every
 3.9 ms, ESC_Motion every 10 ms; ``hyundai``: MDPS12, SAS11 every 10 ms, ESP12, WHL_SPD11 every 20 ms),
@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
+from lde.can.codec import MessageCodec, MessageEncoder, encode_frames, si_to_dbc
+from lde.can.frames import FrameBatch, ns_to_seconds
+from lde.can.profiles import Profile
 from lde.clock import MonotonicClock
-from lde.codec import MessageCodec, MessageEncoder, encode_frames, si_to_dbc
-from lde.frames import FrameBatch, ns_to_seconds
-from lde.profiles import Profile
 from lde.units import STEP_NS
 
 from .config import SensorParams

@@ -21,9 +21,9 @@ from enum import Enum
 
 import numpy as np
 
+from lde.can.frames import FrameBatch
+from lde.can.profiles import GROUPS, Profile
 from lde.errors import ConfigError
-from lde.frames import FrameBatch
-from lde.profiles import GROUPS, Profile
 
 
 class FaultKind(Enum):

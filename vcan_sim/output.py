@@ -22,17 +22,17 @@ from typing import IO
 
 import numpy as np
 
+from lde.can.frames import FrameBatch
 from lde.errors import OutputError
-from lde.frames import FrameBatch
-from lde.logio import McapWriter
-from lde.logio.candump import candump_decimals, format_candump_bytes
+from lde.io import McapWriter
+from lde.io.candump import candump_decimals, format_candump_bytes
 
 from .run import SimResult, Simulation
 from .truth import TRUTH_COLUMNS, format_truth_rows, truth_csv_names
 
 TRUTH_TOPIC = "/truth"
 #: wall time between two flushes of a live run's files [s]: ``lde run --record``'s recorder
-#: (``lde.recording.Recorder``'s ``flush_interval_s``), so a SIGKILL loses at most about this much
+#: (``lde.io.recording.Recorder``'s ``flush_interval_s``), so a SIGKILL loses at most about this much
 FLUSH_INTERVAL_S = 0.25
 #: MCAP chunk bound of a streamed run [bytes, uncompressed]: the recorder's
 STREAM_CHUNK_SIZE = 64 * 1024

@@ -17,10 +17,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from lde.can.frames import FrameBatch
+from lde.can.profiles import Profile, load_profile
 from lde.errors import ConfigError, LdeError
-from lde.frames import FrameBatch
 from lde.params import Vehicle, load_vehicle
-from lde.profiles import Profile, load_profile
 from lde.units import STEP_NS
 
 from . import plant as P

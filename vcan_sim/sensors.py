@@ -1,6 +1,6 @@
 """Sensors: what the MDPS and the ESC report about the plant, with noise, bias and delay.
 
-Each estimator input (SI, ISO signs; names of :data:`lde.profiles.INPUT_NAMES`) is read from the
+Each estimator input (SI, ISO signs; names of :data:`lde.can.profiles.INPUT_NAMES`) is read from the
 plant's output rows at the frame's sample (the last sub-step at or before the frame time)::
 
     column_torque  = T_column(k - d) + b + n      torsion-bar torque, delayed by the MDPS
@@ -23,7 +23,7 @@ be modelled on both profiles (:func:`angle_below_torsion_bar`).
 ``d`` = round(mdps_delay / h) sub-steps (the paper's 3.9 ms computation delay), ``b`` the
 configured bias, ``n`` white Gaussian noise (seeded, drawn once per frame for the whole run so that
 stepping and the fast path give identical values). Quantisation is the DBC's scaling, applied when
-the frame is encoded (:mod:`lde.codec`).
+the frame is encoded (:mod:`lde.can.codec`).
 """
 
 from __future__ import annotations

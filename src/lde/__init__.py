@@ -5,8 +5,8 @@ frames -> signals (decode by profile, E2E receiver) -> inputs in SI on the 3.9 m
 -> estimator step (float or fixed backend) -> estimate -> overlay law + limiter -> output frames.
 """
 
-from .errors import BusError, ConfigError, LdeError, LogFormatError
-from .jitcache import drop_stale
+from lde.errors import BusError, ConfigError, LdeError, LogFormatError
+from lde.jitcache import drop_stale
 
 # before any kernel loads from numba's cache: numba would keep a kernel whose callee changed
 drop_stale()

@@ -31,7 +31,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Generic, NamedTuple, Protocol, TypeVar, runtime_checkable
 
-from .errors import ConfigError
+from lde.errors import ConfigError
 
 __all__ = [
     "Clock",
@@ -51,7 +51,7 @@ _T = TypeVar("_T")
 
 class Receiver(Protocol, Generic[_F]):
     """What :meth:`MonotonicClock.recv_until` reads from: a ``can.BusABC``, or the service's frame I/O
-    (:mod:`lde.busio`), whose ``recv(timeout)`` returns a frame or None."""
+    (:mod:`lde.service.busio`), whose ``recv(timeout)`` returns a frame or None."""
 
     def recv(self, timeout: float | None = ...) -> _F | None: ...
 

@@ -3,14 +3,14 @@
 numba compiles a kernel in the process that first calls it, one kernel after the other: a first
 ``lde replay`` on an empty cache (:mod:`lde.jitcache`) used one core for 20-35 s. The kernels of a
 backend's step are independent of one another until the step that joins them, and the data-path
-loop's own parts (:mod:`lde.pipeline`: ``feed_frame``, ``sample_inputs``, ``step_outputs``, and the
+loop's own parts (:mod:`lde.engine.loop`: ``feed_frame``, ``sample_inputs``, ``step_outputs``, and the
 constructor of its fixed arrays) do not depend on the step at all: :func:`compile_split` starts
 ``lde.coldstart BACKEND`` in a new Python (the helper), which compiles its share (:data:`HELPER`) into
 the on-disk cache and says so on its stdout (``ready NAME``), while this process compiles the rest
 (:data:`MAIN`), waiting for a helper group just before the first of its own that needs it (numba
 then loads it from the cache: it looks there before it compiles). The loop, compiled next by the
 run itself, then finds its step and its parts compiled and only types their calls. After its
-share the helper compiles the filters' resets and the CSV formatter (:mod:`lde.logio`), which the
+share the helper compiles the filters' resets and the CSV formatter (:mod:`lde.io`), which the
 run needs later. The shares are balanced by the CPU seconds of each group
 (``scripts/compile_profile.py``; docs/startup.md).
 
@@ -23,8 +23,8 @@ atomic rename, so a kernel is either complete in the cache or absent.
 
 Signatures: a kernel compiled ahead must have exactly the argument types the caller gives it, else
 the caller compiles it again. They are written out here (:func:`state_types`) from the backend
-states' layouts (:func:`lde.backends.make_backend_state`; ``tests/test_coldstart.py`` checks them
-against real states) and the step's own unpacking (:func:`lde.backends.lateral_fixed_step`).
+states' layouts (:func:`lde.engine.backends.make_backend_state`; ``tests/test_coldstart.py`` checks them
+against real states) and the step's own unpacking (:func:`lde.engine.backends.lateral_fixed_step`).
 """
 
 from __future__ import annotations
@@ -90,7 +90,7 @@ MAIN: dict[str, tuple[str, ...]] = {
     ),
 }
 #: ``--backend`` as given (None: the default) to the backend it names, for the backends with a split
-#: (checked against :func:`lde.backends.get_backend` by the tests; the CLI starts the helper before
+#: (checked against :func:`lde.engine.backends.get_backend` by the tests; the CLI starts the helper before
 #: it imports the registry)
 EARLY_NAMES: dict[str | None, str] = {None: "fixed", "fixed": "fixed", "float": "float", "lateral": "float"}
 _WAIT = "wait "
@@ -110,7 +110,7 @@ def _types() -> Any:
 
 
 def state_types(backend: str) -> tuple[Any, Any]:
-    """numba types of ``(params, state)`` of :func:`lde.backends.make_backend_state` for
+    """numba types of ``(params, state)`` of :func:`lde.engine.backends.make_backend_state` for
     ``backend`` (``fixed`` or ``float``), without making the state (that compiles kernels)."""
     T, f1, f2, i1, i2 = _types()
     if backend == "fixed":
@@ -127,7 +127,7 @@ def state_types(backend: str) -> tuple[Any, Any]:
 
 
 def _float_step() -> None:
-    from . import estimator as E
+    from lde.estimator import lateral as E
 
     T, f1, f2, i1, _ = _types()
     f, b = T.float64, T.boolean
@@ -135,7 +135,7 @@ def _float_step() -> None:
 
 
 def _learner() -> None:
-    from . import learner as Ln
+    from lde.estimator import learner as Ln
 
     T, f1, f2, _, _ = _types()
     f = T.float64
@@ -160,8 +160,7 @@ def _resets() -> None:
     """The filters' resets, which making a backend state calls (both backends' float filter, the
     fixed one's integer filter)."""
     from firmware_model import lateral as FX
-
-    from . import estimator as E
+    from lde.estimator import lateral as E
 
     _, f1, f2, i1, _ = _types()
     E.reset_kernel.compile((f1, f1, f2, f1, i1))
@@ -169,7 +168,7 @@ def _resets() -> None:
 
 
 def _parse() -> None:
-    from .logio import open_log
+    from lde.io import open_log
 
     with tempfile.TemporaryDirectory(prefix="lde-coldstart-") as tmp:
         log = Path(tmp) / "x.log"
@@ -181,7 +180,7 @@ def _parse() -> None:
 def _csv() -> None:
     import numpy as np
 
-    from .logio.textfmt import EXACT, Column, format_rows, time_column
+    from lde.io.textfmt import EXACT, Column, format_rows, time_column
 
     cols = [time_column("t", np.arange(3) * 1000), Column("x", np.linspace(0, 1, 3), EXACT)]
     format_rows(cols, ["", ","], "\n")
@@ -190,27 +189,27 @@ def _csv() -> None:
 def _join(backend: str) -> None:
     from numba import types as T
 
-    from . import backends as B
+    from lde.engine import backends as B
 
     bp, bs = state_types(backend)
     f1 = T.float64[::1]
     step = B.lateral_fixed_step if backend == "fixed" else B.lateral_step
-    # as the loop calls it (lde.pipeline: fresh and the flags as sample_inputs returns them)
+    # as the loop calls it (lde.engine.loop: fresh and the flags as sample_inputs returns them)
     step.compile((bp, bs, T.int64, f1, T.int64, T.boolean, T.boolean, f1))
 
 
 def loop_fields() -> tuple[Any, ...]:
-    """The loop's fixed arrays (:data:`lde.loopargs.FIELDS`) as :meth:`lde.engine.Engine.reset`
+    """The loop's fixed arrays (:data:`lde.engine.loopargs.FIELDS`) as :meth:`lde.engine.engine.Engine.reset`
     makes them, for the ``lde`` profile and the reference vehicle: the loop's arguments and parts
     are compiled for their numba types, which are the same for every profile and vehicle
     (``tests/test_coldstart.py`` checks them against real engines)."""
     import numpy as np
 
-    from .engine import OutputTable
-    from .overlay import limiter_params, new_limiter_state
-    from .params import load_vehicle
-    from .profiles import load_profile
-    from .signals import RxState, RxTables
+    from lde.can.profiles import load_profile
+    from lde.engine.engine import OutputTable
+    from lde.engine.receiver import RxState, RxTables
+    from lde.estimator.overlay import limiter_params, new_limiter_state
+    from lde.params import load_vehicle
 
     profile = load_profile("lde")
     tables = RxTables.of(profile)
@@ -230,8 +229,8 @@ def loop_fields() -> tuple[Any, ...]:
 
 
 def _loop_args() -> None:
-    """The constructor of the loop's fixed arrays (:func:`lde.loopargs.loop_arrays`)."""
-    from . import loopargs
+    """The constructor of the loop's fixed arrays (:func:`lde.engine.loopargs.loop_arrays`)."""
+    from lde.engine import loopargs
 
     loopargs._new.compile(_part_types())
 
@@ -243,37 +242,37 @@ def _part_types() -> tuple[Any, ...]:
 
 
 def _loop_arrays_type() -> Any:
-    """The numba type of the loop's :class:`lde.loopargs.LoopArrays` (its fields' types)."""
-    from .loopargs import FIELDS, LoopArraysType
+    """The numba type of the loop's :class:`lde.engine.loopargs.LoopArrays` (its fields' types)."""
+    from lde.engine.loopargs import FIELDS, LoopArraysType
 
     return LoopArraysType(list(zip(FIELDS, _part_types(), strict=True)))
 
 
 def _loop_feed() -> None:
-    """The loop's receiver part per frame (:func:`lde.pipeline.feed_frame`), for the argument
-    types the loop (:func:`lde.pipeline.make_loop`) calls it with."""
+    """The loop's receiver part per frame (:func:`lde.engine.loop.feed_frame`), for the argument
+    types the loop (:func:`lde.engine.loop.make_loop`) calls it with."""
     from numba import types as T
 
-    from . import pipeline as P
+    from lde.engine import loop as P
 
     i8, b, i1 = T.int64, T.boolean, T.int64[::1]
     P.feed_frame.compile((_loop_arrays_type(), i1, i8, i8, b, i8, T.uint64, i8))
 
 
 def _loop_sample() -> None:
-    """The loop's receiver part per step (:func:`lde.pipeline.sample_inputs`), as :func:`_loop_feed`."""
+    """The loop's receiver part per step (:func:`lde.engine.loop.sample_inputs`), as :func:`_loop_feed`."""
     from numba import types as T
 
-    from . import pipeline as P
+    from lde.engine import loop as P
 
     P.sample_inputs.compile((_loop_arrays_type(), T.int64, T.float64[::1], T.int64[::1]))
 
 
 def _loop_out() -> None:
-    """The loop's output part (:func:`lde.pipeline.step_outputs`: overlay, finalisation, encoders)."""
+    """The loop's output part (:func:`lde.engine.loop.step_outputs`: overlay, finalisation, encoders)."""
     from numba import types as T
 
-    from . import pipeline as P
+    from lde.engine import loop as P
 
     i8, b, f1 = T.int64, T.boolean, T.float64[::1]
     P.step_outputs.compile((_loop_arrays_type(), i8, f1, i8, b, f1, b, T.uint8[:, ::1], f1, f1))
@@ -379,8 +378,8 @@ def start_helper(backend: str | None, live: bool = False) -> _Helper | None:
 
 def _reads_candump(logs: Sequence[Path]) -> bool:
     """Whether any of ``logs`` is a candump text log (the parser this process compiles ahead)."""
-    from .errors import LogFormatError
-    from .logio import detect_format
+    from lde.errors import LogFormatError
+    from lde.io import detect_format
 
     for p in logs:
         try:
@@ -477,7 +476,7 @@ def helper_main(argv: list[str]) -> int:
     if not (len(argv) == 1 or live) or argv[0] not in HELPER:
         print(f"usage: python -m lde.coldstart {{{','.join(HELPER)}}} [--live]", file=sys.stderr)
         return 2
-    from .lazyblas import defer_blas_import
+    from lde.lazyblas import defer_blas_import
 
     defer_blas_import()  # as lde replay: numba's BLAS check without importing scipy.linalg
     for name in HELPER[argv[0]]:

@@ -8,14 +8,14 @@ Both sides run on one :class:`lde.clock.SimulatedClock`, faster than real time: 
    (``preserve_timestamps``);
 2. the clock moves to the step time ``t_k`` (the start of that period: every frame stamped at or
    before ``t_k`` is on the bus, later ones wait in the service for the next step, exactly as live)
-   and the service runs :meth:`lde.service.Service.step_once` at ``t_k``: the code of the live
+   and the service runs :meth:`lde.service.service.Service.step_once` at ``t_k``: the code of the live
    loop, only the waiting is simulated. Its ``LDE_Overlay`` reaches the plant at the next period.
 
 The scenario runs twice, with the overlay and without it (the service then requests zero torque),
 with the same seed: same wind, same driver. The summary compares the estimate with the simulator's
-truth (:mod:`lde.metrics`), and the driver's holding torque and the lateral drift with and without
+truth (:mod:`lde.analysis.metrics`), and the driver's holding torque and the lateral drift with and without
 the overlay. The overlay run is recorded to MCAP (plus the truth on ``/sim/truth``) and plotted
-(:func:`lde.plots.plot_demo`).
+(:func:`lde.analysis.plots.plot_demo`).
 """
 
 from __future__ import annotations
@@ -33,20 +33,19 @@ from typing import Any
 import can
 import numpy as np
 
+from lde.analysis.metrics import Truth, accuracy
+from lde.analysis.plots import plot_demo
+from lde.can.profiles import load_profile
+from lde.clock import SimulatedClock
+from lde.errors import ConfigError
+from lde.io.recording import Recorder
+from lde.params import load_vehicle
+from lde.service.service import Service
+from lde.units import STEP_NS
 from vcan_sim.closed_loop import OverlayReceiver
 from vcan_sim.run import Simulation, simulate
 from vcan_sim.scenarios import SCENARIOS
 from vcan_sim.truth import TRUTH_COLUMNS
-
-from .clock import SimulatedClock
-from .errors import ConfigError
-from .metrics import Truth, accuracy
-from .params import load_vehicle
-from .plots import plot_demo
-from .profiles import load_profile
-from .recording import Recorder
-from .service import Service
-from .units import STEP_NS
 
 __all__ = [
     "DEFAULT_SCENARIO",
@@ -172,7 +171,7 @@ class DemoSummary:
     scenario: str
     seed: int
     backend: str
-    accuracy: Any  # lde.metrics.Accuracy of the overlay run
+    accuracy: Any  # lde.analysis.metrics.Accuracy of the overlay run
     hold_rms_on: float  # RMS driver torque after settling [Nm], with overlay
     hold_rms_off: float
     hold_mean_abs_on: float  # mean |driver torque| [Nm]
@@ -245,7 +244,8 @@ def run_closed_loop(
     """Simulator + service in lockstep on a virtual bus; returns the per-step series.
 
     With ``record`` the run is written to that MCAP file (service channels + ``/sim/truth``).
-    ``grid="mdps"`` runs the live loop itself (:meth:`lde.service.Service.run` on the MDPS-locked grid,
+    ``grid="mdps"`` runs the live loop itself (:meth:`lde.service.service.Service.run` on the MDPS-locked
+    grid,
     on the simulated clock), the simulator stepped after each step; its MDPS frames open each period,
     so the steps come at the same times as on the fixed grid and the run is the same, step for step.
     """

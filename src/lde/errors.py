@@ -1,6 +1,6 @@
 """One exception root for lde; library errors are re-raised from it with ``from``.
 
-Bad *frames* are never exceptions (they are counted rejections, see :mod:`lde.signals`);
+Bad *frames* are never exceptions (they are counted rejections, see :mod:`lde.engine.receiver`);
 these are for things a user must fix: a bad parameter file, an unreadable log, a bad option.
 """
 

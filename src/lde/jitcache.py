@@ -192,13 +192,13 @@ def _write_stamp(cache: Path, stamp: str, pkgs: list[Path], digest: list[str]) -
     os.replace(tmp, cache / STAMP_NAME)
 
 
-#: the compiled data-path loops, one per backend (:data:`lde.backends.BACKENDS`, named by
-#: :func:`lde.pipeline.make_loop`): fixed, float (lateral), paper-fixed, paper
+#: the compiled data-path loops, one per backend (:data:`lde.engine.backends.BACKENDS`, named by
+#: :func:`lde.engine.loop.make_loop`): fixed, float (lateral), paper-fixed, paper
 LOOPS = ("run_lateral_fixed", "run_lateral", "run_paper_fixed", "run_paper")
 
 
 def is_warm(loops: tuple[str, ...] = LOOPS) -> bool:
-    """True when a compiled data-path loop (:mod:`lde.pipeline`, any of ``loops``) is cached for
+    """True when a compiled data-path loop (:mod:`lde.engine.loop`, any of ``loops``) is cached for
     this Python. A stale entry (another numba, changed sources) still counts as warm here: the
     compile notice then comes with the first compilation (:func:`lde.cli.jit.announce_compiles`)."""
     tag = f"py{sys.version_info[0]}{sys.version_info[1]}"

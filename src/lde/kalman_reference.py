@@ -1,4 +1,4 @@
-"""The float Kalman filter of :mod:`lde.kalman` on filterpy's ``KalmanFilter``: the reference it is
+"""The float Kalman filter of :mod:`lde.estimator.kalman` on filterpy's ``KalmanFilter``: the reference it is
 checked against (``tests/test_kalman.py``, a lockstep run) and the benchmark suite's anchor.
 
 Not imported by the product: filterpy pulls in scipy.stats (about 1 s of start-up), and it is a

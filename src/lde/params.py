@@ -2,7 +2,7 @@
 
 A vehicle file (``src/lde/vehicles/*.toml``, or any path given with ``--vehicle FILE``) has the
 tables ``[vehicle]``, ``[steering]``, ``[tires]``, ``[overlay]``, ``[estimator]``, the optional
-``[corrections]`` (input corrections, :mod:`lde.conditioning`) and an optional ``[sim]`` table
+``[corrections]`` (input corrections, :mod:`lde.estimator.conditioning`) and an optional ``[sim]`` table
 that only the simulator reads. Keys carry their unit in their name
 (``mass_kg``, ``min_speed_kmh``); the loader converts to SI, so every attribute of these
 dataclasses is SI (kg, m, rad, N/rad, Nm/rad, m/s, Nm, Nm/s) with the unit in its docstring.
@@ -23,8 +23,8 @@ from dataclasses import MISSING, Field, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from .errors import ConfigError
-from .units import DEG, KMH, G
+from lde.errors import ConfigError
+from lde.units import DEG, KMH, G
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -99,7 +99,7 @@ class OverlayLimits:
         max_speed: ... and below this speed [m/s].
         max_steering_angle: ... and within |delta_sw| <= this [rad] (steering-wheel angle).
         driver_override_torque: the driver overrides when |T_column| lies this far outside the band
-            from 0 to the whole holding torque (see lde.overlay) [Nm].
+            from 0 to the whole holding torque (see lde.estimator.overlay) [Nm].
         hold_off: after the last overriding step, wait this long before re-engaging [s].
         rearm_delay: all engage conditions must hold this long before (re-)engaging [s].
         fault_persist: an input fault lasting this long enters FAULT [s].
@@ -128,7 +128,7 @@ class EstimatorTuning:
     """Kalman filter tuning (reasons and measured time constants in ``docs/tuning.md``).
 
     The process noise is a continuous white-noise density W = diag(q_beta, q_yaw, q_fw, q_mw) on
-    every state; the discrete covariance is Qd = W dt (SPEC erratum 8, :mod:`lde.model`).
+    every state; the discrete covariance is Qd = W dt (SPEC erratum 8, :mod:`lde.estimator.model`).
 
     Attributes:
         q_beta: process noise density on beta [rad^2/s]. 1e-8: unmodelled lateral dynamics
@@ -149,7 +149,7 @@ class EstimatorTuning:
         converge_time: time after a (re)start before the estimate counts as converged [s]
             (5 slowest time constants at 160 km/h).
 
-    The lateral filter (:mod:`lde.estimator`, states beta, r, F_wind, M_wind, F_bank; the product's
+    The lateral filter (:mod:`lde.estimator.lateral`, states beta, r, F_wind, M_wind, F_bank; the product's
     default) uses q_beta, q_yaw, r_yaw, r_align, the p0 and min_speed/converge_time above, and:
 
         q_wind: random-walk density of the wind force F_wind [N^2/s], 1e5.
@@ -195,7 +195,8 @@ FRICTION_RATE_WIDTH = 2.0 * DEG
 
 @dataclass(frozen=True)
 class InputCorrections:
-    """What the paper's model neglects, removed from the inputs before the step (:mod:`lde.conditioning`).
+    """What the paper's model neglects, removed from the inputs before the step
+    (:mod:`lde.estimator.conditioning`).
 
     All zero (the default) is the paper's estimator. ``lde calibrate`` identifies them from a drive
     without disturbance. Signs: "measured minus true", ISO 8855.
@@ -227,7 +228,7 @@ class InputCorrections:
 
 @dataclass(frozen=True)
 class LearningSettings:
-    """Online learning of what a spec sheet does not give (:mod:`lde.learner`).
+    """Online learning of what a spec sheet does not give (:mod:`lde.estimator.learner`).
 
     Attributes:
         enabled: 1 learns tires, friction and sensor offsets while driving; 0 keeps the vehicle

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .nbinline import install
+from lde.nbinline import install
 
 # every module with kernels of lde and the firmware model imports this one before it compiles: the
 # IR inliner without its redundant copies (lde.nbinline) is in place for all their compilations

@@ -6,7 +6,7 @@ cache (:mod:`lde.jitcache`); parts can run in parallel processes (one core each)
 ===========  ======================================================================================
 ``fixed``    the data path with the default backend (the lateral filter in fixed point, its float
              shadow and the learner), and the live service's own kernels (``lde run``, ``lde demo``:
-             the MDPS-locked grid, the step's compiled hand-off :mod:`lde.handoff`)
+             the MDPS-locked grid, the step's compiled hand-off :mod:`lde.service.handoff`)
 ``float``    the data path with the lateral filter in float
 ``paper-fixed``  the paper's filter in fixed point with its shadow
 ``paper``    the paper's filter in float
@@ -28,20 +28,19 @@ from pathlib import Path
 import can
 import numpy as np
 
+from lde.can.frames import FrameBatch
+from lde.can.profiles import load_profile
+from lde.clock import SimulatedClock
+from lde.engine.engine import Engine
+from lde.engine.grid import build_grid
+from lde.engine.receiver import decode_batch
+from lde.io import McapWriter, open_log, read_mcap, write_candump
+from lde.io.textfmt import EXACT, Column, format_rows, time_column
+from lde.params import load_vehicle
+from lde.replay.replay import CsvWriter, RecordingWriter, run_replay
+from lde.replay.smoother import smooth_run
+from lde.service.service import Service
 from vcan_sim.run import simulate
-
-from .clock import SimulatedClock
-from .engine import Engine
-from .frames import FrameBatch
-from .grid import build_grid
-from .logio import McapWriter, open_log, read_mcap, write_candump
-from .logio.textfmt import EXACT, Column, format_rows, time_column
-from .params import load_vehicle
-from .profiles import load_profile
-from .replay import CsvWriter, RecordingWriter, run_replay
-from .service import Service
-from .signals import decode_batch
-from .smoother import smooth_run
 
 __all__ = ["PARTS", "warm_up"]
 

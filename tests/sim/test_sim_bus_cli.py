@@ -9,11 +9,11 @@ import can
 import numpy as np
 import pytest
 
+from lde.can.codec import MessageEncoder
+from lde.can.e2e import E2EStatus
+from lde.can.profiles import load_profile
 from lde.cli import main
-from lde.codec import MessageEncoder
-from lde.e2e import E2EStatus
-from lde.logio import read_log, read_mcap
-from lde.profiles import load_profile
+from lde.io import read_log, read_mcap
 from lde.units import STEP_NS
 from vcan_sim.closed_loop import OverlayReceiver
 from vcan_sim.emitter import pump
@@ -167,7 +167,7 @@ def test_cli_errors(capsys):
 
 @pytest.mark.parametrize("fmt", ["log", "mcap"])
 def test_replay_reads_sim_logs(tmp_path, fmt):
-    pytest.importorskip("lde.replay")
+    pytest.importorskip("lde.replay.replay")
     log, out = tmp_path / f"s.{fmt}", tmp_path / "r.csv"
     assert main(["sim", "--scenario", "light_load", "--duration", "4", f"--{fmt}", str(log)]) == 0
     assert main(["replay", str(log), "--csv", str(out), "--backend", "float", "-q"]) == 0

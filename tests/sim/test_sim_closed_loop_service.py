@@ -11,7 +11,7 @@ from vcan_sim.run import Simulation
 
 
 def _run(overlay: bool, duration: float = 9.0):
-    service_mod = pytest.importorskip("lde.service")
+    service_mod = pytest.importorskip("lde.service.service")
     clock_mod = pytest.importorskip("lde.clock")
     ch = f"vcan_sim_lockstep_{overlay}"
     with (

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lde.can.e2e import check_batch, read_counter_batch
+from lde.can.profiles import load_profile
 from lde.cli import main
-from lde.e2e import check_batch, read_counter_batch
 from lde.errors import ConfigError
-from lde.profiles import load_profile
 from vcan_sim.faults import Fault, FaultKind, hit_mask, parse_fault
 from vcan_sim.run import Simulation, scenario_with, simulate
 from vcan_sim.scenarios import Step

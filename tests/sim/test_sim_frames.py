@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lde.codec import MessageCodec
-from lde.e2e import check_batch, p01_check, read_counter_batch
+from lde.can.codec import MessageCodec
+from lde.can.e2e import check_batch, p01_check, read_counter_batch
+from lde.can.profiles import load_profile
 from lde.errors import ConfigError
-from lde.profiles import load_profile
 from lde.units import DEG, KMH, STEP_NS
 from vcan_sim.run import Simulation, default_t0_ns, simulate
 

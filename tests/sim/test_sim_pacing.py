@@ -10,8 +10,8 @@ import time
 import can
 import numpy as np
 
-from lde.frames import FrameBatch
-from lde.profiles import load_profile
+from lde.can.frames import FrameBatch
+from lde.can.profiles import load_profile
 from lde.units import STEP_NS
 from vcan_sim.closed_loop import OverlayReceiver
 from vcan_sim.emitter import MAX_LAG_S, pump

@@ -8,10 +8,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from lde.codec import MessageCodec
+from lde.can.codec import MessageCodec
+from lde.can.profiles import load_profile
 from lde.errors import ConfigError
 from lde.params import vehicle_from_dict
-from lde.profiles import load_profile
 from lde.units import DEG
 from vcan_sim.config import sim_params_from_vehicle
 from vcan_sim.run import Simulation, scenario_with, simulate

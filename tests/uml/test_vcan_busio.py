@@ -1,4 +1,4 @@
-"""lde.busio's SocketCAN fast path on a real vcan0: what it reads is what python-can's ``recv`` reads
+"""lde.service.busio's SocketCAN fast path on a real vcan0: what it reads is what python-can's ``recv`` reads
 (ids, data, the kernel's receive timestamp), and what it sends python-can receives.
 
 Marked ``vcan``: runs only inside user-mode Linux (``tests/test_uml.py``); elsewhere skipped.
@@ -12,8 +12,8 @@ import pytest
 
 can = pytest.importorskip("can")
 
-from lde.busio import bus_io, message_fields  # noqa: E402
-from lde.frames import seconds_to_ns  # noqa: E402
+from lde.can.frames import seconds_to_ns  # noqa: E402
+from lde.service.busio import bus_io, message_fields  # noqa: E402
 
 pytestmark = pytest.mark.vcan
 

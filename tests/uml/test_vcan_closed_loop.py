@@ -41,13 +41,13 @@ import numpy as np
 import pytest
 from uml_bounds import Budget, run_bounded, stop_process
 
-from lde.codec import MessageCodec
-from lde.e2e import p01_check
-from lde.overlay import OverlayTiming
+from lde.can.codec import MessageCodec
+from lde.can.e2e import p01_check
+from lde.can.profiles import load_profile
+from lde.estimator.overlay import OverlayTiming
+from lde.io.recording import read_recording
 from lde.params import load_vehicle
-from lde.profiles import load_profile
-from lde.recording import read_recording
-from lde.replay import replay_log
+from lde.replay.replay import replay_log
 from lde.units import STEP_NS
 
 pytestmark = [pytest.mark.vcan, pytest.mark.slow]

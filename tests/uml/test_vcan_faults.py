@@ -44,11 +44,11 @@ import numpy as np
 import pytest
 from uml_bounds import Budget, run_bounded, stop_process
 
-from lde.e2e import p01_check
-from lde.overlay import OverlayTiming
+from lde.can.e2e import p01_check
+from lde.can.profiles import load_profile
+from lde.estimator.overlay import OverlayTiming
+from lde.io.recording import read_recording
 from lde.params import load_vehicle
-from lde.profiles import load_profile
-from lde.recording import read_recording
 from lde.testing import InputFeeder
 from lde.units import DEG, KMH, STEP_NS
 

@@ -39,7 +39,7 @@ MIN_FRAMES = 100  # per message, for the run to say something about the service'
 
 @pytest.mark.skipif(shutil.which("candump") is None, reason="can-utils (candump) not installed")
 def test_sim_and_service_on_vcan0(tmp_path, budget, guest_speed):
-    from lde.e2e import p01_check
+    from lde.can.e2e import p01_check
 
     budget.require(60.0, "lde sim and lde run on vcan0", guest_speed)
     dump = tmp_path / "dump.log"

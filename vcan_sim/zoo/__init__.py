@@ -4,7 +4,7 @@ Each plant is a full vehicle file ``vcan_sim/zoo/<name>.toml`` with its own ``[s
 steering, sensors, payload, aero, seats) and a one-line ``description``. Every plant differs from
 every shipped vehicle file and from vcan_sim's default plant (``tests/sim/test_zoo.py``). The
 estimator is given only a plant's spec sheet (mass, yaw inertia, lf, lr, tread, steering ratio:
-:mod:`lde.study.specsheet`); nothing it reads is identified from a plant.
+:mod:`lde.analysis.study.specsheet`); nothing it reads is identified from a plant.
 
 A plant's true linear-equivalent values (per-tire C_f, C_r and K fitted to its truth by
 :func:`vcan_sim.identify.identify` over :data:`IDENTIFY_SCENARIOS` x :data:`IDENTIFY_SEEDS`, the

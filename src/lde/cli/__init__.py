@@ -8,8 +8,9 @@ others get a bare placeholder parser), so ``lde replay`` does not pay for the se
 calibrator or the study's imports. ``lde``, ``lde --help`` and an unknown command import them all
 (the help lists every subcommand). A module's ``add_parser`` should stay cheap: heavy imports belong
 inside its ``run`` (the one place where lde imports inside functions: measured with
-``python -X importtime``, ``import lde.cli`` takes 8 ms, ``lde.replay`` 0.76 s, ``lde.service`` 1.0 s,
-``lde.study`` with dask 1-2 s; ``tests/test_replay.py`` checks that ``--help`` stays light).
+``python -X importtime``, ``import lde.cli`` takes 8 ms, ``lde.replay.replay`` 0.76 s,
+``lde.service.service`` 1.0 s,
+``lde.analysis.study`` with dask 1-2 s; ``tests/test_replay.py`` checks that ``--help`` stays light).
 
 Exit: the ``lde`` process (:func:`main` called without ``argv``) freezes the garbage collector's
 objects before it returns, so that Python's final collections do not walk the ~140k objects that
@@ -27,9 +28,9 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from ..errors import LdeError
+from lde.errors import LdeError
 
-#: the backends' names and aliases (lde.backends' registry and ALIASES; kept here so that building the
+#: the backends' names and aliases (lde.engine.backends' registry and ALIASES; kept here so that building the
 #: parser stays light, tests/test_backends.py holds them equal)
 BACKEND_CHOICES = ("fixed", "float", "paper-fixed", "paper", "lateral")
 #: the help of every --backend option

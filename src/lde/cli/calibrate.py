@@ -5,10 +5,10 @@ significant disturbance* (still air, flat road) with transient steering: a few l
 slalom at 60-120 km/h. Body parameters (mass, yaw inertia, CG, steering ratio) come from
 ``--vehicle`` (default: reference); the result is a vehicle file that ``extends`` it and overrides
 ``[tires]`` and ``[corrections]`` (steering friction, torsion-bar twist, steering-angle offset,
-yaw-rate bias, torque offset: removed from the inputs before the step, ``lde.conditioning``), for
+yaw-rate bias, torque offset: removed from the inputs before the step, ``lde.estimator.conditioning``), for
 ``lde run/replay --vehicle FILE``. ``--no-corrections`` writes only effective ``[tires]`` for the
 paper's step. The command replays the drive with the base and the calibrated file and prints the
-RMS of both estimates (the drive has no disturbance: lower is better). Method: ``lde.calibrate``
+RMS of both estimates (the drive has no disturbance: lower is better). Method: ``lde.analysis.calibrate``
 (least squares on the bicycle-model equations; friction and offsets as extra regressors).
 """
 
@@ -17,11 +17,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..adaptive import drive_from_grid, grid_from_frames
-from ..calibrate import calibrate, write_vehicle
-from ..errors import ConfigError
-from ..logio import read_log
-from ..params import load_vehicle
+from lde.analysis.adaptive import drive_from_grid, grid_from_frames
+from lde.analysis.calibrate import calibrate, write_vehicle
+from lde.errors import ConfigError
+from lde.io import read_log
+from lde.params import load_vehicle
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -67,10 +67,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from ..params import load_vehicle as _load
-    from ..profiles import load_profile
-    from ..replay import replay
-    from ..status import VALID
+    from lde.can.profiles import load_profile
+    from lde.params import load_vehicle as _load
+    from lde.replay.replay import replay
+    from lde.status import VALID
 
     base = load_vehicle(args.vehicle)
     profile = load_profile(args.profile)

@@ -29,14 +29,14 @@ def begin(backend: str | None) -> ColdStart:
     """The notice on stderr and the helper for ``--backend`` as given, when the cache is cold; in
     either case numba's BLAS check answered from disk (:func:`lde.lazyblas.defer_blas_import`, as
     ``lde replay``: 0.15-0.45 s of importing ``scipy.linalg`` saved)."""
-    from ..jitcache import is_warm, notice
-    from ..lazyblas import defer_blas_import
+    from lde.jitcache import is_warm, notice
+    from lde.lazyblas import defer_blas_import
 
     if is_warm():
         defer_blas_import()
         return ColdStart(False, None)
     print(notice(), file=sys.stderr, flush=True)
-    from ..coldstart import EARLY_NAMES, start_helper
+    from lde.coldstart import EARLY_NAMES, start_helper
 
     name = EARLY_NAMES.get(backend)
     cs = ColdStart(True, name, None if name is None else start_helper(backend, live=True))
@@ -47,6 +47,6 @@ def begin(backend: str | None) -> ColdStart:
 def compile_ahead(cs: ColdStart) -> None:
     """This process's share of the split (nothing when the cache was warm or the backend has none)."""
     if cs.cold and cs.backend is not None:
-        from ..coldstart import compile_split
+        from lde.coldstart import compile_split
 
         compile_split(cs.backend, cs.helper, logs=[])  # no log: the candump parser is not needed

@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import BACKEND_CHOICES, BACKEND_HELP
-from .coldrun import begin, compile_ahead
+from lde.cli import BACKEND_CHOICES, BACKEND_HELP
+from lde.cli.coldrun import begin, compile_ahead
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -41,12 +41,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     cold = begin(args.backend)  # before the heavy imports: the notice within a second
-    from ..demo import DEFAULT_SCENARIO, run_demo
-    from ..params import load_vehicle
+    from lde.demo import DEFAULT_SCENARIO, run_demo
+    from lde.params import load_vehicle
 
     vehicle = load_vehicle(args.vehicle)
     if args.duration is not None and args.duration <= 0:
-        from ..errors import ConfigError
+        from lde.errors import ConfigError
 
         raise ConfigError(f"--duration must be > 0, got {args.duration}")
     compile_ahead(cold)

@@ -4,7 +4,7 @@ For every (scenario, payload, seed) the simulator produces CAN frames and truth,
 over the frames, and the table reports, after a 2 s settling window: NRMSE of Fw and of Mw (about the
 actual CG, as in the paper) with the Mw figure about the unloaded reference CG beside it; for a
 bank-only scenario the Mw error is normalised by 1 m x max|Fw|; for a disturbance-free scenario the
-figures are the RMS of the estimate in N and Nm (``lde.metrics``).
+figures are the RMS of the estimate in N and Nm (``lde.analysis.metrics``).
 
 ``lde evaluate --zoo``: the estimator on cars it was never fitted to (``vcan_sim/zoo``). For every
 plant x scenario x profile x backend: simulate (seeded), write the candump log, run
@@ -27,15 +27,15 @@ import sys
 import time
 from pathlib import Path
 
-from .. import study
-from ..errors import ConfigError
-from ..study import zoo, zooreport
-from ..study.engine import load_sim_vehicle
-from ..study.specsheet import write_spec_sheet
-from ..study.tables import write_rows
-from . import BACKEND_CHOICES
-from .engine import engine
-from .study import add_cluster_arguments, add_run_arguments, cluster_config, est_options, sim_options
+from lde.analysis import study
+from lde.analysis.study import zoo, zooreport
+from lde.analysis.study.execute import load_sim_vehicle
+from lde.analysis.study.specsheet import write_spec_sheet
+from lde.analysis.study.tables import write_rows
+from lde.cli import BACKEND_CHOICES
+from lde.cli.replay_in_process import engine
+from lde.cli.study import add_cluster_arguments, add_run_arguments, cluster_config, est_options, sim_options
+from lde.errors import ConfigError
 
 
 def _csv_list(s: str) -> tuple[str, ...]:
@@ -53,7 +53,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--scenario",
         action="append",
         metavar="NAME",
-        help="scenario (repeatable; default: the accuracy set, see lde.study.EVALUATE_SCENARIOS)",
+        help="scenario (repeatable; default: the accuracy set, see lde.analysis.study.EVALUATE_SCENARIOS)",
     )
     p.add_argument("--scenarios", type=_csv_list, metavar="A,B,..", help="scenarios as a comma list")
     p.add_argument(

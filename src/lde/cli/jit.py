@@ -15,7 +15,7 @@ from contextlib import contextmanager
 
 from numba.core import event
 
-from ..jitcache import notice
+from lde.jitcache import notice
 
 __all__ = ["announce_compiles"]
 

@@ -23,8 +23,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import FrameType
 
-from ..errors import ConfigError, LdeError
-from . import BACKEND_CHOICES, BACKEND_HELP
+from lde.cli import BACKEND_CHOICES, BACKEND_HELP
+from lde.errors import ConfigError, LdeError
 
 #: exit code of a replay that ran but gave no VALID estimate (no step, or every step invalid): the
 #: outputs are written, and hold nothing usable (the warning says why); 2 is an error (unreadable log,
@@ -172,7 +172,7 @@ def _check_paths(logs: list[Path], outputs: list[tuple[str, Path]], many: bool =
 
 
 def _summary(rep) -> str:
-    """The summary of one replay (``rep``: its :class:`lde.fleet.LogReport`)."""
+    """The summary of one replay (``rep``: its :class:`lde.replay.fleet.LogReport`)."""
     causes = ", ".join(f"{k} {v}" for k, v in rep.rejected_by_cause.items() if v) or "none"
     extra = [f"{v} {k.replace('_', ' ')}" for k, v in rep.skipped.items()]
     not_read = f"; not read: {', '.join(extra)}" if extra else ""
@@ -256,26 +256,26 @@ def _gc_off() -> Iterator[Callable[[], None]]:
 
 
 def _run(args: argparse.Namespace, resume_gc: Callable[[], None]) -> int:
-    from ..jitcache import is_warm, notice
+    from lde.jitcache import is_warm, notice
 
     cold = not is_warm()
     if cold and not args.quiet:  # before the heavy imports: said within a second
         print(notice(), file=sys.stderr, flush=True)
     helper = None
     if cold and args.jobs is None and args.scheduler is None:
-        from ..coldstart import start_helper
+        from lde.coldstart import start_helper
 
         helper = start_helper(args.backend)  # compiles part of the data path on the other core
-    from ..lazyblas import defer_blas_import
+    from lde.lazyblas import defer_blas_import
 
     defer_blas_import()  # numba's BLAS check without importing scipy.linalg (0.2-0.45 s)
 
-    from ..fleet import ReplayJob, run_jobs, summary_table
-    from ..logio import REORDER_WINDOW_NS
-    from ..params import load_vehicle
-    from ..profiles import load_profile
-    from ..replay import resolve_backend
-    from .jit import announce_compiles
+    from lde.can.profiles import load_profile
+    from lde.cli.jit import announce_compiles
+    from lde.io import REORDER_WINDOW_NS
+    from lde.params import load_vehicle
+    from lde.replay.fleet import ReplayJob, run_jobs, summary_table
+    from lde.replay.replay import resolve_backend
 
     with announce_compiles(already_said=cold or args.quiet):
         logs = [Path(p) for p in args.logs]
@@ -314,11 +314,11 @@ def _run(args: argparse.Namespace, resume_gc: Callable[[], None]) -> int:
         if note and not args.quiet:
             print(f"lde replay: note: {note}", file=sys.stderr)
         if helper is not None:
-            from ..coldstart import compile_split
+            from lde.coldstart import compile_split
 
             compile_split(backend, helper, logs=logs)  # the step's kernels on both cores
         if args.smooth:
-            from ..smoother import check_backend
+            from lde.replay.smoother import check_backend
 
             check_backend(backend)
             if args.csv is None and args.mcap is None:
@@ -383,7 +383,7 @@ def _run(args: argparse.Namespace, resume_gc: Callable[[], None]) -> int:
 
         with _signals_stop() as stopped:
             if on_dask:  # distributed is imported only here: ~0.5 s of start-up
-                from ..fleet_dask import ClusterConfig, run_jobs_on_dask
+                from lde.replay.fleet_dask import ClusterConfig, run_jobs_on_dask
 
                 cfg = ClusterConfig(scheduler=args.scheduler, n_workers=args.jobs or 2)
                 reports = run_jobs_on_dask(

@@ -18,14 +18,14 @@ import threading
 from types import FrameType
 from typing import TYPE_CHECKING
 
-from ..errors import BusError, ConfigError
-from . import BACKEND_CHOICES, BACKEND_HELP
-from .coldrun import begin, compile_ahead
+from lde.cli import BACKEND_CHOICES, BACKEND_HELP
+from lde.cli.coldrun import begin, compile_ahead
+from lde.errors import BusError, ConfigError
 
 if TYPE_CHECKING:
-    from ..service import StepResult
+    from lde.service.service import StepResult
 
-log = logging.getLogger("lde.service")
+log = logging.getLogger("lde.service.service")
 
 #: GIL switch interval while the service runs [s] (CPython's default is 5 ms, longer than a step)
 SWITCH_INTERVAL_S = 2e-4
@@ -132,7 +132,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _realtime(args: argparse.Namespace) -> None:
-    from .. import clock
+    from lde import clock
 
     enable = getattr(clock, "enable_realtime", None)
     if enable is None:
@@ -156,13 +156,13 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
     cold = begin(args.backend)  # before the heavy imports: the notice within a second
-    from .. import service as svc_mod
-    from ..clock import MonotonicClock
-    from ..params import load_vehicle
-    from ..profiles import load_profile
-    from ..units import STEP_NS
+    from lde.can.profiles import load_profile
+    from lde.clock import MonotonicClock
+    from lde.params import load_vehicle
+    from lde.service import service as svc_mod
+    from lde.units import STEP_NS
 
-    logging.getLogger("lde.service").setLevel(logging.INFO)
+    logging.getLogger("lde.service.service").setLevel(logging.INFO)
     # no other thread runs in the service's process (the recorder writes from its own process); should
     # one ever hold the interpreter lock, the loop must get it back within a fraction of a step
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
@@ -204,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
             **({} if args.flood_rate is None else {"flood_hz": args.flood_rate}),
         )
         if args.record:
-            from ..recording import LEARNED_START_KEY, Recorder
+            from lde.io.recording import LEARNED_START_KEY, Recorder
 
             meta = {
                 "profile": profile.name,

@@ -32,8 +32,8 @@ from dataclasses import replace
 from pathlib import Path
 from types import FrameType
 
-from ..errors import ConfigError
-from .run import add_bus_arguments, bus_kwargs
+from lde.cli.run import add_bus_arguments, bus_kwargs
+from lde.errors import ConfigError
 
 log = logging.getLogger("lde.sim")
 
@@ -177,7 +177,7 @@ def _renice(level: int) -> None:
 
 
 def _sched_fifo(priority: int) -> None:
-    from ..clock import enable_realtime
+    from lde.clock import enable_realtime
 
     result = enable_realtime(priority=priority, cpus=None, lock_memory=False)
     for w in getattr(result, "warnings", ()) or ():
@@ -299,7 +299,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_live(args: argparse.Namespace, sim, realtime: bool, streamer) -> None:
     """Pump ``sim`` onto the bus until its end or a signal; ``streamer`` writes the files as it goes."""
-    from lde.service import open_bus
+    from lde.service.service import open_bus
     from vcan_sim.closed_loop import OverlayReceiver
     from vcan_sim.emitter import LATE_S, MAX_LAG_S, PumpStats, pump
 

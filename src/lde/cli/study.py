@@ -11,7 +11,7 @@ Presets (``--preset``):
   the undisturbed lane change): reference file, + ``lde calibrate`` (tires and input corrections
   from an undisturbed drive, the product path), Table 1 winner, + Fig. 12 tires (identified on the
   simulator under heavy and light load), + ``lde calibrate``, then the prototypes of
-  ``lde.adaptive``: mass/inertia/CG scheduled on the load, lateral acceleration, secant tires.
+  ``lde.analysis.adaptive``: mass/inertia/CG scheduled on the load, lateral acceleration, secant tires.
 - ``faults`` — steering friction and sensor offsets in the simulator: the product with the
   reference file as shipped and with the input corrections (and tires) ``lde calibrate`` learns.
 - ``all`` — Fig. 12, then three Table 1 sweeps (shipped tires; Fig. 12 tires; + ``lde calibrate``),
@@ -29,10 +29,10 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from .. import study
-from ..errors import ConfigError
-from . import BACKEND_CHOICES
-from .engine import engine
+from lde.analysis import study
+from lde.cli import BACKEND_CHOICES
+from lde.cli.replay_in_process import engine
+from lde.errors import ConfigError
 
 
 def add_cluster_arguments(p: argparse.ArgumentParser) -> None:
@@ -59,8 +59,8 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
         "--estimator",
         choices=("replay", "adaptive", "cli"),
         default="replay",
-        help="replay: the product pipeline (lde.replay) in process; adaptive: the prototype extensions "
-        "(lde.adaptive); cli: `lde replay` on a written log, as a user runs it",
+        help="replay: the product pipeline in process; adaptive: the prototype extensions "
+        "(lde.analysis.adaptive); cli: `lde replay` on a written log, as a user runs it",
     )
     g.add_argument(
         "--backend",
@@ -74,7 +74,7 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="simulator option for every run (repeatable), e.g. friction_Nm=0.8 (lde.study.SimOptions)",
+        help="simulator option for every run (repeatable), e.g. friction_Nm=0.8",
     )
     g.add_argument(
         "--est-option",
@@ -82,7 +82,7 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
         default=[],
         metavar="KEY=VALUE",
         help="estimator option (repeatable), e.g. calibrate=lane_change, steering_friction_Nm=0.35 "
-        "(lde.study.EstOptions)",
+        "(lde.analysis.study.EstOptions)",
     )
 
 

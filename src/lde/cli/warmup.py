@@ -16,7 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from ..errors import ConfigError
+from lde.errors import ConfigError
 
 #: the parts of :data:`lde.warmup.PARTS` (named here so that ``lde --help`` imports no kernel; a test
 #: checks they agree)
@@ -47,11 +47,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..jitcache import cache_dirs, is_warm
+    from lde.jitcache import cache_dirs, is_warm
 
     print(f"lde warmup: compiling into {' or '.join(map(str, cache_dirs()))}", file=sys.stderr, flush=True)
     warm = is_warm()
-    from ..warmup import PARTS, warm_up
+    from lde.warmup import PARTS, warm_up
 
     parts = list(PARTS) if args.parts is None else [p.strip() for p in args.parts.split(",") if p.strip()]
     bad = [p for p in parts if p not in PARTS]

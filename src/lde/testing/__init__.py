@@ -25,13 +25,13 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from .asserts import STEP_S, assert_e2e_valid, assert_in_range, assert_periodic
-    from .bench import Bench, BenchTimeout, LeakedBus
-    from .bus import BenchBus
-    from .capture import Frame, FrameList
-    from .participants import BenchService, BenchSimulator, InputFeeder, TruthTable
-    from .scheduler import Rank, Task
-    from .socketcan import socketcan_unavailable
+    from lde.testing.asserts import STEP_S, assert_e2e_valid, assert_in_range, assert_periodic
+    from lde.testing.bench import Bench, BenchTimeout, LeakedBus
+    from lde.testing.bus import BenchBus
+    from lde.testing.capture import Frame, FrameList
+    from lde.testing.participants import BenchService, BenchSimulator, InputFeeder, TruthTable
+    from lde.testing.scheduler import Rank, Task
+    from lde.testing.socketcan import socketcan_unavailable
 
 # Lazy exports (PEP 562): pytest imports this package's plugin in every project of an environment
 # where lde is installed, so importing it must not import python-can, numba or the estimator.

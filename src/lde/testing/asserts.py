@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..units import STEP_NS
-from .capture import FrameList
+from lde.testing.capture import FrameList
+from lde.units import STEP_NS
 
 __all__ = ["STEP_S", "assert_periodic", "assert_e2e_valid", "assert_in_range"]
 

@@ -25,15 +25,15 @@ from typing import Any
 import can
 from can.interfaces import virtual as _virtual
 
-from ..clock import SimulatedClock
-from ..errors import ConfigError, LdeError
-from ..frames import seconds_to_ns
-from ..params import Vehicle
-from ..profiles import Profile, load_profile
-from .bus import BenchBus, Medium, unique_channel
-from .capture import Capture, Frame, FrameList
-from .participants import BenchService, BenchSimulator, InputFeeder, InputValue, OverlaySource
-from .scheduler import Rank, Scheduler, Task
+from lde.can.frames import seconds_to_ns
+from lde.can.profiles import Profile, load_profile
+from lde.clock import SimulatedClock
+from lde.errors import ConfigError, LdeError
+from lde.params import Vehicle
+from lde.testing.bus import BenchBus, Medium, unique_channel
+from lde.testing.capture import Capture, Frame, FrameList
+from lde.testing.participants import BenchService, BenchSimulator, InputFeeder, InputValue, OverlaySource
+from lde.testing.scheduler import Rank, Scheduler, Task
 
 __all__ = ["Bench", "BenchTimeout", "LeakedBus", "DEFAULT_START_NS"]
 

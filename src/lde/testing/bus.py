@@ -37,9 +37,9 @@ from can.broadcastmanager import (
     RestartableCyclicTaskABC,
 )
 
-from ..errors import BusError, ConfigError
-from ..frames import ns_to_seconds, seconds_to_ns
-from .scheduler import Rank, Scheduler, Task
+from lde.can.frames import ns_to_seconds, seconds_to_ns
+from lde.errors import BusError, ConfigError
+from lde.testing.scheduler import Rank, Scheduler, Task
 
 __all__ = ["INTERFACES", "DELIVERY_TIMEOUT_S", "Medium", "BenchBus", "unique_channel", "private_multicast"]
 

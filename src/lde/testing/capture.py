@@ -2,7 +2,7 @@
 
 :class:`Capture` listens on its own bench bus and keeps every frame (time, id, bytes). Asking for a
 message by name gives a :class:`FrameList`: columns decoded at once by lde's codec (the one raw <->
-physical conversion of :mod:`lde.codec`), with the E2E verdicts and counters; indexing it gives
+physical conversion of :mod:`lde.can.codec`), with the E2E verdicts and counters; indexing it gives
 single :class:`Frame` objects.
 """
 
@@ -16,11 +16,11 @@ from typing import overload
 import can
 import numpy as np
 
-from ..codec import MessageCodec, words_le
-from ..e2e import check_batch, read_counter_batch
-from ..errors import ConfigError
-from ..frames import seconds_to_ns
-from ..profiles import MessageSpec, Profile
+from lde.can.codec import MessageCodec, words_le
+from lde.can.e2e import check_batch, read_counter_batch
+from lde.can.frames import seconds_to_ns
+from lde.can.profiles import MessageSpec, Profile
+from lde.errors import ConfigError
 
 __all__ = ["Frame", "FrameList", "Capture"]
 

@@ -13,21 +13,20 @@ from typing import TYPE_CHECKING, Any, cast
 import can
 import numpy as np
 
+from lde.can.codec import MessageEncoder, si_to_dbc
+from lde.can.frames import ns_to_seconds, seconds_to_ns
+from lde.can.profiles import Profile
+from lde.errors import ConfigError
+from lde.io.recording import LEARNED_START_KEY, Recorder
+from lde.params import Vehicle
+from lde.service.service import Service, StepResult
+from lde.testing.scheduler import Rank
+from lde.units import STEP_NS
 from vcan_sim.closed_loop import OverlayReceiver, OverlayStats
 from vcan_sim.run import Simulation
 
-from ..codec import MessageEncoder, si_to_dbc
-from ..errors import ConfigError
-from ..frames import ns_to_seconds, seconds_to_ns
-from ..params import Vehicle
-from ..profiles import Profile
-from ..recording import LEARNED_START_KEY, Recorder
-from ..service import Service, StepResult
-from ..units import STEP_NS
-from .scheduler import Rank
-
 if TYPE_CHECKING:
-    from .bench import Bench
+    from lde.testing.bench import Bench
 
 __all__ = ["InputFeeder", "BenchSimulator", "BenchService", "TruthTable", "OverlaySource"]
 
@@ -299,10 +298,10 @@ class BenchSimulator:
 
 
 class BenchService:
-    """The lde service (:class:`lde.service.Service`, the code of ``lde run``) on a bench.
+    """The lde service (:class:`lde.service.service.Service`, the code of ``lde run``) on a bench.
 
     It runs :meth:`Service.step_once` at ``t_k = start + k * 3.9 ms`` on the bench's clock and keeps
-    every :class:`~lde.service.StepResult` in :attr:`results`; its frames are on the bus (and in the
+    every :class:`~lde.service.service.StepResult` in :attr:`results`; its frames are on the bus (and in the
     bench's capture).
 
     Args:
@@ -374,7 +373,7 @@ class BenchService:
         return self.results[-1] if self.results else None
 
     def series(self, field: str) -> np.ndarray:
-        """One :class:`~lde.service.StepResult` field over every step (``t_ns``, ``fw``, ``mw``,
+        """One :class:`~lde.service.service.StepResult` field over every step (``t_ns``, ``fw``, ``mw``,
         ``t_overlay``, ``status``, ...)."""
         if field not in StepResult.__dataclass_fields__:
             raise ConfigError(

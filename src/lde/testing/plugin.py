@@ -34,9 +34,9 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 if TYPE_CHECKING:
-    from .bench import Bench
-    from .bus import BenchBus
-    from .participants import BenchService, BenchSimulator
+    from lde.testing.bench import Bench
+    from lde.testing.bus import BenchBus
+    from lde.testing.participants import BenchService, BenchSimulator
 
 __all__ = [
     "pytest_addoption",
@@ -96,8 +96,8 @@ def _marker_kwargs(request: pytest.FixtureRequest, name: str) -> dict[str, Any]:
 @pytest.fixture
 def lde_bench(request: pytest.FixtureRequest) -> Iterator[Bench]:
     """A :class:`lde.testing.Bench` on a fresh channel; closed and leak-checked after the test."""
-    from .bench import Bench
-    from .socketcan import socketcan_unavailable
+    from lde.testing.bench import Bench
+    from lde.testing.socketcan import socketcan_unavailable
 
     kw = _marker_kwargs(request, "lde_bench")
     interface = kw.pop("interface", None) or request.config.getoption("lde_interface") or "virtual"

@@ -21,8 +21,8 @@ import itertools
 from collections.abc import Callable
 from enum import IntEnum
 
-from ..clock import SimulatedClock
-from ..errors import ConfigError
+from lde.clock import SimulatedClock
+from lde.errors import ConfigError
 
 __all__ = ["Rank", "Task", "Scheduler"]
 

@@ -1,0 +1,1 @@
+"""Identification, accuracy metrics, studies and plots."""

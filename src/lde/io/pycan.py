@@ -1,0 +1,153 @@
+"""Every log format python-can reads (ASC, BLF, TRC, CSV, SQLite, MF4, ...) -> FrameBatch pieces.
+
+The format's ``can.LogReader`` is iterated and its messages are turned into columns in batches of
+:data:`BATCH` (file order). python-can gives float-second timestamps: they are converted with
+:func:`lde.can.frames.seconds_to_ns` (rounded to the microsecond). Error and remote frames are skipped
+with a count. Any exception of the format's reader becomes a :class:`LogFormatError`.
+"""
+
+from __future__ import annotations
+
+import io
+import locale
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from lde.can.frames import FrameBatch, seconds_to_ns
+from lde.errors import LogFormatError
+
+if TYPE_CHECKING:
+    import can
+
+__all__ = ["PycanReader", "pycan_suffixes", "BATCH"]
+
+#: messages per batch
+BATCH = 1 << 16
+
+
+def pycan_suffixes() -> set[str]:
+    """File suffixes python-can has a reader for (built-in and plugins)."""
+    from can.io import player  # here, not at import: a candump or MCAP replay never needs python-can
+
+    player._update_reader_plugins()
+    return set(player.MESSAGE_READERS)
+
+
+class PycanReader:
+    """A python-can log read in batches: iterate for the frames (file order); :attr:`error_frames`
+    and :attr:`remote_frames` count what was skipped (final once the iteration ends).
+
+    Raises:
+        LogFormatError: no reader for the suffix, or the format's reader failed (at open or while
+            iterating).
+    """
+
+    def __init__(self, path: str | Path, batch: int = BATCH, limit: int | None = None) -> None:
+        self.path = Path(path)
+        self.batch = batch
+        self.limit = limit  # a text log read only up to this byte (its cut last line left out)
+        self.error_frames = 0
+        self.remote_frames = 0
+
+    def __iter__(self) -> Iterator[FrameBatch]:
+        import can
+
+        p = self.path
+        try:
+            reader = can.LogReader(str(p)) if self.limit is None else _limited_reader(p, self.limit)
+        except ValueError as exc:
+            raise LogFormatError(f"{p}: no reader for this file type ({exc})") from exc
+        except Exception as exc:  # noqa: BLE001 - format readers raise anything on bad input
+            raise LogFormatError(
+                f"{p}: cannot open as a {p.suffix} log ({type(exc).__name__}: {exc})"
+            ) from exc
+        cols = _Columns()
+        try:
+            with reader:
+                for m in reader:
+                    if m.is_error_frame:
+                        self.error_frames += 1
+                        continue
+                    if m.is_remote_frame:
+                        self.remote_frames += 1
+                        continue
+                    cols.add(m)
+                    if cols.n >= self.batch:
+                        yield cols.take()
+        except LogFormatError:
+            raise
+        except Exception as exc:  # noqa: BLE001
+            raise LogFormatError(f"{p}: corrupt {p.suffix} log ({type(exc).__name__}: {exc})") from exc
+        if cols.n:
+            yield cols.take()
+
+
+class _Head(io.RawIOBase):
+    """The first ``limit`` bytes of a binary file."""
+
+    def __init__(self, fh: io.BufferedReader, limit: int) -> None:
+        self._fh = fh
+        self._left = limit
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b: Any) -> int:
+        n = self._fh.readinto(memoryview(b)[: max(0, min(len(b), self._left))]) or 0
+        self._left -= n
+        return n
+
+    def close(self) -> None:
+        self._fh.close()
+        super().close()
+
+
+def _limited_reader(p: Path, limit: int) -> can.io.generic.MessageReader:
+    """python-can's text reader for ``p`` over its first ``limit`` bytes (the encoding python-can
+    uses for a path)."""
+    from can.io import player
+
+    player._update_reader_plugins()
+    cls: Any = player.MESSAGE_READERS[p.suffix.lower()]  # a text reader: takes a text file too
+    text = io.TextIOWrapper(io.BufferedReader(_Head(p.open("rb"), limit)), locale.getpreferredencoding(False))
+    return cls(file=text)
+
+
+class _Columns:
+    def __init__(self) -> None:
+        self.t: list[int] = []
+        self.ids: list[int] = []
+        self.ext: list[bool] = []
+        self.dlc: list[int] = []
+        self.rx: list[bool] = []
+        self.payload = bytearray()
+
+    @property
+    def n(self) -> int:
+        return len(self.t)
+
+    def add(self, m: can.Message) -> None:
+        raw = bytes(m.data or b"")
+        self.t.append(seconds_to_ns(m.timestamp))
+        self.ids.append(int(m.arbitration_id))
+        self.ext.append(bool(m.is_extended_id))
+        self.dlc.append(len(raw))
+        self.rx.append(True)  # the logger's direction, not lde's (module doc)
+        self.payload += raw[:8].ljust(8, b"\x00")
+
+    def take(self) -> FrameBatch:
+        n = self.n
+        out = FrameBatch(
+            t_ns=np.array(self.t, np.int64),
+            can_id=np.array(self.ids, np.uint32),
+            is_extended=np.array(self.ext, np.bool_),
+            dlc=np.array(self.dlc, np.uint8),
+            data=np.frombuffer(bytes(self.payload), np.uint8).reshape(n, 8),
+            is_rx=np.array(self.rx, np.bool_),
+        )
+        self.t, self.ids, self.ext, self.dlc, self.rx = [], [], [], [], []
+        self.payload = bytearray()
+        return out

@@ -1,0 +1,1 @@
+"""A log through the data path; fleets of logs on Dask; the RTS smoother."""
