@@ -289,11 +289,11 @@ _OUTPUT_CHECKSUMS = ("CRC",)
 def dbc_dir() -> Path:
     """The directory holding the shipped ``*.dbc`` files (repo ``dbc/`` or the package's ``data/``)."""
     here = Path(__file__).resolve()
-    for d in (here.parents[2] / "dbc", here.parent / "data"):
+    for d in (here.parents[3] / "dbc", here.parents[1] / "data"):
         if (d / "lde.dbc").is_file():
             return d
     raise ConfigError(
-        f"cannot find the DBC directory (looked in {here.parents[2] / 'dbc'} and {here.parent / 'data'})"
+        f"cannot find the DBC directory (looked in {here.parents[3] / 'dbc'} and {here.parents[1] / 'data'})"
     )
 
 
