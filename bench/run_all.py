@@ -394,17 +394,14 @@ def bench_replay_cli(paths: dict[str, Path], repeat: int, tmp: Path) -> dict:
     return {k: {m: stats([r[m] for r in rs]) for m in ("wall", "cpu", "rss_mib")} for k, rs in runs.items()}
 
 
-#: a warm start in phases (one child process): the imports of ``lde replay``, numba's first load of
-#: a cached kernel (numba's registries, their BLAS check answered from disk by lde.lazyblas as
-#: ``lde replay`` does), the rest of the command (the other kernels' loads, profile and vehicle, the
-#: replay of the sample log, the CSV)
+#: a warm start in phases (one child process): the imports of ``lde replay``, numba's first load
+#: of a cached kernel (numba's registries and their BLAS check), the rest of the command (the other
+#: kernels' loads, profile and vehicle, the replay of the sample log, the CSV)
 _PHASES = (
     "import json, sys, time\n"
     "t0 = time.perf_counter()\n"
     "import lde.cli, lde.cli.replay, lde.replay.fleet, lde.replay.replay\n"
     "t1 = time.perf_counter()\n"
-    "from lde.lazyblas import defer_blas_import\n"
-    "defer_blas_import()\n"
     "from lde.io.candump import parse_candump_bytes\n"
     "parse_candump_bytes(b'(1.000000) can0 2A0#0000000000000000\\n')\n"
     "t2 = time.perf_counter()\n"

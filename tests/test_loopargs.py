@@ -9,27 +9,14 @@ from numba import njit
 
 from lde.can.profiles import load_profile
 from lde.engine.engine import Engine, StepBlock
-from lde.engine.loopargs import FIELDS, field, loop_arrays
+from lde.engine.loopargs import FIELDS, loop_arrays
 from lde.params import load_vehicle
-from lde.refcount import NO_REFCOUNT
 
 
 @njit(cache=True)
 def _touch(la):  # a store through the struct, and what it reads
     la.counters[1] = 77
     return la.prev_t[0], la.tb[0].shape[0], la.otab[18].shape[0], la.rxst[5][0]
-
-
-@njit(**NO_REFCOUNT)
-def _touch_uncounted(la):  # the same through lde.engine.loopargs.field, in a kernel without NRT
-    field(la, "counters")[1] = 78
-    tb, otab, rxst = field(la, "tb"), field(la, "otab"), field(la, "rxst")
-    return field(la, "prev_t")[0], tb[0].shape[0], otab[18].shape[0], rxst[5][0]
-
-
-@njit
-def _field_counted(la):  # field where NRT is on: a new reference, kept after the struct goes
-    return field(la, "prev_t")
 
 
 def _engine() -> Engine:
@@ -63,22 +50,3 @@ def test_reset_makes_a_new_struct_and_old_live_arguments_are_refused() -> None:
 def test_loop_arrays_names_its_fields_when_miscalled() -> None:
     with pytest.raises(TypeError, match="used_since"):
         loop_arrays(*range(len(FIELDS) - 1))
-
-
-def test_field_reads_and_writes_the_arrays_in_a_kernel_without_nrt() -> None:
-    eng = _engine()
-    eng.prev_t[0] = 321
-    eng.rx.ignored[0] = 6
-    got = _touch_uncounted(eng._la)
-    assert got == (321, eng.rx_tables.id2msg.shape[0], eng.outputs.args[18].shape[0], 6)
-    assert eng.counters[1] == 78
-
-
-def test_field_where_nrt_is_on_returns_the_array_itself() -> None:
-    eng = _engine()
-    a = _field_counted(eng._la)
-    a[0] = 999
-    assert eng.prev_t[0] == 999
-    eng.reset()  # the engine lets go of its old arrays and struct: the returned array stays valid
-    del eng
-    assert a[0] == 999 and a.shape == (1,)

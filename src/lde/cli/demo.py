@@ -11,7 +11,6 @@ import argparse
 import sys
 
 from lde.cli import BACKEND_CHOICES, BACKEND_HELP
-from lde.cli.coldrun import begin, compile_ahead
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -40,7 +39,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    cold = begin(args.backend)  # before the heavy imports: the notice within a second
     from lde.demo import DEFAULT_SCENARIO, run_demo
     from lde.params import load_vehicle
 
@@ -49,7 +47,6 @@ def run(args: argparse.Namespace) -> int:
         from lde.errors import ConfigError
 
         raise ConfigError(f"--duration must be > 0, got {args.duration}")
-    compile_ahead(cold)
     summary, _on, _off = run_demo(
         args.scenario or DEFAULT_SCENARIO,
         seed=args.seed,

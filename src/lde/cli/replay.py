@@ -261,14 +261,6 @@ def _run(args: argparse.Namespace, resume_gc: Callable[[], None]) -> int:
     cold = not is_warm()
     if cold and not args.quiet:  # before the heavy imports: said within a second
         print(notice(), file=sys.stderr, flush=True)
-    helper = None
-    if cold and args.jobs is None and args.scheduler is None:
-        from lde.coldstart import start_helper
-
-        helper = start_helper(args.backend)  # compiles part of the data path on the other core
-    from lde.lazyblas import defer_blas_import
-
-    defer_blas_import()  # numba's BLAS check without importing scipy.linalg (0.2-0.45 s)
 
     from lde.can.profiles import load_profile
     from lde.cli.jit import announce_compiles
@@ -313,10 +305,6 @@ def _run(args: argparse.Namespace, resume_gc: Callable[[], None]) -> int:
         resume_gc()  # the imports are done; the replay runs with the collector as usual
         if note and not args.quiet:
             print(f"lde replay: note: {note}", file=sys.stderr)
-        if helper is not None:
-            from lde.coldstart import compile_split
-
-            compile_split(backend, helper, logs=logs)  # the step's kernels on both cores
         if args.smooth:
             from lde.replay.smoother import check_backend
 

@@ -19,7 +19,6 @@ from types import FrameType
 from typing import TYPE_CHECKING
 
 from lde.cli import BACKEND_CHOICES, BACKEND_HELP
-from lde.cli.coldrun import begin, compile_ahead
 from lde.errors import BusError, ConfigError
 
 if TYPE_CHECKING:
@@ -155,7 +154,6 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--flood-rate {args.flood_rate}: need frames per second > 0")
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
-    cold = begin(args.backend)  # before the heavy imports: the notice within a second
     from lde.can.profiles import load_profile
     from lde.clock import MonotonicClock
     from lde.params import load_vehicle
@@ -170,7 +168,6 @@ def run(args: argparse.Namespace) -> int:
     vehicle = load_vehicle(args.vehicle)
     if vehicle.defaults:
         log.info("%s", vehicle.defaults_note())
-    compile_ahead(cold)  # before real-time priority: the compilers are not real-time work
     if args.realtime:
         _realtime(args)
     elif args.cpu:

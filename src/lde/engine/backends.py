@@ -89,7 +89,6 @@ from lde.estimator.paper import (
 from lde.estimator.paper import run_batch as float_run_batch
 from lde.estimator.paper import step_kernel as float_step_kernel
 from lde.params import Vehicle
-from lde.refcount import NO_REFCOUNT
 from lde.status import SHADOW_DEVIATION, VALID
 from lde.units import STEP_S
 
@@ -283,7 +282,7 @@ FRESH_T = (1 << I_COLUMN_TORQUE) | (1 << I_ASSIST_TORQUE)
 FRESH_A = 1 << I_LAT_ACCEL
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True)
 def lateral_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
     """:func:`lde.estimator.lateral.step_kernel` and :func:`lde.estimator.learner.learner_step` after it (the
     learner
@@ -351,7 +350,7 @@ run_lateral = make_loop(lateral_step, "run_lateral")
 # -------------------------------------------------------------------- the lateral filter, fixed
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True)
 def lateral_fixed_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
     """Quantise the SI inputs, run the integer lateral step (:func:`firmware_model.lateral.step_kernel`)
     on the current coefficient set, convert its estimate to SI (exact power-of-two scalings); run the

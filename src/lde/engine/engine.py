@@ -350,7 +350,6 @@ class Engine:
         self.profile = profile
         self.vehicle = vehicle
         self.backend = get_backend(backend)
-        self._pinned: Any = None  # the compiled overload of run_arrays(pinned=True) calls (the live path)
         self.explicit = explicit
         self.encode_outputs = encode_outputs
         self.shadow_thread = shadow_thread
@@ -488,7 +487,6 @@ class Engine:
         extra_status: np.ndarray = _NO_U8,
         final: bool = True,
         t_end_ns: int | None = None,
-        pinned: bool = False,
     ) -> tuple[int, int]:
         """The compiled loop on raw frame columns from frame ``i0`` (the live hot path: no copies);
         ``words`` are the frames' first 8 bytes as little-endian uint64 (:func:`lde.can.codec.words_le`).
@@ -499,11 +497,6 @@ class Engine:
         ``t_end_ns`` or the last frame). Explicit mode: ``step_times`` are this call's steps
         (``enable``/``extra_status`` per step, or empty: on / 0); the frames after the last one stay
         unfed.
-
-        ``pinned``: the first such call resolves numba's overload for its argument types, later ones
-        call it directly (numba's type dispatch of the loop's 31 arguments costs about 20 us on a cold
-        cache). Only for a caller that passes arguments of the same types every time (the live
-        service's preallocated columns): the compiled entry point does not check array dtypes.
         """
         g = self.grid
         if self.explicit:
@@ -519,15 +512,7 @@ class Engine:
             final,
             t_end_ns,
         )
-        if pinned and self._pinned is not None:
-            i, n = self._pinned(*args)
-        else:
-            run = self.backend.run
-            i, n = run(*args)
-            if pinned:  # a backend loop that is not a numba dispatcher is called as it is
-                ovl = getattr(run, "overloads", None)
-                sig = tuple(run.typeof_pyval(a) for a in args) if ovl is not None else None
-                self._pinned = ovl[sig].entry_point if ovl is not None and sig in ovl else run
+        i, n = self.backend.run(*args)
         if g[G_OVERFLOW]:
             raise overflow_error(int(g[G_MAX_STEPS]), int(g[G_PERIOD]))
         return int(i), int(n)
@@ -551,13 +536,12 @@ class Engine:
         return args[0] is e.params and args[1] is e.state and args[2] is self._la and args[3] is self.grid
 
     def run_live(self, args: tuple) -> tuple[int, int]:
-        """:meth:`run_arrays` (explicit mode, ``pinned``, resolved before by a pinned call) on an
-        argument tuple from :meth:`live_args`: the live step's engine call without rebuilding its 31
-        arguments (about 8 us of Python per step on a hot cache)."""
+        """:meth:`run_arrays` (explicit mode) on an argument tuple from :meth:`live_args`: the live
+        step's engine call without rebuilding its arguments."""
         g = self.grid
         g[G_K] = 0
         g[G_FINISH] = 0
-        i, n = self._pinned(*args)
+        i, n = self.backend.run(*args)
         if g[G_OVERFLOW]:
             raise overflow_error(int(g[G_MAX_STEPS]), int(g[G_PERIOD]))
         return i, n

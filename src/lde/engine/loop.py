@@ -56,7 +56,6 @@ from lde.engine.grid import (
     grid_frame,
     grid_step_done,
 )
-from lde.engine.loopargs import field
 from lde.engine.receiver import (
     I_COLUMN_TORQUE,
     I_SPEED,
@@ -68,7 +67,6 @@ from lde.engine.receiver import (
 )
 from lde.estimator.overlay import LP_GAIN, LS_STATE, overlay_kernel
 from lde.estimator.paper import O_BANK, O_FW, O_FW_WIND, O_GAIN, O_LEARN, O_MW, O_MW_WIND, O_T_ALIGN
-from lde.refcount import NO_REFCOUNT
 from lde.status import DEGRADED, VALID
 from lde.units import DEG
 
@@ -183,28 +181,28 @@ def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cov
 # +30 % (float) engine CPU per hour measured with them as plain calls (docs/startup.md).
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True)
 def feed_frame(la, g, t_ns, can_id, is_ext, dlc, w_le, anchor):  # pragma: no cover - compiled
     """One received frame of an input message (time ``t_ns`` [ns]): the receiver
     (:func:`lde.engine.receiver.rx_feed`), the count of accepted input frames since the previous step, the
     grid (:func:`lde.engine.grid.grid_frame`; ``anchor``: the row of the anchor message). ``la``: the
     loop's :class:`lde.engine.loopargs.LoopArrays`, one pointer instead of 26 arrays copied per frame."""
-    st = field(la, "rxst")
-    m, code = rx_feed(field(la, "tb"), st, t_ns, can_id, is_ext, dlc, w_le)
+    st = la.rxst
+    m, code = rx_feed(la.tb, st, t_ns, can_id, is_ext, dlc, w_le)
     accepted = code >= 0 and st[0][m, S_ACCEPTED] != 0
     if accepted:
-        field(la, "used_since")[0] += 1
+        la.used_since[0] += 1
     grid_frame(g, t_ns, m >= 0, m == anchor and accepted)
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True)
 def sample_inputs(la, tk, vin, age):  # pragma: no cover - compiled
     """The inputs at step time ``tk`` [ns] into ``vin`` (SI) and ``age`` [ns]
     (:func:`lde.engine.receiver.rx_sample`). Returns (valid mask, fresh mask: the inputs that brought a new
     sample since the previous step at ``prev_t[0]``, which becomes ``tk``; mdps ok, esc ok).
     ``la``: the loop's :class:`lde.engine.loopargs.LoopArrays` (as :func:`feed_frame`)."""
-    prev_t = field(la, "prev_t")
-    mask, ok_m, ok_e = rx_sample(field(la, "tb"), field(la, "rxst"), tk, vin, age)
+    prev_t = la.prev_t
+    mask, ok_m, ok_e = rx_sample(la.tb, la.rxst, tk, vin, age)
     fresh = 0
     for q in range(vin.shape[0]):
         if age[q] >= 0 and tk - age[q] > prev_t[0]:
@@ -213,14 +211,14 @@ def sample_inputs(la, tk, vin, age):  # pragma: no cover - compiled
     return mask, np.int64(fresh), bool(ok_m), bool(ok_e)
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True)
 def step_outputs(la, tk, est, status, enable, vin, encode, frames_row, vals, scratch):  # pragma: no cover
     """After the backend step at ``tk`` [ns] (``est``: its ``O_*`` slots, ``status`` its bits): the
     overlay law and limiter, the finalisation, the output values ``vals`` (``V_*``) and, when
     ``encode``, the output frames into ``frames_row`` (one row per output message). Returns
     (torque [Nm], status, limiter state). ``la``: the loop's :class:`lde.engine.loopargs.LoopArrays`
     (the limiter's parameters and state, the output table and counters; as :func:`feed_frame`)."""
-    lp, lsi, lsf = field(la, "lp"), field(la, "lsi"), field(la, "lsf")
+    lp, lsi, lsf = la.lp, la.lsi, la.lsf
     gain = est[O_GAIN]
     if math.isfinite(gain) and gain > 0.0:  # the backend's learned tires (else the vehicle file's)
         lp[LP_GAIN] = gain
@@ -252,7 +250,7 @@ def step_outputs(la, tk, est, status, enable, vin, encode, frames_row, vals, scr
     vals[V_BANK_DEG] = est[O_BANK] / DEG if math.isfinite(est[O_BANK]) else 0.0
     vals[V_LEARN] = est[O_LEARN]
     if encode:
-        _encode_outputs(field(la, "otab"), vals, field(la, "counters"), frames_row, scratch)
+        _encode_outputs(la.otab, vals, la.counters, frames_row, scratch)
     return torque, status, state
 
 

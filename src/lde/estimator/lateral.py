@@ -54,7 +54,6 @@ from numba import njit
 
 from lde.estimator.paper import O_BANK, O_BETA, O_FW, O_FW_WIND, O_MW, O_MW_WIND, O_T_ALIGN, O_YAW
 from lde.params import Vehicle
-from lde.refcount import NO_REFCOUNT
 from lde.status import DEGRADED, ESC_FAULT, LOW_SPEED, MDPS_FAULT, NOT_CONVERGED, VALID
 from lde.units import DEG, STEP_S, G
 
@@ -239,7 +238,7 @@ def propagation_coefficients(m, iz, lf, lr, cf, cr, vx):  # pragma: no cover - c
     return a00, a01, a0f, a10, a11, a13, b0, b1
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True)
 def step_kernel(p, x, P, fs, ints, h, ph, t_ns, vx, angle, yaw, tcol, tast, ay,
                 fresh_r, fresh_t, fresh_a, mdps_ok, esc_ok, out):  # fmt: skip  # pragma: no cover - compiled
     """One step (module docstring): update with the fresh measurements at vx, output the

@@ -335,8 +335,7 @@ def run_replay(
     candump block parsed, an MCAP chunk decompressed and walked on the other core; the timing
     ``read`` is then the time the engine waited for a piece; an error of the reader is raised here
     after the pieces before it). The piece in flight costs an MCAP replay about 10 MiB of peak RSS
-    (the decompressed chunk and its columns), paid for by scipy.linalg no longer being loaded
-    (:mod:`lde.lazyblas`, about 20 MiB). Other arguments as :func:`replay`.
+    (the decompressed chunk and its columns). Other arguments as :func:`replay`.
     """
     name = DEFAULT_BACKEND if backend is None else backend
     t0 = time.perf_counter()
