@@ -30,7 +30,6 @@ import sys
 from pathlib import Path
 
 from lde.analysis import study
-from lde.cli import BACKEND_CHOICES
 from lde.cli.replay_in_process import engine
 from lde.errors import ConfigError
 
@@ -64,7 +63,6 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--backend",
-        choices=BACKEND_CHOICES,
         default=None,
         help="replay backend (default: paper, the paper's float filter the study tables were measured with)",
     )
