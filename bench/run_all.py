@@ -123,14 +123,11 @@ def lde_cmd(*args: str) -> list[str]:
 
 # ----------------------------------------------------------------------------- anchors
 def bench_kalman(vehicle, grid, repeat: int) -> dict:
-    """Per step: lde's float and fixed steps over the hour's grid vs filterpy predict + update."""
+    """Per step: the paper's float step over the hour's grid vs filterpy predict + update."""
     n = len(grid)
     args = (grid.t_ns, grid.speed, grid.steering_angle, grid.yaw_rate, grid.column_torque, grid.assist_torque)
     ok = (grid.mdps_ok, grid.esc_ok)
-    from firmware_model import run_batch as fixed_run_batch
-
     flt = timed(lambda: float_run_batch(*args, *ok, vehicle), repeat)
-    fix = timed(lambda: fixed_run_batch(*args, *ok, vehicle, shadow=False), repeat)
     m = 5000
     d = model.discrete_matrices(vehicle, 27.8)
     x0 = np.zeros(4)
@@ -146,7 +143,6 @@ def bench_kalman(vehicle, grid, repeat: int) -> dict:
     fp = timed(filterpy_steps, max(2, repeat // 2))
     return {
         "float_us_per_step": _per(flt["cpu"], n, 1e6),
-        "fixed_us_per_step": _per(fix["cpu"], n, 1e6),
         "filterpy_us_per_step": _per(fp["cpu"], m, 1e6),
         "steps": n,
     }
@@ -563,7 +559,6 @@ def table(r: dict) -> str:
     if "kalman" in r:
         k = r["kalman"]
         row("float estimator step", k["float_us_per_step"], k["filterpy_us_per_step"], fp, "us/step")
-        row("fixed-point step", k["fixed_us_per_step"], k["filterpy_us_per_step"], fp, "us/step")
         if "lateral" in r:  # the default backend's steps, on the hour's real inputs
             la = r["lateral"]
             row(

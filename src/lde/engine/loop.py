@@ -219,7 +219,7 @@ def loop_arrays(*arrays: Any) -> LoopArrays:
             f"loop_arrays takes {len(LOOP_FIELDS)} arguments ({', '.join(LOOP_FIELDS)}), got {len(arrays)}"
         )
     *head, anchor = arrays
-    return _new_loop_arrays(*head, np.int64(anchor))
+    return _new_loop_arrays(*head, np.int64(anchor))  # type: ignore[call-arg]
 
 
 # --- the backend step: one stub, the registered steps behind it ------------------------------------
@@ -244,7 +244,7 @@ def backend_step(params, state, t_ns, inputs, fresh, mdps_ok, esc_ok, out):  # p
 
 
 @overload(backend_step)
-def _backend_step(params, state, t_ns, inputs, fresh, mdps_ok, esc_ok, out):  # type: ignore[no-untyped-def]
+def _backend_step(params, state, t_ns, inputs, fresh, mdps_ok, esc_ok, out):
     step = _STEPS.get(getattr(state, "instance_class", None))
     if step is None:
         return None  # numba then says that no backend step takes these types
