@@ -4,7 +4,7 @@ vs float while the learners learn").
 Diagnosis only, not the evaluation. Simulates one zoo run as ``lde evaluate --zoo`` does (spec sheet
 only: the cold run), samples its inputs once through the data path (``lde.replay.replay``), then steps both
 lateral backends per step from Python on the same sampled inputs (``lateral_fixed_step``,
-``lateral_step``: the same rows as the replay, checked) and prints
+``lde.engine.backends.float.step``: the same rows as the replay, checked) and prints
 
 - the backends' largest Mw / Fw difference and the fixed backend's shadow maxima (its float step on
   the fixed learner's parameters: the integer step's own agreement);
@@ -12,7 +12,7 @@ lateral backends per step from Python on the same sampled inputs (``lateral_fixe
   ``L_WIND_Q``) and its difference, Cf, Cr, K as fixed/float - 1, the excited-sample counters;
 - the variants: ``L_WIND_Q`` 0 in both learners, and the float backend whose learner reads the fixed
   filter's wind estimate (F_wind, M_wind) instead of its own (by hand: ``lde.estimator.lateral.step_kernel``
-  then ``lde.estimator.learner.learner_step``, which reproduces ``lateral_step`` exactly when fed its own).
+  then ``lde.estimator.learner.learner_step``, which reproduces the float step exactly when fed its own).
 
     PYTHONPATH=src:. python scripts/backend_divergence.py --plant suv_slow --scenario heavy_load
 """
