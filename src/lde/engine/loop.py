@@ -29,11 +29,11 @@ specialisation of :func:`run_loop` per backend, as it does for any argument type
 
 The receiver's tables and state, the grid, the limiter and the output counters do not depend on the
 backend: they travel as one :class:`LoopArrays` (a numba ``StructRef``: one object to unbox per call
-instead of 50 arrays), whose fields the loop reads once per call (reading a field takes a reference
-to each of its arrays). The frame's and the step's work around the backend step
-(:func:`feed_frame`, :func:`sample_inputs`, :func:`step_outputs`) is inlined into the loop: one hour
-of the float backend cost 1.27 s of engine CPU with them as calls and 1.11 s inlined
-(``scripts/engine_cpu.py``, side by side), for a longer compile of each backend's loop.
+instead of 50 arrays), whose fields the loop reads once per call and hands to its parts (reading a
+field takes a reference to each of its arrays: read per frame, it cost the float backend 1.31 s of
+engine CPU per hour against 1.27 s read once, ``scripts/engine_cpu.py``). The frame's and the
+step's work around the backend step (:func:`feed_frame`, :func:`sample_inputs`,
+:func:`step_outputs`) are compiled functions of their own, compiled once for every backend's loop.
 """
 
 from __future__ import annotations
@@ -245,7 +245,7 @@ def backend_step(params, state, t_ns, inputs, fresh, mdps_ok, esc_ok, out):  # p
     raise TypeError("backend_step runs inside compiled code only")
 
 
-@overload(backend_step, inline="always")
+@overload(backend_step)
 def _backend_step(params, state, t_ns, inputs, fresh, mdps_ok, esc_ok, out):
     step = _STEPS.get(getattr(state, "instance_class", None))
     if step is None:
@@ -257,10 +257,10 @@ def _backend_step(params, state, t_ns, inputs, fresh, mdps_ok, esc_ok, out):
     return impl
 
 
-# --- the loop's parts (inlined into it: module docstring) -----------------------------------------
+# --- the loop's parts, each its own compiled (cached) function, shared by every backend's loop -----
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def feed_frame(tb, st, g, used_since, anchor, t_ns, can_id, is_ext, dlc, w_le):  # pragma: no cover - compiled
     """One received frame of an input message (time ``t_ns`` [ns]): the receiver
     (:func:`lde.engine.receiver.rx_feed`), the count of accepted input frames since the previous step, the
@@ -272,7 +272,7 @@ def feed_frame(tb, st, g, used_since, anchor, t_ns, can_id, is_ext, dlc, w_le): 
     grid_frame(g, t_ns, m >= 0, m == anchor and accepted)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def sample_inputs(tb, st, prev_t, tk, vin, age):  # pragma: no cover - compiled
     """The inputs at step time ``tk`` [ns] into ``vin`` (SI) and ``age`` [ns]
     (:func:`lde.engine.receiver.rx_sample`). Returns (valid mask, fresh mask: the inputs that brought a new
@@ -286,7 +286,7 @@ def sample_inputs(tb, st, prev_t, tk, vin, age):  # pragma: no cover - compiled
     return mask, np.int64(fresh), bool(ok_m), bool(ok_e)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def step_outputs(
     otab, lp, lsi, lsf, counters, tk, est, status, enable, vin, encode, frames_row, vals, scratch
 ):  # pragma: no cover - compiled
