@@ -504,6 +504,13 @@ def markdown(r: dict[str, Any]) -> str:
     for t in r.get("tests", []):
         ok = "yes" if t["rc"] == 0 else "**NO**"
         lines.append(f"| tests, {t['side']}: {t['summary']} ({t['wall']:.0f} s) | | | | all pass | {ok} |")
+    cols: dict[str, int] = {}  # the columns one side's CSVs lack, with how many CSVs
+    for v in csvs.values():
+        for s in SIDES if v.get("identical") is True else ():
+            if v.get(f"only_{s}"):
+                k = f"only in {s}: {', '.join(v[f'only_{s}'])}"
+                cols[k] = cols.get(k, 0) + 1
+    lines += ["", *(f"Columns {k} ({n} CSVs, otherwise identical)." for k, n in cols.items())] if cols else []
     diffs = [(k, v) for k, v in csvs.items() if v.get("identical") is not True]
     if diffs:
         lines += [
