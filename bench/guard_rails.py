@@ -14,8 +14,8 @@ base and head take turns (base, head, base, head, ...: a change in the machine's
    time (user + sys of the child, from ``wait4``) and peak RSS; one warm-up run each, then the median
    and min-max of ``--repeat`` runs. The hour is written once by the base's ``bench/traffic.py``, as
    ``bench/run_all.py`` makes it (the lde profile's two input messages at ~100 km/h, E2E protected;
-   its MCAP holds the frames only, where ``lde sim --mcap`` adds the truth as JSON at five times the
-   frames' size). The two commits' CSVs of the hour are compared too.
+   its MCAP holds the frames only, where ``lde sim --mcap`` adds the truth as JSON: five times the
+   size of the candump text). The two commits' CSVs of the hour are compared too.
 2. The hot live step without a bus: each commit's own ``bench/bench_service_step.py --json``, p50 and
    p99 of its back-to-back steps; the median over the runs.
 3. The first ``lde demo`` on an empty cache: ``NUMBA_CACHE_DIR`` and ``XDG_CACHE_HOME`` fresh and
