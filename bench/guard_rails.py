@@ -478,8 +478,13 @@ def markdown(r: dict[str, Any]) -> str:
         f"Head: `{c['head']['ref']}` = {c['head']['sha'][:9]} ({c['head']['subject']})  ",
         f"Machine: {m['cpu']}, {m['cores']} cores (shared), Python {m['python']}; load average "
         f"{lb} before, {la} after; {r['date']}.  ",
-        f"Medians [min-max] of {r['repeat']} runs each after a warm-up (first demo: {r['cold_repeat']} "
-        "rounds, no warm-up), base and head in turns; CPU = user + sys of the child. Ratio = head / base.",
+        f"Medians [min-max] of {r['repeat']} runs each after a warm-up"
+        + (
+            f" (first demo: {r['cold_repeat']} rounds, no warm-up)"
+            if any("demo" in x["metric"] for x in r["rows"])
+            else ""
+        )
+        + ", base and head in turns; CPU = user + sys of the child. Ratio = head / base.",
         "",
         "| metric | base | head | ratio | limit | ok? |",
         "|---|---|---|---|---|---|",
@@ -535,9 +540,11 @@ def markdown(r: dict[str, Any]) -> str:
             lines.append(f"- {k}: " + "; ".join(parts + extra))
         for err, keys in failed.items():
             lines.append(f"- **failed** ({len(keys)} runs, e.g. {keys[0]}): {err}")
-    fails = {
-        x[s]["error"]: f"{x['metric']} ({s})" for x in r["rows"] for s in SIDES if x[s] and "error" in x[s]
-    }
+    fails: dict[str, str] = {}  # error -> the first row (or step) it failed
+    for x in r["rows"]:
+        for s in SIDES:
+            if x[s] and "error" in x[s]:
+                fails.setdefault(x[s]["error"], f"{x['metric']} ({s})")
     fails.update({v: k for k, v in r.get("failures", {}).items()})
     fails.update({r["error"]: "stopped"} if "error" in r else {})
     if fails:
