@@ -256,7 +256,7 @@ def _loop_feed() -> None:
     from lde.engine import loop as P
 
     i8, b, i1 = T.int64, T.boolean, T.int64[::1]
-    P.feed_frame.compile((_loop_arrays_type(), i1, i8, i8, b, i8, T.uint64, i8))
+    P.feed_frame.compile((_loop_arrays_type(), i1, i8, i8, b, i8, T.uint8[::1], i8))
 
 
 def _loop_sample() -> None:

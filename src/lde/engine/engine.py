@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from lde.can.codec import MessageCodec, words_le
+from lde.can.codec import MessageCodec
 from lde.can.e2e import ReceiverStats
 from lde.can.frames import FrameBatch
 from lde.can.profiles import INPUT_NAMES, Profile
@@ -111,7 +111,7 @@ class OutputTable:
         start, stop, rows = [], [], 0
         cols: dict[str, list[np.ndarray]] = {
             k: []
-            for k in ("shift", "nbits", "le", "signed", "scale", "offset", "lo", "hi", "is_value", "source")
+            for k in ("pos", "nbits", "le", "signed", "scale", "offset", "lo", "hi", "is_value", "source")
         }
         for c in codecs:
             lay = c.layout
@@ -119,7 +119,7 @@ class OutputTable:
             start.append(rows)
             rows += len(c.order)
             stop.append(rows)
-            cols["shift"].append(lay.shift)
+            cols["pos"].append(lay.pos)
             cols["nbits"].append(lay.nbits)
             cols["le"].append(lay.little_endian)
             cols["signed"].append(lay.signed)
@@ -140,7 +140,7 @@ class OutputTable:
             np.stack([c.scheme.checksum_parts for c in codecs]),
             np.array([c.scheme.modulus for c in codecs], np.int64),
             np.array([c.scheme.invalid_counter for c in codecs], np.int64),
-            cat["shift"],
+            cat["pos"],
             cat["nbits"],
             cat["le"],
             cat["signed"],
@@ -478,7 +478,7 @@ class Engine:
         can_id: np.ndarray,
         is_extended: np.ndarray,
         dlc: np.ndarray,
-        words: np.ndarray,
+        data: np.ndarray,
         is_rx: np.ndarray,
         out: StepBlock,
         *,
@@ -491,7 +491,7 @@ class Engine:
         pinned: bool = False,
     ) -> tuple[int, int]:
         """The compiled loop on raw frame columns from frame ``i0`` (the live hot path: no copies);
-        ``words`` are the frames' first 8 bytes as little-endian uint64 (:func:`lde.can.codec.words_le`).
+        ``data`` are the frames' bytes, uint8 [n, width] (:attr:`lde.can.frames.FrameBatch.data`).
         Fills ``out`` from row 0; returns (next frame index, rows written).
 
         ``final``: no frame follows these (live: every frame up to the step times has been given;
@@ -510,7 +510,7 @@ class Engine:
             g[G_K] = 0
             g[G_FINISH] = 0
         args = self._args(
-            (t_ns, can_id, is_extended, dlc, words, is_rx),
+            (t_ns, can_id, is_extended, dlc, data, is_rx),
             out,
             i0,
             step_times,
@@ -575,7 +575,7 @@ class Engine:
     ) -> tuple:
         e = self.est
         g = self.grid
-        t_ns, can_id, is_extended, dlc, words, is_rx = frames
+        t_ns, can_id, is_extended, dlc, data, is_rx = frames
         return (
             e.params,
             e.state,
@@ -593,7 +593,7 @@ class Engine:
             can_id,
             is_extended,
             dlc,
-            words,
+            data,
             is_rx,
             self.rx_tables.anchor,
             out.t_ns,
@@ -649,7 +649,6 @@ class Engine:
 
     def _feed(self, frames: FrameBatch, final: bool, t_end_ns: int | None, block_rows: int) -> StepBlock:
         blocks: list[StepBlock] = []
-        words = words_le(frames.data)
         i = 0
         rows = self._rows_hint(frames, block_rows)
         while True:
@@ -659,7 +658,7 @@ class Engine:
                 frames.can_id,
                 frames.is_extended,
                 frames.dlc,
-                words,
+                frames.data,
                 frames.is_rx,
                 out,
                 i0=i,

@@ -11,7 +11,7 @@ For the frames handed in (time order) and the step times the grid makes due (:mo
            -> overlay law + limiter                                    lde.estimator.overlay.overlay_kernel
            -> finalise: a non-finite Fw, Mw, T_align or T_overlay is sent as 0 with VALID cleared
               and DEGRADED set (never NaN on the bus)
-           -> output frames LDE_Estimate, LDE_Overlay (counters, CRCs)   lde.can.codec.encode_word
+           -> output frames LDE_Estimate, LDE_Overlay (counters, CRCs)   lde.can.codec.encode_row
               (``encode`` False: a replay whose frames nobody reads; the counters then stay put)
            -> one row of every output column
 
@@ -42,8 +42,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from lde.can.bitfield import word_to_bytes
-from lde.can.codec import encode_word
+from lde.can.codec import encode_row
 from lde.can.e2e import S_ACCEPTED, S_N_REPEATED, S_N_WRONGCRC, S_N_WRONGSEQ, advance_counter
 from lde.engine.grid import (
     G_FINISH,
@@ -151,7 +150,7 @@ def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cov
         a, b = m_start[j], m_stop[j]
         for k in range(a, b):
             values[k - a] = vals[source[k]]
-        w = encode_word(
+        encode_row(
             values[: b - a],
             shift[a:b],
             nbits[a:b],
@@ -168,8 +167,8 @@ def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cov
             m_ctr[j],
             m_chk[j],
             counters[j],
+            frames_row[j],
         )
-        word_to_bytes(w, frames_row[j])
         counters[j] = advance_counter(counters[j], m_mod[j], m_inv[j])
 
 
@@ -184,13 +183,13 @@ def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cov
 
 
 @njit(cache=True, **NO_REFCOUNT)
-def feed_frame(la, g, t_ns, can_id, is_ext, dlc, w_le, anchor):  # pragma: no cover - compiled
+def feed_frame(la, g, t_ns, can_id, is_ext, dlc, data, anchor):  # pragma: no cover - compiled
     """One received frame of an input message (time ``t_ns`` [ns]): the receiver
     (:func:`lde.engine.receiver.rx_feed`), the count of accepted input frames since the previous step, the
     grid (:func:`lde.engine.grid.grid_frame`; ``anchor``: the row of the anchor message). ``la``: the
     loop's :class:`lde.engine.loopargs.LoopArrays`, one pointer instead of 26 arrays copied per frame."""
     st = field(la, "rxst")
-    m, code = rx_feed(field(la, "tb"), st, t_ns, can_id, is_ext, dlc, w_le)
+    m, code = rx_feed(field(la, "tb"), st, t_ns, can_id, is_ext, dlc, data)
     accepted = code >= 0 and st[0][m, S_ACCEPTED] != 0
     if accepted:
         field(la, "used_since")[0] += 1
@@ -277,7 +276,7 @@ def _run_loop(
     can_id,
     is_ext,
     dlc,
-    words,
+    data,
     is_rx,
     anchor,
     o_t,
@@ -366,7 +365,7 @@ def _run_loop(
         if g[G_MODE] == MODE_EXPLICIT and g[G_K] >= explicit.shape[0]:
             break  # no step left: later frames wait for the steps they belong to (time order)
         if is_input:
-            feed_frame(la, g, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), words[i], anchor)
+            feed_frame(la, g, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), data[i], anchor)
         else:  # an id the profile ignores: rx_feed's count and the grid's hook, without the call
             rx_count_ignored(st)
             grid_frame(g, t[i], False, False)
