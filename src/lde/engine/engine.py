@@ -366,7 +366,7 @@ class Engine:
         self.rx = RxState.initial(self.rx_tables)
         self.grid = new_grid(MODE_EXPLICIT if self.explicit else MODE_ANCHORED)
         self.prev_t = np.full(1, np.iinfo(np.int64).min, np.int64)  # the previous step's time
-        self.lp = limiter_params(vehicle)
+        self.lp = limiter_params(vehicle, allowed=self.overlay_allowed)
         self.lsi, self.lsf = new_limiter_state()
         self.counters = np.zeros(len(self.outputs.names), np.int64)
         self.used_since = np.zeros(1, np.int64)
@@ -387,6 +387,13 @@ class Engine:
         self.est = self.backend.make(vehicle, self._dt, self.profile.angle_above_torsion_bar)
         self._shadow: Engine | None = None
         self.learned_from: LearnedState | None = None
+
+    @property
+    def overlay_allowed(self) -> bool:
+        """The overlay may be enabled: not while a torque input of the profile has an unknown
+        scale (a torque request in unknown units is unsafe). The loop's enable is this and the
+        step's own enable (``LP_ALLOWED`` of the limiter's parameters carries it)."""
+        return self.profile.torque_scales_known
 
     @property
     def steps(self) -> int:

@@ -65,7 +65,7 @@ from lde.engine.receiver import (
     rx_msg_of,
     rx_sample,
 )
-from lde.estimator.overlay import LP_GAIN, LS_STATE, overlay_kernel
+from lde.estimator.overlay import LP_ALLOWED, LP_GAIN, LS_STATE, overlay_kernel
 from lde.estimator.paper import O_BANK, O_FW, O_FW_WIND, O_GAIN, O_LEARN, O_MW, O_MW_WIND, O_T_ALIGN
 from lde.refcount import NO_REFCOUNT
 from lde.status import DEGRADED, VALID
@@ -314,6 +314,7 @@ def _run_loop(
     cap = o_t.shape[0]
     vals = np.zeros(N_V)
     scratch = np.empty(otab[9].shape[0])
+    allowed = la.lp[LP_ALLOWED] > 0.0  # Engine.overlay_allowed: the profile's torques have known units
     i = i0
     n = 0
     while n < cap:
@@ -328,12 +329,12 @@ def _run_loop(
         if g[G_OVERFLOW] == 1:
             break
         if due:
-            enable = True
+            enable = allowed
             extra = 0
             if g[G_MODE] == MODE_EXPLICIT:
                 j = g[G_K]
                 if ex_enable.shape[0] > j:
-                    enable = ex_enable[j]
+                    enable = allowed and ex_enable[j]
                 if ex_extra.shape[0] > j:
                     extra = ex_extra[j]
             vin = o_in[n]
