@@ -159,7 +159,7 @@ def test_service_over_udp_multicast_with_and_without_the_fast_path_gives_the_sam
             t_k = max(int(s._pt[s._np - 1]) for s in svcs if s._np) + 1000 if any(s._np for s in svcs) else t0
             for s, r, tt in zip(svcs, rows, times, strict=True):
                 tt.extend(s._pt[: s._np].tolist())
-                ids, words = s._pid[: s._np].tolist(), s._pword[: s._np].tolist()
+                ids, words = s._pid[: s._np].tolist(), s._pdata[: s._np].tolist()
                 r.append((ids, words, s.step_once(int(t_k)).fw))
         assert rows[0] == rows[1]
         assert sum(len(r[0]) for r in rows[0]) == 80
@@ -191,7 +191,7 @@ def test_socketcan_frame_parse_equals_python_cans() -> None:
                 can_id & (0x1FFFFFFF if ext else 0x7FF),
                 ext,
                 dlc,
-                int.from_bytes(data[:8], "little"),
+                int.from_bytes(data, "little"),  # every data byte (CAN FD: up to 64)
             )
         )
         assert socketcan_fields(cf, TS) == want, msg

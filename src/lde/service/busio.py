@@ -6,7 +6,8 @@ numbers, not a ``can.Message``. :func:`bus_io` gives it an object with
 
 * ``recv(timeout) -> (t_ns, can_id, is_extended, dlc, word) | None``: the next frame, ``t_ns`` its
   receive time [ns] rounded to the microsecond as python-can's timestamp would be
-  (:func:`lde.can.frames.seconds_to_ns`), ``word`` its first 8 data bytes little-endian; ``can_id``
+  (:func:`lde.can.frames.seconds_to_ns`), ``word`` its data bytes as a little-endian integer (64 bits
+  for a classic frame, up to 512 for CAN FD); ``can_id``
   :data:`NOT_DATA` (-1) for a remote frame or one the bus would drop, :data:`ERROR_FRAME` (-2) for an
   error frame, whose ``word`` is then its error class (python-can's ``arbitration_id``); None when
   none came within ``timeout`` [s] (0: poll);
@@ -116,8 +117,7 @@ def message_fields(msg: can.Message) -> RxFrame:
         return (seconds_to_ns(msg.timestamp), ERROR_FRAME, False, 0, msg.arbitration_id)
     if msg.is_remote_frame:
         return (0, NOT_DATA, False, 0, 0)
-    data = msg.data
-    word = int.from_bytes(data if len(data) <= 8 else data[:8], "little")
+    word = int.from_bytes(msg.data, "little")
     return (seconds_to_ns(msg.timestamp), msg.arbitration_id, msg.is_extended_id, msg.dlc, word)
 
 
@@ -270,7 +270,7 @@ def socketcan_fields(cf: bytes, ts: float) -> RxFrame:
     dlc = cf[4]
     if len(cf) != 72 and dlc == 8 and 8 < cf[7] <= 15:  # a classic frame's len8_dlc, as python-can reads it
         dlc = cf[7]
-    word = int.from_bytes(cf[8 : 8 + min(dlc, 8)], "little")
+    word = int.from_bytes(cf[8 : 8 + dlc], "little")
     return (seconds_to_ns(ts), can_id & (0x1FFFFFFF if ext else 0x7FF), ext, dlc, word)
 
 
