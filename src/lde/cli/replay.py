@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import FrameType
 
-from lde.cli import BACKEND_CHOICES, BACKEND_HELP
+from lde.cli import BACKEND_CHOICES, BACKEND_HELP, PROFILE_HELP
 from lde.errors import ConfigError, LdeError
 
 #: exit code of a replay that ran but gave no VALID estimate (no step, or every step invalid): the
@@ -44,7 +44,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--profile",
         default=None,
-        help="CAN profile: lde, hyundai or a .dbc path (default: the one an lde recording names, else lde)",
+        help=PROFILE_HELP + " (default: the one an lde recording names, else lde)",
     )
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
     p.add_argument(
@@ -304,7 +304,8 @@ def _run(args: argparse.Namespace, resume_gc: Callable[[], None]) -> int:
         _check_paths(logs, planned, many)
         # the options are checked here once (each job loads them again where it runs)
         if args.profile is not None:
-            load_profile(args.profile)
+            for line in load_profile(args.profile).notes() if not args.quiet else ():
+                print(f"lde replay: note: {line}", file=sys.stderr)
         vehicle = args.vehicle or "reference"
         if Path(vehicle).suffix.lower() == ".toml" or Path(vehicle).exists():
             vehicle = str(Path(vehicle).resolve())
@@ -344,7 +345,7 @@ def _run(args: argparse.Namespace, resume_gc: Callable[[], None]) -> int:
         learned = absolute(args.learned)
 
         profile = args.profile
-        if profile is not None and Path(profile).suffix.lower() == ".dbc":
+        if profile is not None and Path(profile).is_file():  # a profile file: the jobs may run elsewhere
             profile = str(Path(profile).resolve())
         jobs = [
             ReplayJob(

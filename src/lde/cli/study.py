@@ -30,7 +30,7 @@ import sys
 from pathlib import Path
 
 from lde.analysis import study
-from lde.cli import BACKEND_CHOICES
+from lde.cli import BACKEND_CHOICES, PROFILE_HELP
 from lde.cli.replay_in_process import engine
 from lde.errors import ConfigError
 
@@ -68,7 +68,9 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="replay backend (default: paper, the paper's float filter the study tables were measured with)",
     )
-    g.add_argument("--profile", default=None, help="CAN profile of the simulated bus: lde (default), hyundai")
+    g.add_argument(
+        "--profile", default=None, help="of the simulated bus: " + PROFILE_HELP + " (default: lde)"
+    )
     g.add_argument(
         "--sim-option",
         action="append",
