@@ -357,3 +357,26 @@ def test_profile_files_need_no_python(tmp_path):
     (tmp_path / "mycar.toml").write_text(text.replace('name = "hyundai"', 'name = "mycar"'))
     p = load_profile(tmp_path / "mycar.toml")
     assert p.name == "mycar" and p.dbc_path == tmp_path / "car.dbc"
+
+
+def test_the_overlay_stays_off_while_a_torque_scale_is_unknown(tmp_path):
+    """The same drive through lde's profile and through a copy that calls the assist torque's scale
+    unknown (its DBC unit happens to be Nm, so the estimates are the same): the overlay engages on
+    the first and never on the second."""
+    from lde.params import load_vehicle
+    from lde.replay.replay import replay_log
+
+    log = REPO / "tests" / "data" / "c4b2db1" / "lde.log.gz"
+    unknown = load_profile(
+        _copy(
+            tmp_path,
+            "lde",
+            _sub('signal = "AssistTorque"\nscale = "Nm"', 'signal = "AssistTorque"\nscale = "unknown"'),
+        )
+    )
+    vehicle = load_vehicle("reference")
+    _, known = replay_log(log, load_profile("lde"), vehicle, "float")
+    _, off = replay_log(log, unknown, vehicle, "float")
+    np.testing.assert_array_equal(off.fw, known.fw)
+    assert np.count_nonzero(known.t_overlay) > 100 and known.block.overlay_enable.all()
+    assert not off.t_overlay.any() and not off.overlay_state.any() and not off.block.overlay_enable.any()
