@@ -38,6 +38,7 @@ from lde.errors import LogFormatError
 __all__ = [
     "CandumpParse",
     "CandumpBlocks",
+    "BAD_LINES_KEPT",
     "parse_candump_bytes",
     "looks_like_candump",
     "write_candump",
@@ -56,9 +57,12 @@ ST_BLANK = 4
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF
 
-# counts of the kernel: lines, error frames, remote frames, malformed lines, first malformed line,
-# interface names known
-C_LINES, C_ERROR, C_REMOTE, C_MALFORMED, C_FIRST_BAD, C_NAMES = range(6)
+# counts of the kernel: lines, error frames, remote frames, malformed lines, interface names known,
+# then the 1-based line numbers of the first BAD_LINES_KEPT malformed lines (0: none) from C_FIRST_BAD on
+C_LINES, C_ERROR, C_REMOTE, C_MALFORMED, C_NAMES, C_FIRST_BAD = range(6)
+#: malformed lines whose numbers are kept (a warning names the first few, not thousands)
+BAD_LINES_KEPT = 3
+N_COUNTS = C_FIRST_BAD + BAD_LINES_KEPT
 #: interface names a log may hold, and their longest (Linux: 15 characters)
 MAX_NAMES = 256
 NAME_BYTES = 32
@@ -127,9 +131,9 @@ def _parse_block(
     """Parse every line of ``buf`` (which ends with a newline) in one pass; frames are packed into
     the output rows (the first 8 data bytes as a little-endian word; the bytes past 8 of a CAN FD
     frame into ``more`` from ``more_off[k]``, -1 for none; the interface's index in ``names``), the
-    other line kinds counted in ``counts`` (``C_*``; ``C_FIRST_BAD`` numbered from
-    ``counts[C_LINES]`` on). Returns the frames written. The grammar is the module doc's; the kernel
-    never reads past the block's last newline."""
+    other line kinds counted in ``counts`` (``C_*``; the malformed lines' numbers from
+    ``C_FIRST_BAD`` on, counted from ``counts[C_LINES]``). Returns the frames written. The grammar
+    is the module doc's; the kernel never reads past the block's last newline."""
     n = buf.shape[0]
     i = 0
     k = 0
@@ -286,9 +290,9 @@ def _parse_block(
         elif st == ST_REMOTE:
             counts[C_REMOTE] += 1
         elif st == ST_MALFORMED:
+            if counts[C_MALFORMED] < BAD_LINES_KEPT:
+                counts[C_FIRST_BAD + counts[C_MALFORMED]] = counts[C_LINES] + line
             counts[C_MALFORMED] += 1
-            if counts[C_FIRST_BAD] == 0:
-                counts[C_FIRST_BAD] = counts[C_LINES] + line
     counts[C_LINES] += line
     return k
 
@@ -367,6 +371,7 @@ class CandumpParse:
         malformed_lines: lines that did not parse (excluding a truncated last line).
         truncated_last_line: 1 if the last line had no newline and did not parse, else 0.
         first_malformed_line: 1-based number of the first malformed line, 0 if none.
+        malformed_at: 1-based numbers of the first :data:`BAD_LINES_KEPT` malformed lines.
     """
 
     frames: FrameBatch
@@ -376,6 +381,7 @@ class CandumpParse:
     malformed_lines: int
     truncated_last_line: int
     first_malformed_line: int
+    malformed_at: tuple[int, ...] = ()
 
 
 class CandumpBlocks:
@@ -386,7 +392,7 @@ class CandumpBlocks:
     and :attr:`truncated_last_line`."""
 
     def __init__(self) -> None:
-        self.counts = np.zeros(6, np.int64)
+        self.counts = np.zeros(N_COUNTS, np.int64)
         self.names = _Names()
         self.truncated_last_line = 0
         self.cut_bytes = 0  # bytes of the cut last line (not parsed)
@@ -449,7 +455,14 @@ class CandumpBlocks:
             malformed_lines=int(c[C_MALFORMED]),
             truncated_last_line=self.truncated_last_line,
             first_malformed_line=int(c[C_FIRST_BAD]),
+            malformed_at=self.malformed_at,
         )
+
+    @property
+    def malformed_at(self) -> tuple[int, ...]:
+        """1-based numbers of the first :data:`BAD_LINES_KEPT` malformed lines so far."""
+        kept = self.counts[C_FIRST_BAD : C_FIRST_BAD + min(BAD_LINES_KEPT, int(self.counts[C_MALFORMED]))]
+        return tuple(int(x) for x in kept)
 
 
 def parse_candump_bytes(raw: bytes | bytearray | memoryview) -> CandumpParse:
