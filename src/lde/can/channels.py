@@ -76,7 +76,6 @@ class ChannelSelect:
         n = len(frames)
         if n == 0:
             return frames
-        assert frames.channel is not None
         std = ~frames.is_extended & (frames.can_id < 0x800)
         row = np.where(std, self._row[frames.can_id & 0x7FF], _NO_MSG)
         is_in = row >= 0

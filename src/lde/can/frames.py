@@ -18,7 +18,7 @@ names (``""``: a frame whose bus is not named, as in a log without an interface 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -106,7 +106,7 @@ class FrameBatch:
         dlc: uint8 [n], data length in bytes (0..64).
         data: uint8 [n, width], the data bytes, zero padded; ``width`` 8..64 (module doc).
         is_rx: bool [n]; False for frames lde itself sent (recordings).
-        channel: uint16 [n], each frame's index into ``channels`` (default: all 0).
+        channel: uint16 [n], each frame's index into ``channels`` (not given: all 0).
         channels: the bus names (default ``("",)``: not named).
     """
 
@@ -116,7 +116,7 @@ class FrameBatch:
     dlc: np.ndarray
     data: np.ndarray
     is_rx: np.ndarray
-    channel: np.ndarray | None = None
+    channel: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint16))
     channels: tuple[str, ...] = NO_CHANNELS
 
     def __post_init__(self) -> None:
@@ -133,10 +133,9 @@ class FrameBatch:
             raise ValueError(f"FrameBatch.data is {data.shape[1]} bytes wide, at most {MAX_DATA}")
         self.data = np.ascontiguousarray(data)
         self.is_rx = np.ascontiguousarray(self.is_rx, dtype=np.bool_).reshape(-1)
-        if self.channel is None:
+        self.channel = np.ascontiguousarray(self.channel, dtype=np.uint16).reshape(-1)
+        if self.channel.shape[0] == 0 and n:  # not given: every frame on the batch's first bus
             self.channel = np.zeros(n, np.uint16)
-        else:
-            self.channel = np.ascontiguousarray(self.channel, dtype=np.uint16).reshape(-1)
         self.channels = tuple(str(c) for c in self.channels) or NO_CHANNELS
         for name in ("can_id", "is_extended", "dlc", "is_rx", "channel"):
             if getattr(self, name).shape[0] != n:
@@ -284,7 +283,6 @@ class FrameBatch:
 
     def take(self, index: np.ndarray) -> FrameBatch:
         """Rows at integer ``index`` (in that order)."""
-        assert self.channel is not None
         return FrameBatch(
             t_ns=self.t_ns[index],
             can_id=self.can_id[index],
@@ -298,7 +296,6 @@ class FrameBatch:
 
     def rows(self, a: int, b: int) -> FrameBatch:
         """Rows ``a:b`` as views (no copy)."""
-        assert self.channel is not None
         return FrameBatch(
             self.t_ns[a:b],
             self.can_id[a:b],

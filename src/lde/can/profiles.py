@@ -625,7 +625,7 @@ def _spec(
         raise c.error(table, f"{name} has {msg.length} bytes: a CAN frame has 1..64")
     scheme = _scheme(c, msg, d, table)
     period = _period_ns(msg, db)
-    asked = {pf.inputs[i].timeout_ms for i in feeds} - {None}
+    asked = {t for i in feeds if (t := pf.inputs[i].timeout_ms) is not None}
     if len(asked) > 1:
         raise c.error(f"inputs.{feeds[0]}", f"inputs of {name} ask for different timeout_ms {sorted(asked)}")
     timeout_ms = d.timeout_ms if d.timeout_ms is not None else (asked.pop() if asked else None)
@@ -737,12 +737,11 @@ def _build(
         )
     outputs, out_signals = _outputs(c, pf, db, params)
     in_ids: dict[int, str] = {}
-    for m in messages.values():
-        if m.frame_id in in_ids:
-            raise c.error(
-                f"messages.{m.name}", f"{m.name} and {in_ids[m.frame_id]} share the id 0x{m.frame_id:X}"
-            )
-        in_ids[m.frame_id] = m.name
+    for spec in messages.values():
+        fid = spec.frame_id
+        if fid in in_ids:
+            raise c.error(f"messages.{spec.name}", f"{spec.name} and {in_ids[fid]} share the id 0x{fid:X}")
+        in_ids[fid] = spec.name
     for oname, o in outputs.items():
         if o.frame_id in in_ids:
             raise c.error("outputs", f"{oname} id 0x{o.frame_id:X} is the input message {in_ids[o.frame_id]}")

@@ -587,7 +587,6 @@ def format_candump_bytes(frames: FrameBatch, channel: str = "vcan0", decimals: i
     data = frames.data
     width = 2 + 20 + 1 + ndec + 2 + int(lens.max()) + 1 + 8 + 3 + 2 * data.shape[1] + 2 + 1
     out = np.empty(n * width, np.uint8)
-    assert frames.channel is not None
     k = _format_lines(
         t,
         ndec,

@@ -288,7 +288,6 @@ class McapWriter:
         n = len(frames)
         if n == 0:
             return
-        assert frames.channel is not None
         fd = frames.dlc > 8
         # one group per (bus, direction, classic / FD)
         key = frames.channel.astype(np.int64) * 4 + frames.is_rx.astype(np.int64) * 2 + fd
@@ -327,7 +326,14 @@ class McapWriter:
         fd = dlc > 8
         if fd:
             row = np.frombuffer(bytes(data), np.uint8).reshape(1, -1)
-            one = FrameBatch([t_ns], [can_id], [is_extended], [dlc], row, [is_rx])
+            one = FrameBatch(
+                np.array([t_ns]),
+                np.array([can_id]),
+                np.array([is_extended]),
+                np.array([dlc]),
+                row,
+                np.array([is_rx]),
+            )
             pay = can_fd_payloads(one)[0].tobytes()
         else:
             pay = can_payload(can_id, is_extended, is_rx, dlc, data)
