@@ -311,9 +311,9 @@ def test_timeouts_come_from_the_observed_rate_when_the_dbc_has_no_cycle_time(tmp
 
 def _two_buses(profile, same_id_on_both: bool) -> FrameBatch:
     frames = _lde_frames(profile)
-    other = (
-        frames.select(frames.can_id == 0x2A8) if same_id_on_both else frames.select(frames.can_id == 0x123)
-    )
+    other = frames.select(frames.can_id == 0x2A8)  # the ESC frames, again on can1 (with junk bytes)
+    if not same_id_on_both:  # can1 carries other ids only
+        other.can_id = np.full(len(other), 0x123, np.uint32)
     a = FrameBatch(frames.t_ns, frames.can_id, frames.is_extended, frames.dlc, frames.data, frames.is_rx,
                    np.zeros(len(frames)), ("can0",))  # fmt: skip
     junk = np.full_like(other.data, 0xFF)
@@ -345,9 +345,13 @@ def test_the_bus_of_each_message_is_the_one_that_carries_it_or_the_one_named(tmp
         ConfigError, match=r"channel = 'can7', but the log has MDPS_Sensors \(0x2A0\) on 'can0' only"
     ):
         ChannelSelect(wrong)(_two_buses(wrong, same_id_on_both=False))
-    # a log of one unnamed bus is the bus the profile names
+    # a log of one bus, unnamed or of another name, is the bus the profile names
     plain = _lde_frames(wrong)
     assert ChannelSelect(wrong)(plain) is plain
+    one = FrameBatch(plain.t_ns, plain.can_id, plain.is_extended, plain.dlc, plain.data, plain.is_rx,
+                     np.zeros(len(plain)), ("vcan0",))  # fmt: skip
+    sel = ChannelSelect(wrong)
+    assert sel(one) is one and sel.chosen["MDPS_Sensors"] == "vcan0"
 
 
 def test_profile_files_need_no_python(tmp_path):

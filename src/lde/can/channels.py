@@ -6,9 +6,8 @@ frame of the other ids (the receiver ignores and counts those). A message's bus 
 first frames:
 
 * the profile names it (``channel`` of ``[messages.NAME]``, else the top-level ``channel``): that bus;
-  a log whose frames carry no bus name (``""``: a candump without interface column, a python-can
-  log without channels) is taken as that bus; a log that has the message only on other buses is an
-  error that names them;
+  a log of one bus (whatever its name, or none: a candump without interface column) is taken as that
+  bus; a log of several buses that has the message only on other buses is an error that names them;
 * the profile names none: the one bus that carries the message; several is an error that names them
   and the key to set.
 
@@ -50,14 +49,14 @@ class ChannelSelect:
         self.chosen: dict[str, str] = {}
         self.dropped = 0
 
-    def _decide(self, k: int, carriers: list[str]) -> str:
+    def _decide(self, k: int, carriers: list[str], buses: list[str]) -> str:
         name, fid, want = self._names[k], int(self._ids[k]), self._want[k]
         where = f"{name} (0x{fid:X})"
         if want is not None:
             if want in carriers:
                 return want
-            if carriers == [""]:
-                return ""  # a log of one unnamed bus is that bus
+            if len(buses) == 1:
+                return buses[0]  # a log of one bus is that bus
             raise ConfigError(
                 f"{self.profile.path or self.profile.name}: [messages.{name}] channel = {want!r}, but "
                 f"{self.source} has {where} on {', '.join(repr(c) for c in carriers)} only"
@@ -80,16 +79,19 @@ class ChannelSelect:
         row = np.where(std, self._row[frames.can_id & 0x7FF], _NO_MSG)
         is_in = row >= 0
         single = len(frames.channels) == 1
+        buses: list[str] | None = None
         for k in np.unique(row[is_in]).tolist():
             name = self._names[k]
             if name in self.chosen:
                 continue
             if single:
-                carriers = [frames.channels[0]]
+                carriers = buses = [frames.channels[0]]
             else:
                 idx = np.unique(frames.channel[row == k])
                 carriers = [frames.channels[i] for i in idx.tolist()]
-            self.chosen[name] = self._decide(k, carriers)
+                if buses is None:
+                    buses = [frames.channels[i] for i in np.unique(frames.channel).tolist()]
+            self.chosen[name] = self._decide(k, carriers, buses)
         if single:
             only = frames.channels[0]
             if all(self.chosen.get(self._names[k], only) == only for k in np.unique(row[is_in]).tolist()):

@@ -193,6 +193,10 @@ def _summary(rep) -> str:
         + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in rep.timings.items())
         + ")",
     ]
+    if rep.buses:  # a log that names its buses: where the inputs came from
+        on = sorted(set(rep.buses.values()))
+        other = f"; {rep.other_bus} frames of them on other buses not used" if rep.other_bus else ""
+        lines.append(f"  input messages read from bus {', '.join(on)}{other}")
     if rep.learned:
         lines.append(f"  learned (from {rep.learned_origin or 'the vehicle file'}): {rep.learned}")
     if rep.steps == 0:
