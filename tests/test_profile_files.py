@@ -1,4 +1,4 @@
-"""Profile files (docs/profiles.md): the shipped ones, every way a file can be wrong (one clear line
+"""Profile files (docs/guide/profiles.md): the shipped ones, every way a file can be wrong (one clear line
 that names the file and the key), absent inputs, torques of unknown scale, observed timeouts, and the
 bus a message is read from."""
 

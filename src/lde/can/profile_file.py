@@ -1,6 +1,6 @@
 """A profile file (TOML) read into typed declarations, before any DBC is looked at.
 
-The format is documented for users in ``docs/profiles.md``; :func:`read_profile_file` checks its
+The format is documented for users in ``docs/guide/profiles.md``; :func:`read_profile_file` checks its
 shape (known keys, types, values from the allowed sets) and says what is wrong in one line that names
 the file and the key, ``PROFILE.toml: [inputs.yaw_rate] sign must be +1 or -1, got 2``.
 :mod:`lde.can.profiles` then checks the declarations against the DBC (messages, signals, positions).

@@ -1,13 +1,13 @@
 """CAN profiles: which DBC, which message/signal feeds each estimator input, units, signs, timeouts,
 integrity check per message, the bus of each message, and lde's output messages.
 
-A profile is a TOML file (``docs/profiles.md``; :mod:`lde.can.profile_file` reads it) that names its
+A profile is a TOML file (``docs/guide/profiles.md``; :mod:`lde.can.profile_file` reads it) that names its
 DBC. Three ship beside their DBCs (``dbc/`` in a source tree, ``lde/data/`` in an installed wheel),
 each loadable by its short name: ``lde`` (lde's own bus, AUTOSAR E2E Profile 1), ``hyundai`` (a real
 car's C-CAN: alive counters, the WHL_SPD11 checksum) and ``toyota_rav4_2017`` (a real car's bus from
 opendbc's facts: Toyota checksums, torques of unknown scale).
 
-Estimator inputs (SI, ISO 8855 signs; names used everywhere, see docs/ARCHITECTURE.md)::
+Estimator inputs (SI, ISO 8855 signs; names used everywhere, see docs/design/architecture.md)::
 
     column_torque [Nm]  assist_torque [Nm]  steering_angle [rad]  steering_rate [rad/s]   group "mdps"
     yaw_rate [rad/s]    lat_accel [m/s^2]   speed [m/s]                                   group "esc"
@@ -17,7 +17,7 @@ Estimator inputs (SI, ISO 8855 signs; names used everywhere, see docs/ARCHITECTU
 
 An input the car does not have is declared absent: it is never valid (NaN), never fresh, and does not
 count against its group (the group is usable without it); what the estimator then does without it is
-documented in ``docs/profiles.md``. A torque input may have an unknown scale (raw counts): its value
+documented in ``docs/guide/profiles.md``. A torque input may have an unknown scale (raw counts): its value
 enters as the DBC value with scale 1, and :attr:`Profile.torque_scales_known` is False (the engine
 keeps the overlay off).
 
@@ -81,9 +81,9 @@ __all__ = [
 GROUPS: Mapping[str, tuple[str, ...]] = MappingProxyType({"mdps": MDPS_INPUTS, "esc": ESC_INPUTS})
 OUTPUT_MESSAGES: tuple[str, ...] = ("LDE_Overlay", "LDE_Estimate", "LDE_Diag", "LDE_Disturbance")
 #: where a user reads how to write a profile
-DOCS = "docs/profiles.md"
+DOCS = "docs/guide/profiles.md"
 
-#: what the estimator does without an input the car lacks (docs/profiles.md)
+#: what the estimator does without an input the car lacks (docs/guide/profiles.md)
 _ABSENT_EFFECT: Mapping[str, str] = MappingProxyType(
     {
         "lat_accel": "crosswind and bank are not told apart, the learner does not learn",
@@ -244,7 +244,7 @@ class Profile:
         return all(m.receiver is not None for m in self.messages.values())
 
     def notes(self) -> list[str]:
-        """What this profile's car lacks, one line each for the user (``docs/profiles.md``): its
+        """What this profile's car lacks, one line each for the user (``docs/guide/profiles.md``): its
         absent inputs and its torques of unknown scale."""
         out = [f"profile {self.name}: {name} absent: {_ABSENT_EFFECT[name]}" for name in sorted(self.absent)]
         if self.unknown_scale:

@@ -62,7 +62,7 @@ PROFILE_CHOICES = ("lde", "hyundai", "toyota_rav4_2017")
 #: the help of every --profile option
 PROFILE_HELP = (
     f"CAN profile: a shipped one ({', '.join(PROFILE_CHOICES)}) or a profile file (.toml; its format: "
-    "docs/profiles.md)"
+    "docs/guide/profiles.md)"
 )
 
 #: subcommand name -> module below lde.cli. A module that does not exist yet is skipped.
