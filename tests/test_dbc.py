@@ -175,7 +175,9 @@ def test_unknown_profile_and_a_dbc_given_as_profile_are_config_errors(tmp_path):
         load_profile("volvo")
     copy = tmp_path / "mycar.dbc"
     shutil.copy(REPO / "dbc" / "lde.dbc", copy)
-    with pytest.raises(ConfigError, match=r"a DBC is not a profile: write a profile file .*docs/guide/profiles.md"):
+    with pytest.raises(
+        ConfigError, match=r"a DBC is not a profile: write a profile file .*docs/guide/profiles\.md"
+    ):
         load_profile(copy)
 
 
