@@ -384,3 +384,31 @@ def test_the_overlay_stays_off_while_a_torque_scale_is_unknown(tmp_path):
     np.testing.assert_array_equal(off.fw, known.fw)
     assert np.count_nonzero(known.t_overlay) > 100 and known.block.overlay_enable.all()
     assert not off.t_overlay.any() and not off.overlay_state.any() and not off.block.overlay_enable.any()
+
+
+def test_without_lateral_acceleration_the_estimate_runs_on_yaw_rate_and_torque(tmp_path):
+    """lat_accel declared absent on a drive that has it: the ESC group stays usable, the estimate
+    becomes valid, and Fw differs from the full profile's (the accelerometer's update is gone) but
+    stays in the same range."""
+    from lde.params import load_vehicle
+    from lde.replay.replay import replay_log
+
+    log = REPO / "tests" / "data" / "c4b2db1" / "lde.log.gz"
+    absent = load_profile(
+        _copy(
+            tmp_path,
+            "lde",
+            _sub(
+                '[inputs.lat_accel]\nmessage = "ESC_Motion"\nsignal = "LatAccel"\nscale = "m/s^2"',
+                "[inputs.lat_accel]\nabsent = true",
+            ),
+        )
+    )
+    vehicle = load_vehicle("reference")
+    _, full = replay_log(log, load_profile("lde"), vehicle, "float")
+    _, without = replay_log(log, absent, vehicle, "float")
+    valid = (without.status & 1) != 0
+    assert valid.mean() > 0.5 and ((full.status & 1) != 0).mean() > 0.5
+    assert np.isnan(without.block.inputs[:, 5]).all()  # lat_accel: never a value
+    assert not np.array_equal(without.fw, full.fw)
+    assert np.abs(without.fw[valid]).max() < 3 * np.abs(full.fw).max()
