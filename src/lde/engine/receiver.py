@@ -132,8 +132,8 @@ class RxTables:
         if not profile.timeouts_known:
             late = [m.name for m in profile.messages.values() if m.receiver is None]
             raise ConfigError(
-                f"profile {profile.name}: no timeout for {', '.join(late)} (no cycle time in its DBC): "
-                "set timeout_ms, or observe it in a log first (lde.can.profiles.observe_timeouts)"
+                f"{profile.path or profile.name}: no timeout for {', '.join(late)} (no cycle time in the "
+                f"DBC): set timeout_ms in [messages.{late[0]}] (a replay takes it from the log's rate)"
             )
         specs = list(profile.messages.values())
         names = tuple(s.name for s in specs)
