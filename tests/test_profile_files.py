@@ -275,7 +275,9 @@ def test_timeouts_come_from_the_observed_rate_when_the_dbc_has_no_cycle_time(tmp
     )
     p = load_profile(path)
     assert not p.timeouts_known and p.messages["KINEMATICS"].receiver is None
-    with pytest.raises(ConfigError, match=r"no timeout for .*set timeout_ms in \[messages\.STEER_TORQUE_SENSOR\]"):
+    with pytest.raises(
+        ConfigError, match=r"no timeout for .*set timeout_ms in \[messages\.STEER_TORQUE_SENSOR\]"
+    ):
         RxTables.of(p)
     t = 1_000_000_000 + np.arange(20, dtype=np.int64) * 12_000_000
     frames = FrameBatch.concat(
