@@ -9,7 +9,7 @@ the file and the key, ``PROFILE.toml: [inputs.yaw_rate] sign must be +1 or -1, g
 from __future__ import annotations
 
 import math
-import sys
+import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,11 +18,6 @@ from typing import Any
 from lde.can.e2e import INTEGRITY
 from lde.errors import ConfigError
 from lde.units import DEG, KMH, G
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
 
 __all__ = [
     "INPUT_NAMES",
