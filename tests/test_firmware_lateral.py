@@ -30,7 +30,6 @@ from firmware_model import gen_lateral as GL
 from firmware_model import lat_coefs as LC
 from firmware_model import lateral as FX
 from firmware_model.shadow import FW_BOUND_N, MW_BOUND_NM
-from firmware_model.synthetic import make_drive
 from firmware_model.tables import lateral_tables_for
 from lde.engine.backends import make_backend_state
 from lde.engine.backends.fixed import step as lateral_fixed_step
@@ -50,6 +49,9 @@ from lde.estimator.outputs import N_OUT, O_FW, O_GAIN, O_MW
 from lde.params import load_vehicle
 from lde.status import DEGRADED, SHADOW_DEVIATION, VALID
 from lde.units import KMH
+
+from helpers import TESTS
+from helpers.firmware_drives import extreme_drive, lateral_drive
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -103,45 +105,6 @@ def test_fast_step_is_integer_only(fn):
 # ----------------------------------------------------------------------------------- drives
 
 
-def lateral_drive(vehicle, kind: str, seed: int = 0, duration_s: float = 12.0) -> tuple[np.ndarray, ...]:
-    """A synthetic drive (firmware_model.synthetic) with a lateral acceleration (vx r + noise, the
-    steady-state part of the specific force) and the ESC/MDPS update rates of the lde profile
-    (yaw rate and a_y fresh every 10 ms, the torques every 3.9 ms)."""
-    d = make_drive(vehicle, kind, duration_s=duration_s, seed=seed)
-    rng = np.random.default_rng(seed + 100)
-    n = len(d)
-    ay = d.speed * d.yaw_rate + rng.normal(0.0, 0.05, n)
-    k = np.arange(n)
-    fresh_esc = (k * 39) // 100 != ((k - 1) * 39) // 100  # every ~10 ms
-    fresh_t = np.ones(n, bool)
-    return (
-        d.t_ns, d.speed, d.steering_angle, d.yaw_rate, d.column_torque, d.assist_torque, ay,
-        fresh_esc, fresh_t, fresh_esc, d.mdps_ok, d.esc_ok,
-    )  # fmt: skip
-
-
-def extreme_drive(vehicle, seed: int = 3) -> tuple[np.ndarray, ...]:
-    """A drive that visits the formats' limits: huge and non-finite inputs, over-speed, faults,
-    held steps, wild steering and accelerations (for the no-wrap check)."""
-    base = lateral_drive(vehicle, "gusts", seed=seed, duration_s=4.0)
-    t, speed, steer, yaw, tcol, tas, ay, fr, ftq, fa, mdps, esc = (np.array(a, copy=True) for a in base)
-    rng = np.random.default_rng(seed)
-    n = len(t)
-    for a, scale in ((speed, 140.0), (steer, 20.0), (yaw, 20.0), (tcol, 300.0), (tas, 300.0), (ay, 4000.0)):
-        idx = rng.choice(n, 40, replace=False)
-        a[idx] = rng.uniform(-scale, scale, 40)
-        a[rng.choice(n, 3, replace=False)] = np.nan
-        a[rng.choice(n, 2, replace=False)] = np.inf
-    seg = slice(n // 2, n // 2 + 200)  # a stretch of bang-bang steering and saturated torques
-    steer[seg] = np.where(np.arange(200) % 40 < 20, 15.0, -15.0)
-    tcol[seg] = 250.0
-    ay[seg] = -1000.0
-    speed[n // 3 : n // 3 + 50] = 5.0  # held, then a restart from P0
-    mdps[n // 4 : n // 4 + 30] = False
-    esc[2 * n // 3 : 2 * n // 3 + 30] = False
-    return t, speed, steer, yaw, tcol, tas, ay, fr, ftq, fa, mdps, esc
-
-
 def _float_run(p, inputs):
     """The float lateral filter (lde.estimator.lateral) over a drive; Fw, Mw and status per step."""
     x, P = np.zeros(E.NX), np.zeros((E.NX, E.NX))
@@ -172,7 +135,7 @@ from firmware_model.tables import lateral_tables_for
 from lde.estimator import lateral as E
 from lde.params import load_vehicle
 sys.path.insert(0, {tests!r})
-from test_firmware_lateral import extreme_drive
+from helpers.firmware_drives import extreme_drive
 v = load_vehicle("reference")
 res = FX.run_drive(lateral_tables_for(v), E.params_vector(v), extreme_drive(v), python_ints=True)
 print(json.dumps({{k: np.asarray(a).astype(object).tolist() for k, a in res.items()}}))
@@ -186,7 +149,7 @@ def test_interpreted_python_ints_equal_compiled_int64(vehicle, lt):
     p = E.params_vector(vehicle)
     compiled = FX.run_drive(lt, p, extreme_drive(vehicle))
     env = dict(os.environ, NUMBA_DISABLE_JIT="1")
-    code = _INTERPRETED.format(paths=[str(ROOT / "src"), str(ROOT)], tests=str(ROOT / "tests"))
+    code = _INTERPRETED.format(paths=[str(ROOT / "src"), str(ROOT)], tests=str(TESTS))
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     interp = json.loads(proc.stdout)

@@ -18,7 +18,12 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from foreign_logs import (
+
+from lde.cli import main
+from lde.io import write_candump
+from lde.io.candump import format_candump_bytes
+
+from helpers.foreign_logs import (
     McapOptions,
     at_dbc_limits,
     bursts,
@@ -38,10 +43,6 @@ from foreign_logs import (
     write_mcap_library,
     write_pycan,
 )
-
-from lde.cli import main
-from lde.io import write_candump
-from lde.io.candump import format_candump_bytes
 
 #: a valid variant's NRMSE (Fw and Mw) may exceed our own timing's by this much (fraction):
 #: measured +0.1 .. +1.5 points (docs/reliability.md); the margin keeps the test off the last digits

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 from scipy.linalg import expm
-from test_learner import VX, _sense
 
 from lde.estimator import lateral as E
 from lde.estimator import learner as Ln
@@ -29,6 +28,8 @@ from lde.estimator.outputs import N_OUT, O_BANK, O_FW, O_FW_WIND, O_MW
 from lde.params import load_vehicle
 from lde.status import VALID
 from lde.units import DEG, STEP_NS, STEP_S
+
+from helpers.linear_truth import VX, sense
 
 G = 9.80665
 SCALES = (1.12, 0.92, 1.08)  # the truth's Cf, Cr, K against the prior's
@@ -106,7 +107,7 @@ def _drive(wind_n, bank_rad, seconds, *, step_at=None, step_n=0.0, learn=True) -
             hold_for[wind] = float(sol[1])
         delta = hold_for[wind] + (_lane_changes(ti) - K_PSI * psi) / n_ratio
         r = x[1]
-        ay, yaw, tcol, tast = _sense(x, delta, b, (cf, cr, k), s, n_ratio, rng, wind=wind)
+        ay, yaw, tcol, tast = sense(x, delta, b, (cf, cr, k), s, n_ratio, rng, wind=wind)
         sw = delta * n_ratio
         st = E.step_kernel(
             p, xs, P, fs, ints, h, ph, 10**9 + i * STEP_NS, VX, sw, yaw, tcol, tast, ay,

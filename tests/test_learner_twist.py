@@ -11,12 +11,13 @@ import math
 
 import numpy as np
 import pytest
-from test_learner import _sense, _weave, rig_on_truth
 
 from lde.estimator import lateral as E
 from lde.estimator import learner as Ln
 from lde.params import load_vehicle
 from lde.units import DEG, STEP_S
+
+from helpers.linear_truth import rig_on_truth, sense, weave
 
 VX = 100.0 / 3.6
 I_TB = Ln.LS_T3 + 4  # R3's twist coefficient s c_tb
@@ -72,9 +73,9 @@ def _learn_pinion(sig_ctb_deg: float, lag_twist_deg: float, seconds: float = 60.
     lowest = math.inf
     for i in range(int(seconds / STEP_S)):
         ti = i * STEP_S
-        delta = _weave(ti) / n_ratio
-        ay, yaw, tcol, tast = _sense(x, delta, b, rig.truth, rig.s, n_ratio, rng)
-        angle = _weave(ti) + lag_twist_deg * DEG * tcol
+        delta = weave(ti) / n_ratio
+        ay, yaw, tcol, tast = sense(x, delta, b, rig.truth, rig.s, n_ratio, rng)
+        angle = weave(ti) + lag_twist_deg * DEG * tcol
         rig.step(i, angle, yaw, tcol, tast, ay)
         lowest = min(lowest, ls[I_TB])
         x = rig.ad @ x + rig.bd * delta

@@ -15,12 +15,13 @@ import math
 
 import numpy as np
 import pytest
-from test_learner import _weave, rig_on_truth
 
 from lde.estimator import lateral as E
 from lde.estimator import learner as Ln
 from lde.params import load_vehicle
 from lde.units import DEG, STEP_S
+
+from helpers.linear_truth import rig_on_truth, weave
 
 VX = 100.0 / 3.6
 
@@ -45,7 +46,7 @@ def _learn_above(twist_deg: float, sig_ctb_deg: float | None = None, seconds: fl
     rng = np.random.default_rng(0)
     for i in range(int(seconds / STEP_S)):
         ti = i * STEP_S
-        sw = _weave(ti) * (0.4 + 0.6 * abs(math.sin(2 * math.pi * ti / 37.0)))
+        sw = weave(ti) * (0.4 + 0.6 * abs(math.sin(2 * math.pi * ti / 37.0)))
         delta = sw / n
         beta, r = x
         af = delta - beta - b.lf * r / VX

@@ -15,9 +15,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_logio import random_frames
 
 from lde.io import McapWriter, can_payloads
+
+from helpers.frames import random_frames
 
 TS = Path(__file__).parent / "ts"
 

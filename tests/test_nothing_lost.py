@@ -34,6 +34,9 @@ from lde.io.recording import Recorder, read_recording
 from lde.replay.fleet import ReplayJob, replay_job
 from lde.replay.replay import end_note
 
+from helpers import TESTS
+from helpers.recorded_steps import record_steps
+
 DATA = Path(__file__).parent / "data"
 SAMPLE = DATA / "sample_linear.log"
 
@@ -172,13 +175,13 @@ def test_a_cut_asc_line_is_not_read_as_a_frame(tmp_path: Path, frames: FrameBatc
 _CHILD = """
 import sys, time
 sys.path.insert(0, {tests!r})
-from test_recording import _record
+from helpers.recorded_steps import record_steps
 from lde.io.recording import Recorder
 rec = Recorder({path!r})
 print("ready", flush=True)
 k = 0
 while True:
-    _record(rec, 64, seed=k)  # received frames, steps, sent frames
+    record_steps(rec, 64, seed=k)  # received frames, steps, sent frames
     k += 1
     time.sleep(0.25)
 """
@@ -187,7 +190,7 @@ while True:
 def test_replay_summary_names_where_a_killed_recording_stopped(tmp_path: Path) -> None:
     """A recording whose service and writer were SIGKILLed: the replay says not closed, and where."""
     path = tmp_path / "killed.mcap"
-    code = _CHILD.format(tests=str(Path(__file__).parent), path=str(path))
+    code = _CHILD.format(tests=str(TESTS), path=str(path))
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, start_new_session=True)
     try:
         assert proc.stdout is not None and proc.stdout.readline().strip() == b"ready"
@@ -458,8 +461,6 @@ def test_replay_on_a_full_disk_keeps_what_it_wrote(tmp_path: Path, frames: Frame
 
 
 def test_recorder_on_a_full_disk_stops_recording_and_the_file_reads(tmp_path: Path) -> None:
-    from test_recording import _record
-
     with _small_disk(tmp_path, "256k") as (d, how):
         if how != "tmpfs":
             pytest.skip("no small tmpfs here (needs root): the replay test covers the file size limit")
@@ -467,7 +468,7 @@ def test_recorder_on_a_full_disk_stops_recording_and_the_file_reads(tmp_path: Pa
         rec = Recorder(path, flush_interval_s=0.05)
         try:
             for k in range(200):
-                _record(rec, 500, seed=k)
+                record_steps(rec, 500, seed=k)
                 rec._drain()
                 if rec.failed:
                     break

@@ -10,102 +10,24 @@ import sys
 import textwrap
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
-import can
 import numpy as np
 import pytest
 
 from lde.can.frames import seconds_to_ns
-from lde.can.profiles import INPUT_NAMES
-from lde.engine.engine import StepBlock
 from lde.errors import LogFormatError
 from lde.io import read_mcap
-from lde.io.recording import DIAG_TOPIC, ESTIMATE_TOPIC, INPUTS_TOPIC, Recorder, Timing, read_recording
-from lde.service.diagnostics import StepTiming
-from lde.service.service import StepResult
+from lde.io.recording import DIAG_TOPIC, ESTIMATE_TOPIC, INPUTS_TOPIC, Recorder, read_recording
 from lde.units import STEP_NS
 
-T0 = 1_700_000_000_000_000_000  # ns, an epoch-like time base
-
-
-def _result(k: int, rng: np.random.Generator) -> StepResult:
-    return StepResult(
-        t_ns=T0 + k * STEP_NS,
-        fw=float(rng.normal(0, 500)),
-        mw=float(rng.normal(0, 300)),
-        t_align=float(rng.normal(0, 10)),
-        t_overlay=float(rng.uniform(-3, 3)),
-        overlay_state=int(k % 5),
-        overlay_active=bool(k % 2),
-        status=int(rng.integers(0, 256)),
-        frames_used=int(k % 3),
-        timing=StepTiming(int(rng.integers(-100, 2_000_000)), 150_000, 300_000, False, k // 10),
-    )
-
-
-def _inputs(rng: np.random.Generator) -> SimpleNamespace:
-    return SimpleNamespace(
-        column_torque=float(rng.normal()),
-        assist_torque=float(rng.normal()),
-        steering_angle=0.01,
-        steering_rate=0.0,
-        yaw_rate=0.001,
-        lat_accel=0.1,
-        speed=27.0,
-        mdps_ok=True,
-        esc_ok=False,
-    )
-
-
-def _row(res: StepResult, inputs: SimpleNamespace, e2e_rejects: int) -> tuple[StepBlock, Timing]:
-    """One step as the service hands it to the recorder (a StepBlock row and its timing)."""
-    b = StepBlock.empty(1)
-    b.t_ns[0] = res.t_ns
-    b.status[0] = res.status
-    b.est[0] = [res.fw, res.mw, res.t_align, 0.001, 0.002, res.fw - 100.0, res.mw, 0.01, 1, 0.002]
-    b.t_overlay[0] = res.t_overlay
-    b.overlay_state[0] = res.overlay_state
-    b.overlay_enable[0] = True
-    b.inputs[0] = [getattr(inputs, n) for n in INPUT_NAMES]
-    b.ages[0] = 0
-    b.valid_mask[0] = 0
-    b.ok[0] = (inputs.mdps_ok, inputs.esc_ok)
-    b.frames_used[0] = res.frames_used
-    b.e2e_rejects[0] = e2e_rejects
-    tm = res.timing
-    assert tm is not None
-    values = (
-        tm.period_error_ns,
-        tm.step_time_ns,
-        tm.latency_ns,
-        int(tm.deadline_miss),
-        tm.deadline_misses,
-        0,
-    )
-    timing = Timing(*(np.array([v]) for v in values))
-    return b, timing
-
-
-def _record(rec: Recorder, n: int, seed: int = 1) -> list[StepResult]:
-    rng = np.random.default_rng(seed)
-    out = []
-    for k in range(n):
-        t = T0 + k * STEP_NS
-        rx = can.Message(timestamp=(t - 500_000) / 1e9, arbitration_id=0x2A0, data=bytes([k % 256] * 8))
-        tx = can.Message(timestamp=(t + 200_000) / 1e9, arbitration_id=0x3D1, data=bytes(range(8)))
-        rec.rx(rx)
-        res = _result(k, rng)
-        rec.steps(*_row(res, _inputs(rng), e2e_rejects=k // 100))
-        rec.tx(tx)
-        out.append(res)
-    return out
+from helpers import TESTS
+from helpers.recorded_steps import T0, record_steps
 
 
 def test_round_trip_all_channels(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
     with Recorder(path, metadata={"profile": "lde", "backend": "float"}) as rec:
-        results = _record(rec, 300)
+        results = record_steps(rec, 300)
     r = read_recording(path)
     assert r.complete
     assert r.metadata["profile"] == "lde"
@@ -127,7 +49,7 @@ def test_file_is_readable_by_logio_and_flat_json(tmp_path: Path) -> None:
     """The same file through lde.io's reader: CAN frames and flat numeric JSON columns."""
     path = tmp_path / "run.mcap"
     with Recorder(path) as rec:
-        _record(rec, 50)
+        record_steps(rec, 50)
     d = read_mcap(path, json_topics=[ESTIMATE_TOPIC, DIAG_TOPIC, INPUTS_TOPIC])
     assert len(d.frames) == 100
     for topic in (ESTIMATE_TOPIC, DIAG_TOPIC, INPUTS_TOPIC):
@@ -142,9 +64,9 @@ def test_recovers_file_without_footer(tmp_path: Path) -> None:
     path = tmp_path / "open.mcap"
     rec = Recorder(path, flush_interval_s=3600.0)  # the thread never flushes on its own here
     try:
-        _record(rec, 200)
+        record_steps(rec, 200)
         rec._drain()  # what the writer thread does every flush interval
-        _record(rec, 50, seed=2)  # queued, not yet written: lost in a crash
+        record_steps(rec, 50, seed=2)  # queued, not yet written: lost in a crash
         copy = tmp_path / "crashed.mcap"
         shutil.copyfile(path, copy)
     finally:
@@ -174,7 +96,7 @@ _CHILD = textwrap.dedent(
     import sys, time
     import numpy as np
     sys.path.insert(0, {tests!r})
-    from test_recording import _result, _inputs, _row
+    from helpers.recorded_steps import step_result, step_inputs, step_row
     from lde.io.recording import Recorder
     from lde.units import STEP_NS
     import dataclasses
@@ -183,8 +105,8 @@ _CHILD = textwrap.dedent(
     k = 0
     print("ready", flush=True)
     while True:
-        res = dataclasses.replace(_result(k, rng), t_ns=time.time_ns())
-        rec.steps(*_row(res, _inputs(rng), 0))
+        res = dataclasses.replace(step_result(k, rng), t_ns=time.time_ns())
+        rec.steps(*step_row(res, step_inputs(rng), 0))
         k += 1
         time.sleep(STEP_NS / 1e9)
     """
@@ -194,7 +116,7 @@ _CHILD = textwrap.dedent(
 def _killed_recording(tmp_path: Path, name: str, group: bool):
     """A process recording steps, SIGKILLed after 2 s (``group``: with its writer process)."""
     path = tmp_path / name
-    code = _CHILD.format(tests=str(Path(__file__).parent), path=str(path))
+    code = _CHILD.format(tests=str(TESTS), path=str(path))
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
     proc = subprocess.Popen(
         [sys.executable, "-c", code], stdout=subprocess.PIPE, env=env, start_new_session=True

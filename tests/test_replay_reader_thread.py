@@ -8,7 +8,6 @@ import threading
 from pathlib import Path
 
 import pytest
-from mcap_util import chunk_spans
 
 from lde.can.frames import FrameBatch
 from lde.cli import main
@@ -17,6 +16,8 @@ from lde.errors import LogFormatError
 from lde.io import McapWriter, read_log
 from lde.params import load_vehicle
 from lde.replay.replay import read_inputs, run_replay
+
+from helpers.mcap_chunks import chunk_spans
 
 DATA = Path(__file__).parent / "data"
 

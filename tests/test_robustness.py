@@ -121,10 +121,10 @@ def test_missing_empty_directory_and_garbage_files_are_one_line_errors(tmp_path,
 def test_mcap_cut_inside_the_frame_chunk_is_an_error_and_after_it_still_replays(tmp_path, capsys):
     """A cut inside the chunk holding the frames leaves no frame: one-line error. A cut after that
     chunk (inside the truth chunk) still replays every frame and counts the cut."""
-    from mcap_util import chunk_spans
-
     from vcan_sim.output import write_outputs
     from vcan_sim.run import simulate
+
+    from helpers.mcap_chunks import chunk_spans
 
     src = tmp_path / "sim.mcap"
     write_outputs(simulate("straight", seed=2, duration=2.0), mcap=src)
