@@ -1,9 +1,8 @@
 """Import every module of the product in a plain install (no extras): each must import, and none
 may pull in a module that only an extra provides.
 
-Two modules need an extra and are left out on purpose; the check then asserts that no other module
-imported them:
-  lde.kalman_reference   the filterpy reference the float filter is tested against ([test])
+One module needs an extra and is left out on purpose; the check then asserts that no other module
+imported it:
   lde.testing.plugin     lde's pytest plugin, loaded by pytest itself through its pytest11 entry point
 
 usage: python .ci/import_product.py   (in the plain install's environment, from any directory)
@@ -17,7 +16,7 @@ import sys
 import traceback
 
 PACKAGES = ("lde", "firmware_model", "vcan_sim")
-EXTRA_ONLY = {"lde.kalman_reference": "filterpy", "lde.testing.plugin": "pytest"}
+EXTRA_ONLY = {"lde.testing.plugin": "pytest"}
 
 
 def main() -> int:

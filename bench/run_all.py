@@ -57,11 +57,14 @@ from lde.engine.receiver import decode_batch
 from lde.estimator import model
 from lde.estimator.paper import run_batch as float_run_batch
 from lde.io import McapWriter, open_log, read_log
-from lde.kalman_reference import FilterpyReference
 from lde.params import load_vehicle
 from lde.replay.replay import CsvWriter, read_inputs, run_replay
 
 ROOT = Path(__file__).resolve().parents[1]
+# the float filter's anchor is the tests' filterpy reference (tests/helpers, needs the `test` extra)
+sys.path.insert(0, str(ROOT / "tests"))
+from helpers.kalman_reference import FilterpyReference  # noqa: E402
+
 SAMPLE = ROOT / "tests" / "data" / "sample_linear.log"
 MARK_BEGIN = "<!-- bench/run_all.py: begin -->"
 MARK_END = "<!-- bench/run_all.py: end -->"

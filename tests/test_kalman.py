@@ -6,10 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lde import kalman_reference
 from lde.estimator import kalman, model
 from lde.params import load_vehicle
 from lde.units import KMH
+
+from helpers import kalman_reference
 
 
 @pytest.fixture(scope="module")

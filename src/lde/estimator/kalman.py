@@ -28,9 +28,9 @@ The kernels are written for the model's 4 states (``NX``) and up to 4 measuremen
 
 Layers: ``*_inplace`` kernels (``@njit``, no allocation in the predict, used by :mod:`lde.estimator.paper`),
 pure ``kf_predict`` / ``kf_update`` (``@njit``, return new arrays), the :class:`KalmanFilter` class
-around them. The same filter on filterpy's ``KalmanFilter`` is :mod:`lde.kalman_reference` (tests and
-the benchmark suite; kept out of this module because importing filterpy pulls in scipy.stats: ~1 s
-of every start-up).
+around them. The same filter on filterpy's ``KalmanFilter`` is the tests' reference
+(``tests/helpers/kalman_reference.py``, also the benchmark suite's anchor); the product does not import
+filterpy, a dependency of the ``test`` extra that pulls in scipy.stats.
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
-"""The float Kalman filter of :mod:`lde.estimator.kalman` on filterpy's ``KalmanFilter``: the reference it is
-checked against (``tests/test_kalman.py``, a lockstep run) and the benchmark suite's anchor.
+"""The float Kalman filter of :mod:`lde.estimator.kalman` on filterpy's ``KalmanFilter``: the test oracle
+it is checked against (a lockstep run in the Kalman filter's tests) and the anchor of the benchmark
+suite (``bench/run_all.py``).
 
-Not imported by the product: filterpy pulls in scipy.stats (about 1 s of start-up), and it is a
-dependency of the `test` extra only (`pip install lde[test]`).
+A test helper, not part of the product: filterpy is a dependency of the ``test`` extra only
+(``pip install lde[test]``) and pulls in scipy.stats.
 """
 
 from __future__ import annotations
