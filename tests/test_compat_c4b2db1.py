@@ -1,13 +1,17 @@
 """Compatible with lde before profile files: the shipped profiles, now read from files, give the
-CSVs the commit before them (c4b2db1) gave on the simulator's logs, and a recording that commit wrote
-still loads and replays to the estimates it holds (``tests/data/c4b2db1/README.md`` says how each file
-was made)."""
+CSVs the commit before them (c4b2db1) gave on the simulator's logs, a recording that commit wrote
+still loads and replays to the estimates it holds, and a ``--learned`` file it wrote starts a replay
+and is carried on (``tests/data/c4b2db1/README.md`` says how each file was made). The names that
+commit knew and this one removed (``--backend lateral``, ``--backend paper-fixed``, a ``.dbc`` as
+``--profile``) are tested with the backends and the profile files: one error naming the replacement."""
 
 from __future__ import annotations
 
 import csv
 import gzip
 import io
+import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -53,3 +57,27 @@ def test_a_recording_of_the_commit_before_loads_and_replays_to_its_own_estimates
     for mine, theirs in (("Fw", "Fw"), ("Mw", "Mw"), ("T_overlay", "T_overlay")):
         np.testing.assert_array_equal(res.columns()[mine], rec[theirs])
     assert log.frames.channels == ("",) and log.frames.width == 8
+
+
+def test_a_learned_file_of_the_commit_before_starts_a_replay_and_is_carried_on(tmp_path):
+    learned = tmp_path / "learned.json"
+    shutil.copy(DATA / "learned_lde.json", learned)
+    before = json.loads(learned.read_text())
+    out = tmp_path / "now.csv"
+    log = DATA / "lde.log.gz"
+    args = ["replay", str(log), "--profile", "lde", "--learned", str(learned), "--csv", str(out), "-q"]
+    assert main(args) == 0
+    after = json.loads(learned.read_text())
+    assert (after["format"], after["version"], after["profile"]) == (
+        before["format"],
+        before["version"],
+        before["profile"],
+    )
+    assert after["drives"] == before["drives"] + 1 and after["seconds"] > before["seconds"] + 2.5
+    # three seconds of driving move the learned tires little: the file's values were the start
+    for key in ("cf_N_per_rad", "cr_N_per_rad", "align_rate_Nm_per_rad", "accel_scale"):
+        assert after["params"][key] == pytest.approx(before["params"][key], rel=1e-2), key
+    # the learned start changed the estimates against the same replay from the vehicle file alone
+    base = _columns(gzip.decompress((DATA / "lde.csv.gz").read_bytes()).decode())
+    now = _columns(out.read_text())
+    assert len(now["Fw"]) == len(base["Fw"]) and now["Fw"] != base["Fw"]
