@@ -4,7 +4,6 @@
     python bench/run_all.py --ten-hours        # + peak RSS of a 10-hour log (generated once, ~2 min)
     python bench/run_all.py --cold             # + a first run on an empty numba cache (minutes)
     python bench/run_all.py --fleet 100        # + 100 logs one after the other vs --jobs 2
-    python bench/run_all.py --readme README.md # and put the table into the README between markers
 
 Writes ``bench/results/report.json`` (every sample) and ``bench/results/report.md`` (the table:
 medians with min-max, the machine, the load average before and after, the command). Timings are
@@ -66,8 +65,6 @@ sys.path.insert(0, str(ROOT / "tests"))
 from helpers.kalman_reference import FilterpyReference  # noqa: E402
 
 SAMPLE = ROOT / "tests" / "data" / "sample_linear.log"
-MARK_BEGIN = "<!-- bench/run_all.py: begin -->"
-MARK_END = "<!-- bench/run_all.py: end -->"
 
 
 # ----------------------------------------------------------------------------- measuring
@@ -664,21 +661,12 @@ def table(r: dict) -> str:
     return "\n".join(lines)
 
 
-def update_readme(path: Path, text: str) -> None:
-    s = path.read_text()
-    if MARK_BEGIN not in s or MARK_END not in s:
-        raise SystemExit(f"{path}: no {MARK_BEGIN} ... {MARK_END} markers")
-    a, b = s.index(MARK_BEGIN) + len(MARK_BEGIN), s.index(MARK_END)
-    path.write_text(s[:a] + "\n" + text + "\n" + s[b:])
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--hours", type=float, default=1.0)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--data", type=Path, default=Path(tempfile.gettempdir()) / "lde-bench", help="log cache")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results")
-    ap.add_argument("--readme", type=Path, default=None)
     ap.add_argument("--ten-hours", action="store_true", help="peak RSS of a 10-hour log too")
     ap.add_argument("--cold", action="store_true", help="a first run on an empty numba cache too")
     ap.add_argument("--fleet", type=int, default=0, metavar="N", help="N logs: sequential vs --jobs 2")
@@ -688,7 +676,7 @@ def main() -> int:
         default=None,
         metavar="PARTS",
         help="comma-separated subset while iterating: kalman, codec, readers, inproc, cli, startup, "
-        "sizes (and rss / fleet with their options); not for the README",
+        "sizes (and rss / fleet with their options); not for the headline figures",
     )
     args = ap.parse_args()
     r: dict[str, Any] = {
@@ -735,8 +723,6 @@ def main() -> int:
             unknown = want - {name for name, _ in steps}
             if unknown:
                 raise SystemExit(f"--only: unknown part(s) {', '.join(sorted(unknown))}")
-            if args.readme is not None:
-                raise SystemExit("--only with --readme: the README table is written from a full run")
             steps = [(name, fn) for name, fn in steps if name in want]
         for name, fn in steps:
             t0 = time.perf_counter()
@@ -748,8 +734,6 @@ def main() -> int:
     text = table(r)
     (args.out / "report.md").write_text(text + "\n")
     print(text)
-    if args.readme is not None:
-        update_readme(args.readme, text)
     return 0
 
 

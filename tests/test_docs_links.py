@@ -1,4 +1,4 @@
-"""The README and the pages under docs/: every relative link resolves, every page is reachable from
+"""The README, the changelog and the pages under docs/: every relative link resolves, every page is reachable from
 docs/index.md, and the pages read as a guide, not a lab notebook (no issue numbers, no dated
 measurements, no "second pass" or "not adopted")."""
 
@@ -11,7 +11,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
-PAGES = sorted([ROOT / "README.md", *DOCS.rglob("*.md")])
+PAGES = sorted([ROOT / "README.md", ROOT / "CHANGELOG.md", *DOCS.rglob("*.md")])
 
 #: [text](target) and ![alt](target); the target ends at the first space or closing parenthesis
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")

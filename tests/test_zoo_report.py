@@ -11,7 +11,6 @@ import pytest
 from lde.analysis import metrics
 from lde.analysis.study import SPEC_SHEET, SPEC_SHEET_LOADED, EstOptions, RunResult, RunSpec, zoo, zooreport
 from lde.cli import main
-from lde.errors import ConfigError
 
 pytest.importorskip("vcan_sim.zoo")
 
@@ -185,60 +184,19 @@ def _info():
     return zooreport.RunInfo("lde evaluate --zoo", 6, 12.0, 2, "2 cores", 1.0, 2.0, "2026-01-01 00:00")
 
 
-def test_blocks_name_the_command_machine_and_date():
-    readme = zooreport.readme_block(_results(), _info())
-    assert readme.startswith("Measured with `lde evaluate --zoo`: 6 runs in 12 s wall on 2 cores")
-    assert "2026-01-01 00:00" in readme.splitlines()[0]
-    assert "- cold, wind force NRMSE <= 10 %" in readme and "- cold, payload loaded_twin" in readme
+def test_the_document_names_the_command_machine_and_date():
     doc = zooreport.doc_block(_results(), _info())
+    assert doc.startswith("Measured with `lde evaluate --zoo`: 6 runs in 12 s wall on 2 cores")
+    assert "2026-01-01 00:00" in doc.splitlines()[0]
+    assert "- cold, wind force NRMSE <= 10 %" in doc and "- cold, payload loaded_twin" in doc
     assert "**Cold**" in doc and "**Warm**" in doc and zooreport.LEGEND in doc
     assert doc.count("| plant | profile | backend |") == 0  # one backend: no backend column
     assert doc.count("| plant | profile | wind_step |") == 2
 
 
-def test_marked_text_is_replaced_and_the_rest_kept(tmp_path):
-    f = tmp_path / "README.md"
-    f.write_text(f"intro\n{zooreport.MARK_BEGIN}\nold\n{zooreport.MARK_END}\noutro\n")
-    zooreport.replace_marked(f, "new table\n")
-    want = f"intro\n{zooreport.MARK_BEGIN}\nnew table\n{zooreport.MARK_END}\noutro\n"
-    assert f.read_text() == want
-    zooreport.replace_marked(f, "new table")
-    assert f.read_text() == want  # idempotent
-
-
-def test_a_bad_file_leaves_every_file_as_it_was(tmp_path):
-    good, bad = tmp_path / "README.md", tmp_path / "study.md"
-    good.write_text(f"{zooreport.MARK_BEGIN}\nold\n{zooreport.MARK_END}\n")
-    # the marker quoted in the page's prose makes it ambiguous
-    bad.write_text(f"see `{zooreport.MARK_BEGIN}`\n{zooreport.MARK_BEGIN}\nold\n{zooreport.MARK_END}\n")
-    with pytest.raises(ConfigError, match="once each"):
-        zooreport.replace_all_marked([(good, "new"), (bad, "new")])
-    assert "old" in good.read_text()
-
-
-@pytest.mark.parametrize(
-    "text",
-    [
-        "no markers\n",
-        f"{zooreport.MARK_END}\n{zooreport.MARK_BEGIN}\n",
-        f"{zooreport.MARK_BEGIN}\n" * 2 + zooreport.MARK_END,
-    ],
-)
-def test_missing_or_misplaced_markers_are_a_config_error(tmp_path, text):
-    f = tmp_path / "doc.md"
-    f.write_text(text)
-    with pytest.raises(ConfigError, match="markers"):
-        zooreport.replace_marked(f, "x")
-    assert f.read_text() == text
-    with pytest.raises(ConfigError, match="cannot read"):
-        zooreport.replace_marked(tmp_path / "missing.md", "x")
-
-
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--plants", "indep_twin", "--readme", "R.md"], "--readme/--doc write the full zoo table; --plants"),
-        (["--warm", "--doc", "D.md"], "--modes/--warm select a part of it"),
         (["--modes", "cold,hot"], "unknown mode(s) hot"),
         (["--warm", "--modes", "warm"], "--warm is --modes warm"),
     ],
@@ -247,11 +205,3 @@ def test_evaluate_zoo_option_errors_are_one_line(capsys, tmp_path, argv, message
     code = main(["evaluate", "--zoo", *argv, "--out", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and message in err[0]
-
-
-def test_evaluate_checks_the_markers_before_any_run(capsys, tmp_path):
-    f = tmp_path / "README.md"
-    f.write_text("no markers here\n")
-    assert main(["evaluate", "--zoo", "--readme", str(f), "--out", str(tmp_path / "out")]) == 2
-    assert "no <!-- lde evaluate --zoo: begin -->" in capsys.readouterr().err
-    assert not (tmp_path / "out").exists()

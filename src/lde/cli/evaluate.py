@@ -19,8 +19,6 @@ and OUT/spec_sheets/. ``--modes cold,warm`` (the default): cold runs with the sp
 first replays an earlier drive of the same car with ``--learned S`` and then the run with it
 (``--prior A,B``: which drives, each its own mode ``warm after NAME``; default ``prior_drive``). A
 payload plant also runs with the spec sheet plus the load (``PLANT + load`` rows).
-``--readme FILE`` / ``--doc FILE`` (full run only) write the summary and the tables between
-the files' two marker comments (``lde evaluate --zoo: begin`` and ``end``).
 """
 
 from __future__ import annotations
@@ -100,18 +98,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="warm: the earlier drive(s) of the same car to learn on, each reported apart "
         f"(scenario names, another seed than the scored drive; default {zoo.PRIOR_SCENARIO})",
     )
-    z.add_argument(
-        "--readme",
-        type=Path,
-        metavar="FILE",
-        help=f"write the summary between the {zooreport.MARK_BEGIN} ... end markers of FILE (full run only)",
-    )
-    z.add_argument(
-        "--doc",
-        type=Path,
-        metavar="FILE",
-        help="write the summary and the tables between the same markers of FILE (full run only)",
-    )
     z.add_argument("--out", type=Path, default=Path("results/zoo"), help="output directory (results/zoo)")
     z.add_argument("--keep-logs", action="store_true", help="keep every run's log, truth, spec sheet, CSV")
     add_run_arguments(p)
@@ -137,12 +123,9 @@ def run(args: argparse.Namespace) -> int:
         or args.modes
         or args.prior
         or args.keep_logs
-        or args.readme
-        or args.doc
     ):
         raise ConfigError(
-            "--plants, --profiles, --backends, --modes, --warm, --prior, --keep-logs, --readme and --doc "
-            "need --zoo"
+            "--plants, --profiles, --backends, --modes, --warm, --prior and --keep-logs need --zoo"
         )
     payloads = study.all_payloads() if args.all_payloads else tuple(args.payload or ("",))
     specs = study.evaluation_specs(
@@ -199,8 +182,6 @@ def run_zoo(args: argparse.Namespace) -> int:
     for b in backends:
         get_backend(b)  # ConfigError for an unknown or removed name
     out: Path = args.out
-    if args.readme or args.doc:
-        _check_full(args, modes, profiles, backends)
     specs = zoo.zoo_specs(
         plant_list=args.plants,
         scenarios=_scenarios(args) or zoo.ZOO_SCENARIOS,
@@ -213,9 +194,6 @@ def run_zoo(args: argparse.Namespace) -> int:
         work_dir=str((out / "runs").resolve()) if args.keep_logs else "",
     )
 
-    for path in (args.readme, args.doc):
-        if path is not None:  # the markers are checked before the runs, not after
-            zooreport.marked_span(path)
     for plant in dict.fromkeys(s.group for s in specs):
         write_spec_sheet(load_sim_vehicle(f"zoo:{plant}"), out / "spec_sheets" / f"{plant}.toml")
     n_plants, n_scen = len({s.group for s in specs}), len({s.scenario for s in specs})
@@ -246,8 +224,6 @@ def run_zoo(args: argparse.Namespace) -> int:
     write_rows(zoo.plant_table_rows(results), out / "zoo_table.csv")
     doc = zooreport.doc_block(results, info)
     (out / "zoo_table.md").write_text(f"# Zoo evaluation\n\n{doc}\n")
-    docs = [(args.readme, zooreport.readme_block(results, info)), (args.doc, doc)]
-    zooreport.replace_all_marked([(path, text) for path, text in docs if path is not None])
     print("\n".join(zooreport.summary_block(results)))
     print()
     print(zoo.plant_table_markdown(results, backend=backends[0]))
@@ -267,35 +243,6 @@ def _modes(args: argparse.Namespace) -> tuple[zoo.Mode, ...]:
     if bad:
         raise ConfigError(f"unknown mode(s) {', '.join(bad)} (modes: cold, warm)")
     return tuple(known[n] for n in dict.fromkeys(names))
-
-
-def _check_full(
-    args: argparse.Namespace,
-    modes: tuple[zoo.Mode, ...],
-    profiles: tuple[str, ...],
-    backends: tuple[str, ...],
-) -> None:
-    """--readme/--doc take only the full table (every plant, the default scenarios, both profiles,
-    both backends, cold and warm, seed 0, the scenarios' own lengths): the documents' headline."""
-    partial = [
-        flag
-        for flag, is_partial in (
-            ("--plants", bool(args.plants) and set(args.plants) != set(zoo.plants())),
-            ("--scenarios", (_scenarios(args) or zoo.ZOO_SCENARIOS) != zoo.ZOO_SCENARIOS),
-            ("--profiles/--profile", set(profiles) != set(zoo.PROFILES)),
-            ("--backends/--backend", set(backends) != set(zoo.BACKENDS)),
-            ("--modes/--warm", set(modes) != set(zoo.Mode)),
-            ("--prior", tuple(args.prior or (zoo.PRIOR_SCENARIO,)) != (zoo.PRIOR_SCENARIO,)),
-            ("--seed", args.seed != 0),
-            ("--duration", args.duration is not None),
-        )
-        if is_partial
-    ]
-    if partial:
-        raise ConfigError(
-            f"--readme/--doc write the full zoo table; {', '.join(partial)} select a part of it "
-            "(the subset's tables are in --out)"
-        )
 
 
 def _command(args: argparse.Namespace) -> str:
@@ -325,7 +272,4 @@ def _command(args: argparse.Namespace) -> str:
     if args.workers != 2:
         parts.append(f"--workers {args.workers}")
     parts.append(f"--out {args.out}")
-    for flag, path in (("--readme", args.readme), ("--doc", args.doc)):
-        if path is not None:
-            parts.append(f"{flag} {path}")
     return " ".join(parts)

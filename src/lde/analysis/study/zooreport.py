@@ -1,14 +1,10 @@
-"""The zoo evaluation as a document: the README's accuracy headline and ``docs/study.md``'s tables.
+"""The zoo evaluation as a document: ``lde evaluate --zoo`` writes it to ``OUT/zoo_table.md``, beside
+the runs it summarises, with the command, the machine and the date of the run:
 
-``lde evaluate --zoo --readme README.md --doc docs/study.md`` writes the text between the markers
-:data:`MARK_BEGIN` and :data:`MARK_END` of each file (as ``bench/run_all.py --readme`` does for the
-bench table), so that the figures in the documents are the figures of one run, with the command, the
-machine and the date:
-
-- :func:`readme_block`: the run line and the summary lines (per target of :mod:`lde.analysis.metrics`, the
-  wind force, the bank angle, the payload about both CGs);
-- :func:`doc_block`: the same and, per mode, the table with a row per plant x profile x backend
-  (:func:`lde.analysis.study.zoo.plant_table_markdown`).
+- :func:`summary_block`: the summary lines (per target of :mod:`lde.analysis.metrics`, the wind force,
+  the bank angle, the payload about both CGs, the backends' agreement);
+- :func:`doc_block`: the run line, the legend, the same summary and, per mode, the table with a row per
+  plant x profile x backend (:func:`lde.analysis.study.zoo.plant_table_markdown`).
 """
 
 from __future__ import annotations
@@ -20,14 +16,9 @@ import os
 import platform
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 from lde.analysis.study import zoo
 from lde.analysis.study.spec import RunResult
-from lde.errors import ConfigError
-
-MARK_BEGIN = "<!-- lde evaluate --zoo: begin -->"
-MARK_END = "<!-- lde evaluate --zoo: end -->"
 
 LEGEND = (
     "Cells: NRMSE Fw / Mw in % after 2 s, Mw about the CG the estimator's vehicle file states (the "
@@ -99,54 +90,11 @@ def summary_block(results: Sequence[RunResult]) -> list[str]:
     return [f"- {line}" for line in lines]
 
 
-def readme_block(results: Sequence[RunResult], info: RunInfo) -> str:
-    """The README's accuracy headline: the run line and the summary lines."""
-    return "\n".join([run_line(info), "", *summary_block(results)])
-
-
 def doc_block(results: Sequence[RunResult], info: RunInfo) -> str:
-    """``docs/study.md``'s zoo section: the run line, the legend, the summary lines and per mode the
+    """``zoo_table.md``: the run line, the legend, the summary lines and per mode the
     table with a row per plant x profile x backend (warm once per prior drive: ``warm after NAME``)."""
     lines = [run_line(info), "", LEGEND, "", *summary_block(results)]
     for mode in dict.fromkeys(zoo.mode_label(r) for r in sorted(results, key=zoo.mode_order)):
         rs = [r for r in results if zoo.mode_label(r) == mode]
         lines += ["", f"**{mode.capitalize()}**", "", zoo.plant_table_markdown(rs)]
     return "\n".join(lines)
-
-
-def marked_span(path: Path, begin: str = MARK_BEGIN, end: str = MARK_END) -> tuple[str, int, int]:
-    """(the file's text, the end of ``begin``, the start of ``end``); ConfigError when the file
-    cannot be read or has not both markers, once each, in that order."""
-    try:
-        s = path.read_text()
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-    a, b = s.find(begin), s.find(end)
-    if a < 0 or b < a or s.count(begin) != 1 or s.count(end) != 1:
-        raise ConfigError(f"{path}: no {begin} ... {end} markers (once each, in that order)")
-    return s, a + len(begin), b
-
-
-def replace_marked(path: Path, text: str, begin: str = MARK_BEGIN, end: str = MARK_END) -> None:
-    """Put ``text`` between the ``begin`` and ``end`` markers of ``path`` (the markers and everything
-    outside them stay; written atomically); ConfigError as :func:`marked_span`, or when it cannot be
-    written."""
-    replace_all_marked([(path, text)], begin, end)
-
-
-def replace_all_marked(
-    edits: Sequence[tuple[Path, str]], begin: str = MARK_BEGIN, end: str = MARK_END
-) -> None:
-    """:func:`replace_marked` for several files: every file's markers are checked before any is
-    written, so that a bad file leaves all of them as they were."""
-    new = []
-    for path, text in edits:
-        s, a, b = marked_span(path, begin, end)
-        new.append((path, s[:a] + "\n" + text.strip("\n") + "\n" + s[b:]))
-    for path, s in new:
-        tmp = path.with_name(path.name + ".tmp")
-        try:
-            tmp.write_text(s)
-            tmp.replace(path)
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot write ({exc.strerror})") from None
