@@ -12,7 +12,7 @@ steps in well under 1 s.
 
     python bench/bench_step.py                      # 1 hour, 7 repeats, 20000 live calls
     python bench/bench_step.py --hours 0.1 --repeat 3 --json out.json
-    python bench/bench_step.py --tuning             # the docs/tuning.md table (no timing)
+    python bench/bench_step.py --tuning             # the docs/design/model.md table (no timing)
 """
 
 from __future__ import annotations
@@ -174,7 +174,7 @@ def main() -> int:
     ap.add_argument("--vehicle", default="reference")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", help="also write the results to this JSON file")
-    ap.add_argument("--tuning", action="store_true", help="print the docs/tuning.md table and stop")
+    ap.add_argument("--tuning", action="store_true", help="print the docs/design/model.md table and stop")
     args = ap.parse_args()
 
     vehicle = load_vehicle(args.vehicle)

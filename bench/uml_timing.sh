@@ -6,7 +6,7 @@
 #   python bench/uml_timing_report.py OUTDIR
 #
 # The simulator runs at SCHED_FIFO 90 (above the service's 80: it stands for ECUs with CPUs of
-# their own), the service with --realtime --spin-us 0 (see docs/service.md for why).
+# their own), the service with --realtime --spin-us 0 (see docs/design/service.md for why).
 set -u
 out=${1:?usage: uml_timing.sh OUTDIR [DURATION]}
 dur=${2:-66}

@@ -1,4 +1,4 @@
-"""The fixed-point firmware model of lde's lateral filter (integers only; see docs/firmware_lateral.md).
+"""The fixed-point firmware model of lde's lateral filter (integers only; see docs/design/firmware.md).
 
 The model is backend ``fixed`` (:mod:`lde.engine.backends.fixed`), checked against the float lateral
 filter (:mod:`lde.estimator.lateral`, backend ``float``) at every step (:mod:`.shadow`).

@@ -8,7 +8,7 @@ tanh, asin polynomial). The coefficient *values* are not here: they depend on th
 s, and the slow task (:func:`firmware_model.lateral.coef_set_kernel`) quantises them from the
 parameter vector whenever the learner pushes.
 
-Normalisation (as the paper's fixed-point model, ``docs/firmware.md``): state i is stored as
+Normalisation (``docs/design/firmware.md``, "Normalised units and Q formats"): state i is stored as
 ``X_i = x_i / 2**e_i`` in Q15.16 with ``2**e_i`` the power of two nearest to its steady-state a-priori
 standard deviation (discrete Riccati equation of the lateral filter at the vehicle's starting
 parameters, the three measurements at their update rates, geometric mean over 30-180 km/h), raised
@@ -40,7 +40,7 @@ from . import lat_coefs as LC
 from .qformat import QFormat, frac_bits_for
 from .riccati import steady_state_kf
 
-# --- fixed choices (docs/firmware_lateral.md) -------------------------------------------------------
+# --- fixed choices (docs/design/firmware.md) --------------------------------------------------------
 F_STATE = 16  #: normalised states, Q15.16
 F_COV = 16  #: normalised covariance, Q15.16
 F_SPEED = 24  #: speed input, Q7.24 m/s

@@ -59,7 +59,7 @@ from .riccati import steady_state_kf
 GENERATOR_VERSION = 2  # 2: the lateral filter's section (firmware_model.gen_lateral)
 TABLES_DIR = Path(__file__).resolve().parent
 
-# --- fixed choices (documented in docs/firmware.md) ------------------------------------------
+# --- fixed choices (docs/design/firmware.md, "Normalised units and Q formats") ---------------
 F_STATE = 16  #: normalised states, Q15.16
 F_COV = 16  #: normalised covariance, Q15.16
 F_SPEED = 24  #: speed input, Q7.24 m/s (0..128 m/s)

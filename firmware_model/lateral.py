@@ -1,5 +1,5 @@
 """The lateral filter (:mod:`lde.estimator.lateral`) in fixed point: the integer step an MDPS ECU without FPU
-would run, its slow task, and the boundary (docs/firmware_lateral.md).
+would run, its slow task, and the boundary (docs/design/firmware.md).
 
 Three parts, each a compiled kernel:
 
@@ -642,7 +642,7 @@ def step_kernel(
     if fresh_r:
         z = sat32(sat, yaw - cs[CS_BR], S_INNOV)
         # bool(...) and int(0), not literals (hence the noqa): numba would compile _update once per
-        # literal argument set (about 0.5 s each on a cold start, docs/startup.md)
+        # literal argument set (about 0.5 s each on a cold start)
         _update(tv, ft, x, P, sat, h, bool(True), z, int(0), cs[CS_RN_R], ph, g)  # noqa: UP018
     if fresh_t and mdps_valid:
         # N (T_col + T_ast) - N T_fric z - T_0 = 2K (delta_f - beta - lf r / vx), scaled by 2**-e_T

@@ -1,5 +1,5 @@
-"""Why the fixed and float backends' Mw move apart where both learn (docs/firmware_lateral.md, "Fixed
-vs float while the learners learn").
+"""Why the fixed and float backends' Mw move apart where both learn (docs/design/firmware.md, "The
+shadow check: fixed against float").
 
 Diagnosis only, not the evaluation. Simulates one zoo run as ``lde evaluate --zoo`` does (spec sheet
 only: the cold run), samples its inputs once through the data path (``lde.replay.replay``), then steps both

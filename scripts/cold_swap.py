@@ -1,4 +1,4 @@
-"""Where the cold error comes from (issue 11, docs/estimator.md "Cold: where the error comes from").
+"""Where the cold error comes from (docs/design/studies.md, "The zoo: cars the estimator was not fitted to").
 
 Replays cold zoo runs (the spec-sheet vehicle file only) with the plant's true parameters swapped
 into the filter one at a time (Cf, Cr, K, the torsion twist in the profile's angle; from

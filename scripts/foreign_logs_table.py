@@ -1,4 +1,4 @@
-"""Every foreign-log case of docs/reliability.md ("Logs from another producer"), replayed in process:
+"""Every foreign-log case of docs/guide/reliability.md ("Bad input"), replayed in process:
 exit code, warnings, NRMSE against the truth. ``python scripts/foreign_logs_table.py [CASE...] --out DIR``."""
 
 import contextlib

@@ -1,4 +1,4 @@
-"""Identify the overlay loop's return ratio (docs/overlay.md, "Closed loop").
+"""Identify the overlay loop's return ratio (docs/design/overlay.md, "Why the law is band-limited").
 
 The loop is estimator -> law -> MDPS -> steering -> the estimator's inputs. It is opened at the
 overlay: the simulator runs a scenario with a scripted overlay (a mean plus a multisine), the log

@@ -1,4 +1,4 @@
-"""Where R2's rear stiffness comes from on a prior drive (docs/estimator.md, "R2's relaxation term").
+"""Where R2's rear stiffness comes from on a prior drive (docs/design/filters.md, "The learner").
 
 Diagnosis only, not the evaluation: simulates a plant's prior drive (seed 500, as ``tune_zoo.py
 --warm``) with the full truth, passes the signals through the learner's state-variable filter (3 Hz,

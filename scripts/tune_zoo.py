@@ -1,4 +1,5 @@
-"""Tuning harness of the lateral filter and learner on the zoo (docs/estimator.md, "How it was tuned").
+"""Tuning harness of the lateral filter and learner on the zoo (docs/design/filters.md, "How the
+constants were chosen").
 
 Not the evaluation (that is ``lde evaluate --zoo --backends lateral [--warm]``, which runs ``lde
 replay`` on written logs): this runs the same engine (:class:`lde.engine.engine.Engine`, backend

@@ -1,4 +1,4 @@
-"""Why R3 learns the torsion twist too small (docs/estimator.md, "The worst warm cells").
+"""Why R3 learns the torsion twist too small (docs/design/filters.md, "What it cannot learn").
 
 Diagnosis only, not the evaluation: simulates a plant's prior drive (seed 500, as ``tune_zoo.py
 --warm``) with the full truth and fits, by least squares over the learner's speed and linear-range

@@ -1,5 +1,5 @@
-"""How R3 splits the steering compliance between K and the torsion twist (docs/estimator.md, "K and
-the twist: what splits them").
+"""How R3 splits the steering compliance between K and the torsion twist (docs/design/filters.md,
+"What it cannot learn").
 
 Diagnosis only, not the evaluation: runs the engine (backend ``lateral``) on a zoo plant's cached
 prior drive (seed 500, as ``tune_zoo.py --warm``) with learner constants set per run, and reports

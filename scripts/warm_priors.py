@@ -1,4 +1,4 @@
-"""Warm accuracy after different prior drives (docs/study.md, "Warm after other prior drives").
+"""Warm accuracy after different prior drives (docs/design/studies.md, "Warm after other earlier drives").
 
 Reads ``scripts/tune_zoo.py --warm --prior NAME --out FILE`` outputs (one per prior) and prints,
 per prior: met / mean Fw / Mw on the tuning and the held-out plants (:mod:`zoo_sets`), and per

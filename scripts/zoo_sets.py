@@ -1,4 +1,5 @@
-"""Summarise ``scripts/tune_zoo.py --out`` files by plant set (docs/estimator.md, "Cold: what was tried").
+"""Summarise ``scripts/tune_zoo.py --out`` files by plant set (docs/design/filters.md, "How the
+constants were chosen").
 
 Tuning plants and held-out plants apart, as issue 11's tuning rule needs: met (issue 11's targets),
 mean NRMSE Fw / Mw over the disturbed runs, and the disturbance-free drives' worst RMS.

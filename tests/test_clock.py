@@ -161,7 +161,7 @@ def test_cpu_latency_bound_is_written_and_held_open(monkeypatch, tmp_path):
 def test_enable_realtime_unavailable_cpu_is_a_warning(monkeypatch):
     # never the real SCHED_FIFO call here: it made the test runner itself (and every process it
     # started after this test) SCHED_FIFO 10, whose busy CPUs starve the normal scheduler's tasks and
-    # then the kernel's fair server stalls the real-time service on them for 50 ms (docs/service.md)
+    # then the kernel's fair server stalls the real-time service on them for 50 ms
     monkeypatch.setattr(clock_mod, "_set_fifo", lambda prio, warnings: True)
     monkeypatch.setattr(clock_mod.os, "sched_setaffinity", lambda pid, cpus: None)
     res = enable_realtime(priority=10, cpus=[10_000], lock_memory=False)

@@ -1,6 +1,7 @@
-"""The README, the changelog and the pages under docs/: every relative link resolves, every page is reachable from
-docs/index.md, and the pages read as a guide, not a lab notebook (no issue numbers, no dated
-measurements, no "second pass" or "not adopted")."""
+"""The README, the changelog and the pages under docs/: every relative link resolves, every page is
+reachable from docs/index.md, the pages read as a guide, not a lab notebook (no issue numbers, no dated
+measurements, no "second pass" or "not adopted"), and every ``docs/...md`` page that the code, the tests,
+the benchmarks, the scripts and CI name exists."""
 
 from __future__ import annotations
 
@@ -12,6 +13,23 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 PAGES = sorted([ROOT / "README.md", ROOT / "CHANGELOG.md", *DOCS.rglob("*.md")])
+
+#: where code names doc pages: the product, the tests, benchmarks, scripts, examples, CI, the build
+CODE = [
+    "src",
+    "firmware_model",
+    "vcan_sim",
+    "tests",
+    "bench",
+    "scripts",
+    "examples",
+    ".ci",
+    "dbc",
+    "pyproject.toml",
+]
+#: a doc page as code names it: a path from the repository root
+DOC_PATH = re.compile(r"\bdocs/[\w./-]*\w\.md\b")
+TEXT_SUFFIXES = {".py", ".sh", ".toml", ".md", ".txt", ".cfg", ".json", ".mjs", ".c", ""}
 
 #: [text](target) and ![alt](target); the target ends at the first space or closing parenthesis
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
@@ -71,3 +89,45 @@ def test_the_link_check_sees_a_broken_link(tmp_path: Path) -> None:
     page = tmp_path / "page.md"
     page.write_text("[ok](page.md) [gone](missing.md#x) [web](https://example.org) [anchor](#top)\n")
     assert [t for t in _links(page) if _relative(t) and not _resolve(page, t).exists()] == ["missing.md#x"]
+
+
+def _code_files() -> list[Path]:
+    out = []
+    for name in CODE:
+        top = ROOT / name
+        files = [top] if top.is_file() else top.rglob("*")
+        out += [
+            f
+            for f in files
+            if f.is_file()
+            and f.suffix in TEXT_SUFFIXES
+            and "node_modules" not in f.parts
+            and "__pycache__" not in f.parts
+        ]
+    return out
+
+
+def _named_doc_pages(path: Path) -> list[tuple[int, str]]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        return []
+    return [(n, m.group(0)) for n, line in enumerate(text.splitlines(), 1) for m in DOC_PATH.finditer(line)]
+
+
+def test_every_doc_page_named_in_the_code_exists() -> None:
+    missing = [
+        f"{f.relative_to(ROOT)}:{n}: {page}"
+        for f in _code_files()
+        for n, page in _named_doc_pages(f)
+        if not (ROOT / page).is_file()
+    ]
+    assert not missing, "names a doc page that does not exist:\n" + "\n".join(missing)
+
+
+def test_the_doc_page_check_sees_a_missing_page(tmp_path: Path) -> None:
+    gone = "docs/" + "estimator.md"  # a page that went (spelt apart, so that this file does not name it)
+    f = tmp_path / "mod.py"
+    f.write_text(f'"""See docs/design/filters.md and {gone}, "Twist bound"."""\n')
+    assert _named_doc_pages(f) == [(1, "docs/design/filters.md"), (1, gone)]
+    assert not (ROOT / gone).exists() and (ROOT / "docs/design/filters.md").is_file()

@@ -1,5 +1,5 @@
 """fixed vs float where both learn: the zoo drive on which their Mw moved apart (issue 11,
-docs/firmware_lateral.md "Fixed vs float while the learners learn").
+docs/design/firmware.md "The shadow check: fixed against float").
 
 On the zoo's suv_slow, heavy_load, spec sheet only (cold), the two backends' Mw differ by up to
 0.070 Nm (0.136 Nm with ``L_WIND_Q`` before ``L_R2_UPQ``, 0.027 Nm before both). The integer step is

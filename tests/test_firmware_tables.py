@@ -233,7 +233,7 @@ def test_formats_hold_their_ranges(vehicle):
     tb = tables_for(vehicle)
     q = q32(tb.f_cov)
     # P0 with 2x headroom; the normalised noise entries within 5 % (the per-step process noise
-    # of beta and r is the smallest constant: docs/firmware.md gives its effect on the gains)
+    # of beta and r is the smallest constant)
     for p0 in tb.p0_n:
         assert 2 * p0 <= q.raw_max
     for r in (*tb.r_n, *tb.qd_n):

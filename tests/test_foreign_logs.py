@@ -1,4 +1,4 @@
-"""``lde replay`` on logs lde did not write (docs/reliability.md, "Logs from another producer").
+"""``lde replay`` on logs lde did not write (docs/guide/reliability.md, "Bad input").
 
 Each case builds a log as an independent producer could within SPEC sections 3-4 (generators in
 ``tests/foreign_logs.py``): other frame periods on both profiles, jitter, bursts, slight disorder,
@@ -45,7 +45,7 @@ from helpers.foreign_logs import (
 )
 
 #: a valid variant's NRMSE (Fw and Mw) may exceed our own timing's by this much (fraction):
-#: measured +0.1 .. +1.5 points (docs/reliability.md); the margin keeps the test off the last digits
+#: measured +0.1 .. +1.5 points (docs/guide/reliability.md); the margin keeps the test off the last digits
 TOL = 0.03
 DURATION = 10.0
 HY = ("--profile", "hyundai")

@@ -93,7 +93,7 @@ def _slow_weave(t):
 def test_rear_axle_learns_below_the_steering_rate_gate():
     """Slow weaving after R3 and R1 have started: R2 (Cr) learns from the lateral force's variation
     alone and moves most of the way to the truth, while R3 and R1, held to the steering-rate gate,
-    take no sample (docs/estimator.md, "R2's own bias"). With R2 behind the rate gate, Cr stays."""
+    take no sample (docs/design/filters.md, "The learner"). With R2 behind the rate gate, Cr stays."""
     p, p0, ls = _learn(1.0, 0.85, 1.0, steer=_slow_weave, seconds=40.0, started=True)
     start = 0.2 * Ln.default_lp()[Ln.L_MIN_SAMPLES]
     assert ls[Ln.LS_N + 1] == start and ls[Ln.LS_N + 2] == start  # R3, R1: no sample
@@ -145,8 +145,8 @@ def test_plain_lane_changes_at_motorway_speed_teach_the_tires(scale):
 
 
 def test_defaults_are_the_tuned_gates():
-    """The constants docs/estimator.md states (tuned on the zoo's tuning plants; the steering gate
-    put back to 0.5 deg/s: docs/estimator.md, "Reverted")."""
+    """The constants docs/design/filters.md states (tuned on the zoo's tuning plants; the steering gate
+    put back to 0.5 deg/s: docs/design/filters.md, "How the constants were chosen")."""
     lp = Ln.default_lp()
     assert lp[Ln.L_EXC_SW] == pytest.approx(0.5 * DEG)
     assert lp[Ln.L_EXC_F] == 150.0

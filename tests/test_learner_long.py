@@ -176,7 +176,7 @@ def test_a_step_after_ten_minutes_shows_as_fast_as_without_learning(drives, name
         if learn:
             assert _window(d, STEP_AT + 20.0, STEP_AT + 60.0, O_FW) - base == pytest.approx(STEP_N, rel=0.05)
     assert t63[True] <= t63[False] + 4 * STEP_S, t63
-    assert t63[True] < 0.2  # the filter's slowest closed-loop time constant at 100 km/h (docs/tuning.md)
+    assert t63[True] < 0.2  # the filter's slowest closed-loop time constant at 100 km/h
 
 
 def test_a_drive_that_starts_in_a_lane_change_learns_no_gyro_bias():

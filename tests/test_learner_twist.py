@@ -1,4 +1,4 @@
-"""The torsion twist's bound inside the learner's R3 regression (docs/estimator.md, "Twist bound").
+"""The torsion twist's bound inside the learner's R3 regression (docs/design/filters.md, "Bounds and rate").
 
 A twist is >= 0, and ``push`` clamps the filter's value there. R3 must hold the same bound, or its
 other coefficients (s/K: the aligning slope, the friction) stay fitted to a negative twist the filter

@@ -1,5 +1,5 @@
-"""K and the torsion twist where the angle sensor sits above the torsion bar (docs/estimator.md, "K and
-the twist: what splits them").
+"""K and the torsion twist where the angle sensor sits above the torsion bar (docs/design/filters.md, "What
+it cannot learn").
 
 R3 fits the aligning slope (``s/K`` on the aligning torque's rate) and the twist (``s c_tb`` on the
 column torque's rate) together. With a boost curve whose driver share falls with the load (concave,

@@ -1,5 +1,5 @@
-"""lde.estimator.learner in a crosswind slalom on a zoo plant (issue 11, docs/estimator.md "The wind's
-onset").
+"""lde.estimator.learner in a crosswind slalom on a zoo plant (docs/design/filters.md, "The
+learner").
 
 A crosswind that starts while the car weaves steps R1's intercept (``c1 = lr F_wind/s + M_wind``) by
 about 2 kNm within a second and then varies with the heading in every weave; an intercept that is a

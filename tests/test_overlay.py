@@ -148,12 +148,12 @@ def _lateral_filter_on_constant_inputs(v, vx: float, t_col: float, seconds: floa
 @pytest.mark.parametrize("vx_kmh", [60.0, 100.0, 160.0])
 @pytest.mark.parametrize("dt_col", [0.3, -0.5])
 def test_unbalanced_column_torque_returns_to_the_law_with_gain_plus_one(vx_kmh, dt_col):
-    """The closed loop's structural gain (docs/overlay.md, "Closed loop"): a column torque that the
-    aligning torque does not balance (steering friction, inertia, the overlay itself before the rack
-    has moved) is read by the filter as a front-tire force, and the law turns it back into overlay
-    torque of the same size and sign: T_ov = +dT (K/(N Cf L) * L * Cf/K * N = 1). A law with the wrong
-    sign gives -dT, a wrong size (no N, no L, K/Cf inverted) another ratio: this is what makes the
-    law's band limit necessary and what its margin is computed against."""
+    """The closed loop's structural gain (docs/design/overlay.md, "Why the law is band-limited"): a
+    column torque that the aligning torque does not balance (steering friction, inertia, the overlay
+    itself before the rack has moved) is read by the filter as a front-tire force, and the law turns it
+    back into overlay torque of the same size and sign: T_ov = +dT (K/(N Cf L) * L * Cf/K * N = 1). A
+    law with the wrong sign gives -dT, a wrong size (no N, no L, K/Cf inverted) another ratio: this is
+    what makes the law's band limit necessary and what its margin is computed against."""
     v = load_vehicle("reference")
     fw, mw = _lateral_filter_on_constant_inputs(v, vx_kmh * KMH, dt_col)
     assert feedforward_torque(v, fw, mw) == pytest.approx(dt_col, rel=0.02)

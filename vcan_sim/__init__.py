@@ -1,4 +1,4 @@
-"""vcan_sim: the nonlinear vehicle that puts realistic CAN traffic on the bus (docs/simulator.md).
+"""vcan_sim: the nonlinear vehicle that puts realistic CAN traffic on the bus (docs/design/simulator.md).
 
 Entry points: :func:`vcan_sim.run.simulate` (fast path: frames + ground truth),
 :class:`vcan_sim.run.Simulation` (step by step, closed loop), :data:`vcan_sim.scenarios.SCENARIOS`,

@@ -11,7 +11,7 @@ frame, m/s), the airflow over the car is ``a = w - v`` (a_x is about -vx). Then:
                                                    point, left positive [Nm]; l = wheelbase
     F_x     = -1/2 rho Cx(beta_cw) v_r^2 A         drag [N], acting through the CG line
 
-Coefficient curves (A = frontal area is the reference area; documented in docs/simulator.md)::
+Coefficient curves (A = frontal area is the reference area; documented in docs/design/simulator.md)::
 
     Cy(b) = cy1 sin b |cos b| + cy2 sin b |sin b|  slope cy1 per rad at small b, cy2 at 90 deg
     Cn(b) = cn1 sin b cos b                        peak at 45 deg, 0 at 90 deg (the flat plate's

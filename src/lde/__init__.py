@@ -1,6 +1,6 @@
 """lde: lateral disturbance estimator for cars with motor-driven power steering.
 
-Data path, the same live and in replay (see docs/ARCHITECTURE.md):
+Data path, the same live and in replay (see docs/design/architecture.md):
 frames -> signals (decode by profile, E2E receiver) -> inputs in SI on the 3.9 ms grid
 -> estimator step (float or fixed backend) -> estimate -> overlay law + limiter -> output frames.
 """

@@ -318,7 +318,7 @@ def enable_realtime(
     ``cpu_latency_us``, a bound on the CPUs' wake-up latency [us] (PM QoS: ``/dev/cpu_dma_latency``,
     held until the process ends, as ``cyclictest`` does; 0 keeps idle CPUs polling instead of
     halting, which on this project's VM cuts a step's cost after an idle period by about 2.5x:
-    docs/service.md, "The hot path"; it applies to all CPUs and costs their idle power).
+    docs/design/service.md, "The hot path"; it applies to all CPUs and costs their idle power).
 
     Applies to the calling thread's process (SCHED_FIFO and affinity are per thread on Linux:
     call it from the loop's thread before starting other threads, which inherit it). What the

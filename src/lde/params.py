@@ -101,8 +101,8 @@ class OverlayLimits:
         fault_recover: FAULT is left after the input fault has been clear this long [s].
         law_time: time constant of the first-order low-pass on the law's input, the disturbance
             moment about the rear axle ``lr Fw + Mw`` [s]: the law is a steady state and must stay
-            below the band where the steering's own dynamics carry the overlay (docs/overlay.md,
-            "Closed loop: why the law is band-limited"); 0 is the unfiltered law.
+            below the band where the steering's own dynamics carry the overlay (docs/design/overlay.md,
+            "Why the law is band-limited"); 0 is the unfiltered law.
     """
 
     max_torque: float = 3.0
@@ -120,7 +120,7 @@ class OverlayLimits:
 
 @dataclass(frozen=True)
 class EstimatorTuning:
-    """Kalman filter tuning (reasons and measured time constants in ``docs/tuning.md``).
+    """Kalman filter tuning (reasons and measured time constants in ``docs/design/model.md``).
 
     The process noise is a continuous white-noise density W = diag(q_beta, q_yaw, q_fw, q_mw) on
     every state; the discrete covariance is Qd = W dt (SPEC erratum 8, :mod:`lde.estimator.model`).
@@ -156,11 +156,11 @@ class EstimatorTuning:
             learner's starting value for its angle-offset split, and the reported moment's blend.
         wind_cp_weight: weight w of that prior in the reported moment,
             ``Mw = (1 - w) M_wind + w wind_cp F_wind``. 0 (shipped): the filter's M_wind alone; 0.7 is
-            best on the zoo's tuning plants with spec-sheet tires (docs/estimator.md, "Cold: the wind's
-            centre of pressure", with why it is not the default).
+            best on the zoo's tuning plants with spec-sheet tires (docs/design/filters.md, "The reported
+            wind moment", with why it is not the default).
 
-    (docs/estimator.md: chosen on the tuning plants with their identified tires; the zoo results are
-    flat within 0.5 points across the sweep.)
+    (docs/design/filters.md, "Tuning": chosen on the tuning plants with their identified tires; the
+    zoo results are flat within 0.5 points across the sweep.)
     """
 
     q_beta: float = 1e-8
@@ -552,7 +552,7 @@ def _check(cond: bool, src: str, msg: str) -> None:
         raise ConfigError(f"{src}: {msg}")
 
 
-#: plausibility ranges of a road vehicle with MDPS (cars, SUVs, light vans; docs/tuning.md)
+#: plausibility ranges of a road vehicle with MDPS (cars, SUVs, light vans; docs/guide/vehicles.md)
 MASS_RANGE_KG = (300.0, 8000.0)
 WHEELBASE_RANGE_M = (1.5, 5.0)
 AXLE_SHARE_RANGE = (0.2, 0.8)  # lf / L and lr / L: the CG lies between the axles, not at one

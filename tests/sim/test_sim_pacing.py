@@ -1,7 +1,7 @@
 """The real-time pump never waits for another process (it may run at a real-time priority on a CPU
 it shares with the service it feeds): it sleeps until its next frame, uses the overlay frames that
-have arrived, and after a stall moves its schedule instead of sending a burst (docs/overlay.md,
-"UML notes")."""
+have arrived, and after a stall moves its schedule instead of sending a burst (docs/guide/bus.md,
+"User-mode Linux")."""
 
 from __future__ import annotations
 

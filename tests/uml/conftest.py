@@ -1,4 +1,4 @@
-"""Bounds for the ``vcan`` tests inside user-mode Linux (docs/overlay.md, "UML notes").
+"""Bounds for the ``vcan`` tests inside user-mode Linux (docs/guide/bus.md, "User-mode Linux").
 
 Every subprocess of these tests has a wall-clock bound taken from one budget for the whole run in
 the guest: ``LDE_UML_BUDGET_S`` seconds from the start of this pytest session (``tests/test_uml.py``

@@ -24,9 +24,9 @@
 # every second (sched_rt_runtime_us 950000 of 1000000, set explicitly), so normal tasks (pytest, the
 # recorder thread) always progress; ksoftirqd runs at SCHED_FIFO UML_SOFTIRQ_PRIO because it delivers
 # the vcan frames once the guest is busy (Linux 6.1 defers softirqs to it): at the normal scheduler
-# the real-time service and simulator would wait for a thread they starve. docs/overlay.md, "UML notes".
+# the real-time service and simulator would wait for a thread they starve. docs/guide/bus.md, "User-mode Linux".
 #
-# Host quirks handled (found by trying; details in docs/overlay.md "UML notes"):
+# Host quirks handled (found by trying; details in docs/guide/bus.md "User-mode Linux"):
 # * XSAVE area larger than UML 6.1 supports (AMX hosts): the kernel panics at once with
 #   "ptrace set fp regs failed, errno = 14". tests/uml/xstate_shim.c, LD_PRELOADed, fixes it
 #   (needs a C compiler: cc/gcc).

@@ -22,7 +22,7 @@ the ``LDE_Overlay`` it receives), then open loop (it ignores it). Checked:
 Every subprocess has a bound from the guest's budget (tests/uml/conftest.py). A guest too slow to
 finish a run in its bound, or to keep the pace the closed-loop judgement needs, skips that judgement
 with what was measured; the E2E, counter, limit and replay checks run on whatever was recorded.
-Priorities (docs/overlay.md, "UML notes"): candump SCHED_FIFO 99, the simulator 90, the service 80;
+Priorities (docs/guide/bus.md, "User-mode Linux"): candump SCHED_FIFO 99, the simulator 90, the service 80;
 none of them ever waits for a process below it, and ksoftirqd (frame delivery) runs at 99.
 """
 
@@ -75,7 +75,7 @@ def _sim_cmd(tmp: Path, name: str, *extra: str) -> list[str]:
     cmd = [*LDE, "sim", "-i", "socketcan", "-c", CHANNEL, "--scenario", SCENARIO, "--seed", "5"]
     # --rt-priority above the service's 80: the simulator stands for the car's other ECUs, which have
     # CPUs of their own; on UML's one CPU its frames must not wait behind the service, candump or
-    # the recorder (measured, docs/service.md). It never waits for another process (it sleeps until
+    # the recorder (measured). It never waits for another process (it sleeps until
     # its next frame and reads the overlay without blocking), so it cannot starve the service below.
     return [
         *cmd,
@@ -408,7 +408,7 @@ def test_closed_loop_relieves_the_driver(run: Run) -> None:
     """The simulator applies the received overlay: the driver's holding torque drops.
 
     UML runs every process on one emulated CPU and the whole guest stalls now and then (gaps of
-    50-100 ms seen with nothing else running, docs/service.md). An input message that stops for
+    50-100 ms seen with nothing else running). An input message that stops for
     longer than its timeout is a fault by design: the E2E receiver re-synchronises and the
     estimator restarts its convergence (1 s), so the estimate is *meant* to be invalid for about a
     second after each such gap. The estimate is therefore judged where the product says it must be
@@ -479,7 +479,7 @@ def test_closed_loop_relieves_the_driver(run: Run) -> None:
     )
     if pace < 0.9 or n_must < np.count_nonzero(late) / 3:
         pytest.skip(
-            f"UML did not keep the pace here (stalls of single processes, docs/service.md): service ran"
+            f"UML did not keep the pace here (stalls of single processes, docs/guide/bus.md): service ran"
             f" {100 * pace:.0f} % of its steps"
             f" (needs 90 %); the simulator's inputs stopped for longer than their timeout {gaps.count}x,"
             f" {gaps.sim_starved}x while the service stepped on,"

@@ -6,7 +6,7 @@ Marked ``vcan``: runs inside user-mode Linux (tests/test_uml.py). The inputs com
 (tests/uml/fault_sender.py: frames encoded beforehand by lde's codec, one ``send`` per frame at
 SCHED_FIFO 90) rather than ``lde sim``: on UML's one emulated CPU the simulator's step takes 1-2 ms
 of every 3.9 ms beside the service's 1-2 ms, and the closed-loop test skips its judgement there for
-the service's pace (docs/overlay.md, "UML notes"); the sender's CPU is printed. The inputs are steady
+the service's pace (docs/guide/bus.md, "User-mode Linux"); the sender's CPU is printed. The inputs are steady
 (100 km/h, the driver holding 0.8 Nm against a disturbance), so the overlay is engaged before every
 fault.
 

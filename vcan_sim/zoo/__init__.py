@@ -1,4 +1,4 @@
-"""The zoo: simulated cars the estimator was never fitted to (issue 11, item 1; docs/simulator.md).
+"""The zoo: simulated cars the estimator was never fitted to (docs/design/simulator.md).
 
 Each plant is a full vehicle file ``vcan_sim/zoo/<name>.toml`` with its own ``[sim]`` tables (tires,
 steering, sensors, payload, aero, seats) and a one-line ``description``. Every plant differs from
@@ -226,7 +226,7 @@ def write_plant_tires(name: str, cf: float, cr: float, k: float) -> None:
 
 
 def markdown_table(values: dict[str, TrueValues]) -> str:
-    """One line per plant: what it is and its true values (docs/simulator.md)."""
+    """One line per plant: what it is and its true values (docs/design/simulator.md)."""
     lines = [
         "| plant | description | m [kg] | Iz [kg m^2] | lf [m] | N | C_f / C_r [kN/rad] (static) "
         "| K [Nm/rad] (static) | friction [Nm] | offset [deg] / bias [deg/s] | angle lde / hyundai |",

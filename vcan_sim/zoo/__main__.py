@@ -3,7 +3,7 @@
 - ``list``: the plants with their one-line descriptions.
 - ``identify``: fit every plant's true values (:func:`vcan_sim.zoo.identify_plant`) and print them;
   ``--write`` also writes ``true_values.csv`` and each plant file's ``[tires]``.
-- ``table``: the markdown table of ``true_values.csv`` (docs/simulator.md).
+- ``table``: the markdown table of ``true_values.csv`` (docs/design/simulator.md).
 """
 
 from __future__ import annotations

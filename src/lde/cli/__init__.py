@@ -15,8 +15,7 @@ inside its ``run`` (the one place where lde imports inside functions: measured w
 Exit: the ``lde`` process (:func:`main` called without ``argv``) freezes the garbage collector's
 objects before it returns, so that Python's final collections do not walk the ~140k objects that
 numba, its registries and the kernels left behind (none of which needs a finaliser; lde closes its
-outputs itself). That took 0.3-1.5 s after a replay had ended, depending on the machine's load
-(docs/service.md, "Replay speed").
+outputs itself). That took 0.3-1.5 s after a replay had ended, depending on the machine's load.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ Three ways to run (SPEC section 4)::
                                                                 closed loop on LDE_Overlay
 
 Files: ``--log`` a candump ``-L`` text log, ``--truth`` the ground-truth CSV (``t`` in the log's own
-time base, ``Fw``, ``Mw``, ``Mw_ref``, ... see docs/simulator.md), ``--mcap`` an MCAP recording with
+time base, ``Fw``, ``Mw``, ``Mw_ref``, ... see docs/design/simulator.md), ``--mcap`` an MCAP recording with
 the frames on ``/can/rx`` and the truth as JSON on ``/truth``. On a live bus the same files may be
 written too (the frames that were sent). The files stream while the simulation runs
 (:class:`vcan_sim.output.Streamer`): a SIGKILL loses at most about the last 0.25 s. The bus opens

@@ -28,7 +28,7 @@ Step times come from one of two sources:
   triggers again). One step per window ``(t_ref + P/2, t_ref + 3P/2]``: the grid follows the sender's
   clock and its phase, and its steps are P/2 to 3P/2 apart. The rule is a function of the anchor
   frames' times alone, so :func:`locked_step_times` gives a log's step times offline, the ones the
-  live loop took (``docs/service.md``).
+  live loop took (``docs/design/service.md``).
 
 Streaming: the grid never needs frames it has not seen. A step beyond the last input frame waits
 until the next input frame shows whether the segment goes on (gap <= 60 s) or ends, or until the end

@@ -2,7 +2,7 @@
 
 The paper's measurement ``T_align = N (T_column + T_assist)`` (eq. 11) and its road-wheel angle
 ``delta_f = delta_sw / N`` assume an ideal steering and ideal sensors. Real ones add terms that the
-filter can only explain as a disturbance (docs/study.md, "What the paper neglects"):
+filter can only explain as a disturbance (docs/design/studies.md, "What the paper neglects"):
 
 - Coulomb friction of rack and column ``T_fric`` (0.3-1 Nm at the column): the driver and the
   motor push it along with the aligning torque, so ``N (T_column + T_assist)`` over-reads

@@ -303,7 +303,7 @@ class KalmanFilter:
         self.x, self.P, self.nis = kf_update(self.x, self.P, z, H, D, float(u), R, use_)
 
 
-# --- steady-state analysis (tuning; docs/tuning.md) -------------------------------------------
+# --- steady-state analysis (tuning; docs/design/model.md) ------------------------------------
 
 
 def steady_state_gain(

@@ -80,7 +80,7 @@ I_HELD, I_CONV_START, I_STEPS = range(3)
 N_I = 3
 _NO_START = -1
 
-#: the friction sign's width on the derived pinion rate [rad/s] (docs/estimator.md: 2 deg/s LSB of
+#: the friction sign's width on the derived pinion rate [rad/s] (derived: the 2 deg/s LSB of
 #: the lde profile's SteeringRate is too coarse for it; the hyundai one carries no sign)
 FRICTION_RATE_WIDTH = 4.0 * DEG
 #: natural frequency and damping of the state-variable filter deriving the pinion rate
@@ -224,7 +224,7 @@ def blend_wind_moment(m_wind, f_wind, x_cp, w):  # pragma: no cover - compiled
 def wind_moment_output(p, out):  # pragma: no cover - compiled
     """The reported wind moment [Nm]: the filter's ``M_wind`` blended with the centre-of-pressure
     prior ``x_cp F_wind``, ``Mw = (1 - w) M_wind + w x_cp F_wind`` (``x_cp`` [m] ahead of the CG,
-    ``w`` in 0..1; docs/estimator.md, "Cold: the wind's centre of pressure"). Both backends apply it
+    ``w`` in 0..1; docs/design/filters.md, "The reported wind moment"). Both backends apply it
     to ``out`` after the learner, which reads the filter's own ``M_wind`` (``O_MW_WIND`` before this).
 
     Why a blend: in steady driving the filter's five states are fixed by two equilibria and three

@@ -1,4 +1,4 @@
-"""What the estimator learned about a car, kept between drives: ``--learned FILE`` (docs/estimator.md).
+"""What the estimator learned about a car, kept between drives: ``--learned FILE`` (docs/guide/learned.md).
 
 JSON, one object, written atomically (a temporary file in the same directory, then renamed)::
 

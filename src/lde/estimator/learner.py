@@ -1,4 +1,4 @@
-"""Online learning of what the paper neglects and a spec sheet does not give (docs/estimator.md).
+"""Online learning of what the paper neglects and a spec sheet does not give (docs/design/filters.md).
 
 Runs beside the lateral filter (:mod:`lde.estimator.lateral`) on the same 3.9 ms grid, in every backend
 (the fixed-point backend runs it as a slow floating-point task: its parameters change every 0.5 s).
@@ -59,7 +59,7 @@ Offsets (not identifiable from a steady state: a steady crosswind looks like the
 Learned state of the tire group (``ST_*``): not learned (prior only), learning (after 150 excited
 samples the values are pushed), learned (after 1000 excited samples, ~16 s of manoeuvres; it then
 learns 1000x slower in variance: a learned car is not re-learned by the next drive's disturbances).
-Constants tuned on zoo plants indep_twin, tires_minus25, suv_slow, angle_above_tb (docs/estimator.md).
+Constants tuned on zoo plants indep_twin, tires_minus25, suv_slow, angle_above_tb (docs/design/filters.md).
 """
 
 from __future__ import annotations
@@ -181,15 +181,15 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     # prior of R2's relaxation coefficient, as a length [m] (std 0.4 m): the tires' lag is +0.4-0.6 m
     # (vcan_sim's plants), but the measured aligning torque carries the rack's damping and inertia, a
     # lead, and with it the fit is -0.3..+0.1 m; a lag prior (+0.4) was worse on the zoo
-    # (docs/estimator.md, "R2's relaxation term")
+    # (docs/design/filters.md, "The learner")
     lp[L_SIGMA0] = -0.4
     # learn only while the filter's wind force (3 s mean) is below this [N]; off (inf): 150 N is
     # better on the zoo (a crosswind slalom moved Cf -11 % in 40 s) but stops the learning in a steady
-    # crosswind that tests/test_learner_long.py requires (docs/estimator.md, "The wind gate")
+    # crosswind that tests/test_learner_long.py requires (docs/design/filters.md, "When it learns: the gates")
     lp[L_WIND_MAX] = math.inf
     # the same, relative: learn only while |wind, 3 s mean| < this x the band RMS of m a_y (the
-    # manoeuvre's force excitation); off (inf) (docs/estimator.md, "Gates that tell a slalom from lane
-    # changes")
+    # manoeuvre's force excitation); off (inf) (docs/design/filters.md, "When it learns: the
+    # gates")
     lp[L_WIND_REL] = math.inf
     # the regressions' noise variance grows by (wind, 3 s mean / this [N])^2: slower, not stopped,
     # in a strong wind; off (inf)
@@ -198,18 +198,18 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     # + ...) far faster than their random walks (L_QI1, L_QI2) allow, and what an intercept does not
     # follow is fitted into the slopes (a crosswind slalom moved Cf -11 % in 40 s): their process
     # noise grows by this x the square of the change the filter's wind estimate shows (its 0.05 s
-    # minus its 3 s low-pass); 1-16 alike on the zoo, 0 is the learner before (docs/estimator.md,
-    # "The wind's onset")
+    # minus its 3 s low-pass); 1-16 alike on the zoo, 0 is the learner before (docs/design/filters.md,
+    # "The learner")
     lp[L_WIND_Q] = 4.0
     # R3's own steering-rate gate [rad/s road-wheel RMS]; < 0: R1's (L_EXC_SW), as shipped (0.25 and
-    # 0.1 deg/s were worse on the zoo: docs/estimator.md, "K and the twist: what splits them")
+    # 0.1 deg/s were worse on the zoo: docs/design/filters.md, "What it cannot learn")
     lp[L_EXC_SW3] = -1.0
     # R3's residual variance grows by (road-wheel angle acceleration / this [rad/s^2])^2: the
     # measured aligning torque carries the rack's damping and inertia (a lead that grows with the
     # steering's acceleration), which R3 does not model. Where the twist is learned (the angle above
     # the bar) 1 deg/s^2: K and the twist nearer the truth on every above-bar zoo plant, and better on
     # both plant sets once R2 forgets its early samples (L_R2_UPQ); on a pinion angle it cost the
-    # lde profile's runs, so off (inf) there (docs/estimator.md, "R3's rack weighting")
+    # lde profile's runs, so off (inf) there (docs/design/filters.md, "The learner")
     lp[L_R3_ACC] = 1.0 * DEG if torsion else math.inf
     # the low-rate tier of the steering gate (R3, R1): a sample whose road-wheel rate RMS is under
     # L_EXC_SW but above L_EXC_SW2 [rad/s] counts when the manoeuvre's force is large, m a_y band RMS
@@ -220,7 +220,7 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     # keep it) and the wind bound (without it the crosswind slalom lost 6 of 45 warm runs on the
     # tuning plants; 0.15 deg/s met more but took R3 and R1 samples from the 0.14 deg/s slow weave
     # that tests/test_learner.py keeps to R2). < 0: off (the gate before issue 11's lane-change
-    # priors; docs/estimator.md, "The steering gate's low-rate tier")
+    # priors; docs/design/filters.md, "When it learns: the gates")
     lp[L_EXC_SW2] = 0.2 * DEG
     lp[L_EXC_F2] = 450.0
     lp[L_WIND_MAX2] = 150.0
@@ -229,7 +229,7 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     # left behind, and Cr kept them (K 7200 -> 5350 and the twist 0.5 -> 0 deg/Nm under R2's first
     # samples left Cr 6 % high, Mw 10-13 % warm). At each push R2's covariance is scaled by 1 + this x
     # ((dK/K)^2 + (dt/t)^2) of the push: the samples on the old model are forgotten as fast as it
-    # moves, and not at all once it has settled. 0: off (docs/estimator.md, "R2 after K and the trail")
+    # moves, and not at all once it has settled. 0: off (docs/design/filters.md, "The learner")
     lp[L_R2_UPQ] = 3.0e3
     return lp
 
@@ -433,7 +433,7 @@ def learner_step(
         # R3 and R1 need the steering to move (R3 works on its rate, R1 on the aligning torque's
         # variation); R2 needs the lateral force to vary only: a steering-rate gate left it the fast
         # parts of the manoeuvres, where its quasi-static rear-axle model is worst (Cr 8-16 % low on
-        # indep_twin, long_trail, tires_plus25; docs/estimator.md, "R2's own bias")
+        # indep_twin, long_trail, tires_plus25; docs/design/filters.md, "The learner")
         force_exc = ls[LS_BP + 4] > lp[L_EXC_F] ** 2 and ls[LS_BP + 5] < (lp[L_QUIET] ** 2) * ls[LS_BP + 4]
         force_exc = force_exc and abs(ls[LS_BP + 3]) < lp[L_WIND_MAX]
         if lp[L_WIND_REL] < math.inf:
@@ -465,7 +465,8 @@ def learner_step(
                 w3 = 1.0 + (ls[LS_SVF + 3 * S_DSW + 2] / (n * lp[L_R3_ACC])) ** 2
                 _rls(ls, LS_T3, LS_P3, N3, xr, ay_f, w3 * slow * lp[L_SIG3] ** 2, ph)
                 # a twist is >= 0: push clamps it there, so R3 must too, or K, s and the friction stay
-                # fitted to the negative twist the filter never uses (docs/estimator.md, "Twist bound")
+                # fitted to the negative twist the filter never uses (docs/design/filters.md, "Bounds
+                # and rate")
                 _project_bound(ls, LS_T3, LS_P3, N3, 4, 0.0, ls[LS_T3] * CTB_MAX)
                 ls[LS_N + 1] += 1.0
             # cascade: R1 uses s (and the friction) from R3, R2 uses t from R1 and K from R3; a

@@ -259,7 +259,7 @@ def overlay_kernel(p, si, sf, t_ns, fw, mw, status, speed, steer, col_tq, enable
     if math.isfinite(moment):
         # the law holds in steady state only; above ~1 Hz the overlay is carried by the steering's
         # friction and inertia, which the filter reads as disturbance with a loop gain of +1
-        # (docs/overlay.md): backward Euler, exact restart on an unusable estimate
+        # (docs/design/overlay.md): backward Euler, exact restart on an unusable estimate
         m_f = sf[LF_MOMENT]
         if input_fault or not_ready or not math.isfinite(m_f) or p[LP_LAW_TAU] <= 0.0:
             m_f = moment

@@ -22,7 +22,7 @@ Per step k (time ``t_ns`` passed in, never read here), with inputs in SI:
 5. Propagate with delta_f,k = delta_sw,k / N at vx_k (SPEC erratum 4: the a-posteriori estimate
    is propagated). With an MDPS fault the last valid delta_f is used.
 
-Status (IntFlag :class:`Status`, bits as in docs/ARCHITECTURE.md): NOT_CONVERGED until
+Status (IntFlag :class:`Status`, bits as in docs/guide/csv.md): NOT_CONVERGED until
 ``converge_time`` has passed since the filter (re)started with both measurements, i.e. after
 :meth:`Estimator.reset`, after a hold, and after an MDPS fault (so it is also set while held);
 VALID when none of MDPS_FAULT,
@@ -148,7 +148,7 @@ class EstimatorState:
 
 @dataclass(frozen=True)
 class EstimatorInputs:
-    """One step's inputs in SI (ISO 8855 signs; see docs/ARCHITECTURE.md)."""
+    """One step's inputs in SI (ISO 8855 signs; see docs/design/model.md)."""
 
     speed: float  # m/s
     steering_angle: float  # rad, steering wheel

@@ -1,6 +1,6 @@
 """Recording of a live run to MCAP, crash-tolerant, and a reader that recovers an unfinished file.
 
-Channels (documented in ``docs/service.md``; JSON channels have flat numeric fields so that
+Channels (documented in ``docs/guide/mcap.md``; JSON channels have flat numeric fields so that
 Foxglove's plot panel can plot every field directly):
 
 ==================  ===========================  ==================================================

@@ -49,7 +49,7 @@ def _stoppable_job(job: ReplayJob, event_name: str, poll_s: float) -> LogReport 
     if event.is_set():
         return None
     # a worker's one thread is its core, and the other workers hold the others: the replay's
-    # read-ahead and CSV threads would only take turns with them (docs/service.md, "Fleets")
+    # read-ahead and CSV threads would only take turns with them
     job = dataclasses.replace(job, helper_threads=False)
     last = [time.monotonic(), False]
 
@@ -66,7 +66,7 @@ def _local_cluster(n_workers: int) -> LocalCluster:
     """A cluster of ``n_workers`` one-thread worker processes on this machine. Its workers run
     without dask's ``MALLOC_TRIM_THRESHOLD_=65536`` (meant for long-lived workers that hold data):
     a replay allocates and frees MB-sized pieces all along, and the trimming gave them back to the
-    kernel at each free (system time 3.9 -> 10.6 s over 100 logs, docs/service.md "Fleets")."""
+    kernel at each free (system time 3.9 -> 10.6 s over 100 logs)."""
     environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
     environ.pop("MALLOC_TRIM_THRESHOLD_", None)
     with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):

@@ -258,7 +258,7 @@ class BusFaults:
             f" says ({e.received} frames in {w.span_ns * 1e-9:.2f} s, {e.expected:.0f} expected) and"
             f" {e.rejected} of them fail the E2E check ({e.what}): a second node sends it too. On"
             " udp_multicast: another program on this host uses the same group and port; give each"
-            " bus a group and port of its own (docs/service.md, 'The bus')",
+            " bus a group and port of its own (docs/guide/bus.md)",
             ok=e.used > 0,
         )
         lines = tr.update(

@@ -6,7 +6,7 @@ timing into the statistics ring (:class:`lde.service.diagnostics.TimingStats`), 
 saturation, encoding, E2E counter and CRC) into its prebuilt frame, and the recorder's hand-off (the
 sent frames and the step's row into the shared-memory rings of :class:`lde.io.recording.StepRing`).
 Done in Python they were about 30 small numpy stores and calls (29-41 us per step live, on cold
-caches: docs/service.md, "The compiled hand-off"); here they are one call of 5-9 us, so a live step
+caches); here they are one call of 5-9 us, so a live step
 crosses from Python into compiled code twice (the engine's loop, then this) instead of once per
 store.
 

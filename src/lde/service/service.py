@@ -1,6 +1,6 @@
 """The live service: one step of the data path every 3.9 ms, right after the MDPS frame it consumes.
 
-Two grids (``Service(grid=...)``, ``lde run --grid``; ``docs/service.md``, "The loop"):
+Two grids (``Service(grid=...)``, ``lde run --grid``; ``docs/design/service.md``, "When a step runs"):
 
 * ``mdps`` (``lde run``'s default): the MDPS-locked grid of :mod:`lde.engine.grid`
 (:func:`lde.engine.grid.new_lock`).
@@ -103,7 +103,7 @@ __all__ = ["Service", "StepResult", "STATUS_DEADLINE_MISS", "GRIDS", "open_bus",
 
 log = logging.getLogger(__name__)
 
-#: ``LDE_Estimate.Status`` bit7: this step ran more than 1 ms late (docs/ARCHITECTURE.md).
+#: ``LDE_Estimate.Status`` bit7: this step ran more than 1 ms late (docs/design/service.md).
 STATUS_DEADLINE_MISS = DEADLINE_MISS
 
 #: a step may be at most this late before grid points are skipped (one whole period)
@@ -639,8 +639,8 @@ class Service:
         """The engine's live call with no frame and no step time (nothing runs, nothing changes),
         made when the service starts polling for the MDPS frame: it brings the call's code, its
         unboxing and the loop's arrays back into the caches that the idle period cooled, so the
-        step after the frame does not pay for them (``docs/service.md``, "The frame-to-step path, the
-        step's glue and an engine pre-warm")."""
+        step after the frame does not pay for them (``docs/design/service.md``, "The hot
+        path")."""
         args = self._heads.get(-1)
         if args is None or not self.engine.live_args_valid(args):
             cols = (*(a[:0] for a in self._pcols), self._prx[:0])

@@ -65,7 +65,8 @@ def private_multicast(rng: random.Random | None = None) -> dict[str, Any]:
     ``hop_limit`` 0 (the IPv4 TTL): the datagrams stay on this host. They are delivered to the local
     members by the multicast loopback and not handed to the network card as well, whose transmit
     (on a VM a virtio queue kick, an exit to the hypervisor) cost about 20-45 us of the first send
-    after an idle period and doubled a step's four sends (docs/service.md, "The send cost")."""
+    after an idle period and doubled a step's four sends (docs/guide/bus.md, "`udp_multicast` on one
+    host")."""
     r = rng if rng is not None else random.Random()
     return {
         "interface": "udp_multicast",
