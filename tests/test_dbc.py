@@ -182,9 +182,18 @@ def test_unknown_profile_and_a_dbc_given_as_profile_are_config_errors(tmp_path):
 
 
 @pytest.mark.parametrize("name", ["lde", "hyundai", "toyota_rav4_2017"])
-def test_shipped_profiles_are_files_beside_their_dbcs_and_the_package_copies_are_equal(name):
+def test_shipped_profiles_are_files_beside_their_dbcs_and_the_package_links_to_them(name):
     p = load_profile(name)
     assert p.path == REPO / "dbc" / f"{name}.toml" and p.shipped
     assert p.dbc_path.parent == REPO / "dbc"
     for f in (p.path, p.dbc_path):
-        assert (REPO / "src" / "lde" / "data" / f.name).read_bytes() == f.read_bytes(), f.name
+        pkg = REPO / "src" / "lde" / "data" / f.name
+        assert pkg.is_symlink() and pkg.resolve() == f.resolve(), f"{pkg} is not a link to {f}"
+
+
+def test_the_package_data_is_dbc_folder_by_links():
+    """One source: lde/data (what a wheel ships: setuptools copies the files the links point at) holds
+    a link to every file of dbc/ and nothing else."""
+    data = REPO / "src" / "lde" / "data"
+    assert sorted(f.name for f in data.iterdir()) == sorted(f.name for f in (REPO / "dbc").iterdir())
+    assert all(f.is_symlink() and f.resolve() == (REPO / "dbc" / f.name).resolve() for f in data.iterdir())
