@@ -2,7 +2,7 @@
 
 Nothing in ``tables_<vehicle>.json`` is typed by hand: this script derives every scaling and
 constant from :mod:`lde.estimator.model` (the float model) and :mod:`lde.params` (the vehicle file), writes
-them with a SHA-256 of its inputs, and ``tests/test_firmware_tables.py`` fails when the file
+them with a SHA-256 of its inputs, and ``tests/firmware/test_firmware_tables.py`` fails when the file
 differs from a fresh generation (stale tables): :func:`stale_entries` compares the input hash and every
 integer (raw constants, Q formats, exponents) exactly and the floats within :data:`FLOAT_TOL_ULP`,
 because the Riccati solution's last digits depend on the CPU and the BLAS build.

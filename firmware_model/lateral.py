@@ -10,7 +10,7 @@ Three parts, each a compiled kernel:
   into the integer **coefficient set** ``cs``. It runs at reset, after every push of the learner
   and after a learned-state file is loaded; the fast step uses the set it finds.
 - :func:`step_kernel`, the **fast step** (integers only: no float, no true division; tested by
-  ``tests/test_firmware_integer_only.py``): the same step as :func:`lde.estimator.lateral.step_kernel`:
+  ``tests/firmware/test_firmware_lateral.py``): the same step as :func:`lde.estimator.lateral.step_kernel`:
   validity, hold, the friction sign (a 10 Hz state-variable filter of the pinion angle and a tanh
   table), ``w = 1/vx`` by the normalised reciprocal, the coefficients, the three fresh-gated scalar
   updates (yaw rate, aligning torque, lateral acceleration; one reciprocal each), the outputs (the
@@ -23,7 +23,7 @@ covariance as ``Pn_ij = P_ij / 2**(e_i + e_j)`` in Q15.16, each measurement scal
 (:mod:`firmware_model.gen_lateral`). Arithmetic as :mod:`firmware_model.qformat`: stored values are
 int32 (saturated and counted), sums of products in saturating int64 accumulators, right shifts
 rounded HALF_UP. The kernels are written so that they also run interpreted on Python ints (numba
-disabled, object arrays): ``tests/test_firmware_lateral.py`` requires the same integers, which
+disabled, object arrays): ``tests/firmware/test_firmware_lateral.py`` requires the same integers, which
 proves that no int64 intermediate wrapped.
 
 The arithmetic helpers (``shr``, ``sat32``, ``mac``, the reciprocal, tanh and asin, the update and

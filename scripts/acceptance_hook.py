@@ -1,4 +1,4 @@
-"""The acceptance drive of ``tests/test_replay.py`` (a crosswind step on the linear sample plant)
+"""The acceptance drive of ``tests/replay/test_replay.py`` (a crosswind step on the linear sample plant)
 replayed in process under learner/filter hooks (``scripts/tune_zoo.py``'s ``--hook`` syntax): the
 settled Fw / Mw means (truth 800 N / -300 Nm, 10-20 s) and the range of their 1 s windows, what the
 test bounds (Fw 5 %, Mw 10 % per window). A variant of the learner's constants must keep it.

@@ -1,4 +1,4 @@
-"""Logs as another producer could write them (SPEC sections 3-4), for ``tests/test_foreign_logs.py``.
+"""Logs as another producer could write them (SPEC sections 3-4), for ``tests/io/test_foreign_logs.py``.
 
 A drive is simulated by ``vcan_sim`` with the input messages at *other* periods than lde's DBCs
 give (a :class:`~lde.can.profiles.Profile` whose ``period_ns`` are replaced: the plant is sampled at

@@ -238,7 +238,7 @@ def run(tmp_path_factory: pytest.TempPathFactory, budget: Budget, guest_speed: s
                 "fixed",
                 # the fixed grid: the bookkeeping below (every 3.9 ms lattice point run or counted) needs
                 # a lattice; the default MDPS-locked grid moves with the frames a fault stops (its skip
-                # rule is checked on the host, tests/test_service.py, and in the closed-loop UML test)
+                # rule is checked on the host, tests/service/test_service.py, and in the closed-loop UML test)
                 "--grid",
                 "fixed",
                 "--realtime",

@@ -107,7 +107,7 @@ CORRECTIONS: tuple[str, ...] = ("torsion_compliance", "friction", "steer_offset"
 #: systematic (model-mismatch) standard uncertainty added in quadrature to the HAC one:
 #: (absolute in the quantity's SI unit, relative to the value). The regressions are the linear
 #: bicycle model's, smoothed and differentiated; their bias does not shrink with the drive's length,
-#: the HAC interval does. Sized from the errors on the linear-model drives of tests/test_calibrate.py
+#: the HAC interval does. Sized from the errors on the linear-model drives of tests/analysis/test_calibrate.py
 #: (Cf 3 %, friction 0.01 Nm, a twist of 0.10 deg/Nm found on a rigid column with a boost curve) and
 #: issue 11's zoo twin (0.139 deg/Nm found where there is none): without it a long drive's interval
 #: excludes zero for a bias and calibrate writes a twist the car does not have.

@@ -10,7 +10,7 @@ calibrator or the study's imports. ``lde``, ``lde --help`` and an unknown comman
 inside its ``run`` (the one place where lde imports inside functions: measured with
 ``python -X importtime``, ``import lde.cli`` takes 8 ms, ``lde.replay.replay`` 0.76 s,
 ``lde.service.service`` 1.0 s,
-``lde.analysis.study`` with dask 1-2 s; ``tests/test_replay.py`` checks that ``--help`` stays light).
+``lde.analysis.study`` with dask 1-2 s; ``tests/replay/test_replay.py`` checks that ``--help`` stays light).
 
 Exit: the ``lde`` process (:func:`main` called without ``argv``) freezes the garbage collector's
 objects before it returns, so that Python's final collections do not walk the ~140k objects that
@@ -30,15 +30,15 @@ from collections.abc import Sequence
 from lde.errors import LdeError
 
 #: the help of every --backend option (the names are checked against lde.engine.backends' registry when
-#: the command runs, which keeps building the parser light; tests/test_backends.py checks that this text
-#: names every registered backend)
+#: the command runs, which keeps building the parser light; tests/engine/test_backends.py checks that
+#: this text names every registered backend)
 BACKEND_HELP = (
     "estimator: fixed (default): the lateral filter in fixed point (the firmware model) with its float "
     "shadow check; float: the lateral filter in float; paper: the paper's 4-state filter in float"
 )
 
 #: the shipped CAN profiles (lde.can.profiles.PROFILE_NAMES: kept here so that building the parser
-#: stays light; tests/test_profile_files.py holds them equal)
+#: stays light; tests/can/test_profile_files.py holds them equal)
 PROFILE_CHOICES = ("lde", "hyundai", "toyota_rav4_2017")
 #: the help of every --profile option
 PROFILE_HELP = (

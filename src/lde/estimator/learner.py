@@ -171,7 +171,7 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     lp[L_RELAX] = 1.0  # learn the tire relaxation terms
     # road-wheel angle rate RMS [rad/s] above which R1-R3 learn (8 deg/s at N = 16). 0.2 deg/s (tuned on
     # the zoo) let the learner move the tires during a crosswind step on the linear sample drive: Fw
-    # settled 17 % low (tests/test_replay.py acceptance test); 0.5 keeps it at 0.1 %
+    # settled 17 % low (tests/replay/test_replay.py acceptance test); 0.5 keeps it at 0.1 %
     lp[L_EXC_SW] = 0.5 * DEG
     lp[L_SLIDE] = 0.0  # |steering-wheel rate| [rad/s] below which a sample is left out (stiction)
     lp[L_QUIET] = 0.5  # learn only while the filter's wind varies less than this share of m a_y (0.2-3 Hz)
@@ -185,7 +185,8 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     lp[L_SIGMA0] = -0.4
     # learn only while the filter's wind force (3 s mean) is below this [N]; off (inf): 150 N is
     # better on the zoo (a crosswind slalom moved Cf -11 % in 40 s) but stops the learning in a steady
-    # crosswind that tests/test_learner_long.py requires (docs/design/filters.md, "When it learns: the gates")
+    # crosswind that tests/estimator/test_learner_long.py requires (docs/design/filters.md, "When it
+    # learns: the gates")
     lp[L_WIND_MAX] = math.inf
     # the same, relative: learn only while |wind, 3 s mean| < this x the band RMS of m a_y (the
     # manoeuvre's force excitation); off (inf) (docs/design/filters.md, "When it learns: the
@@ -216,10 +217,10 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     # above L_EXC_F2 [N], and the filter's wind (3 s mean) is under L_WIND_MAX2 [N]. A lane change at
     # motorway speed needs ~1/v^2 of the rate a town one does (0.2-0.35 deg/s at 90-100 km/h, under
     # 0.5); R1 needs the aligning torque to vary well above what a wind does to it, hence the force
-    # (300 N let the acceptance drive of tests/test_replay.py learn its crosswind as tires; 350-500 N
+    # (300 N let the acceptance drive of tests/replay/test_replay.py learn its crosswind as tires; 350-500 N
     # keep it) and the wind bound (without it the crosswind slalom lost 6 of 45 warm runs on the
     # tuning plants; 0.15 deg/s met more but took R3 and R1 samples from the 0.14 deg/s slow weave
-    # that tests/test_learner.py keeps to R2). < 0: off (the gate before issue 11's lane-change
+    # that tests/estimator/test_learner.py keeps to R2). < 0: off (the gate before issue 11's lane-change
     # priors; docs/design/filters.md, "When it learns: the gates")
     lp[L_EXC_SW2] = 0.2 * DEG
     lp[L_EXC_F2] = 450.0

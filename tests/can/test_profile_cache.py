@@ -16,7 +16,9 @@ from lde.can.profiles import OUTPUT_MESSAGES, dbc_dir, load_profile, profile_cac
 from lde.engine.receiver import RxTables
 from lde.errors import ConfigError
 
-REPO = Path(__file__).resolve().parents[1]
+from helpers import TESTS
+
+REPO = TESTS.parent
 
 
 @pytest.fixture

@@ -1,7 +1,7 @@
 """The README, the changelog and the pages under docs/: every relative link resolves, every page is
 reachable from docs/index.md, the pages read as a guide, not a lab notebook (no issue numbers, no dated
-measurements, no "second pass" or "not adopted"), and every ``docs/...md`` page that the code, the tests,
-the benchmarks, the scripts and CI name exists."""
+measurements, no "second pass" or "not adopted"), and every ``docs/...md`` page and ``tests/...`` file that
+the docs, the code, the tests, the benchmarks, the scripts and CI name exists."""
 
 from __future__ import annotations
 
@@ -10,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from helpers import TESTS
+
+ROOT = TESTS.parent
 DOCS = ROOT / "docs"
 PAGES = sorted([ROOT / "README.md", ROOT / "CHANGELOG.md", *DOCS.rglob("*.md")])
 
@@ -29,6 +31,8 @@ CODE = [
 ]
 #: a doc page as code names it: a path from the repository root
 DOC_PATH = re.compile(r"\bdocs/[\w./-]*\w\.md\b")
+#: a test file as docs and code name it: a path from the repository root
+TEST_PATH = re.compile(r"(?<![\w/.-])tests/[\w/.-]*\w\.(?:py|sh|c|mjs|json|toml|md)\b")
 TEXT_SUFFIXES = {".py", ".sh", ".toml", ".md", ".txt", ".cfg", ".json", ".mjs", ".c", ""}
 
 #: [text](target) and ![alt](target); the target ends at the first space or closing parenthesis
@@ -131,3 +135,14 @@ def test_the_doc_page_check_sees_a_missing_page(tmp_path: Path) -> None:
     f.write_text(f'"""See docs/design/filters.md and {gone}, "Twist bound"."""\n')
     assert _named_doc_pages(f) == [(1, "docs/design/filters.md"), (1, gone)]
     assert not (ROOT / gone).exists() and (ROOT / "docs/design/filters.md").is_file()
+
+
+def test_every_test_file_named_in_the_docs_and_the_code_exists() -> None:
+    missing = [
+        f"{f.relative_to(ROOT)}:{n}: {m.group(0)}"
+        for f in [*_code_files(), *PAGES]
+        for n, line in enumerate(f.read_text(encoding="utf-8", errors="replace").splitlines(), 1)
+        for m in TEST_PATH.finditer(line)
+        if not (ROOT / m.group(0)).is_file()
+    ]
+    assert not missing, "names a test file that does not exist:\n" + "\n".join(missing)

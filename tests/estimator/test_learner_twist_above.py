@@ -21,6 +21,7 @@ from lde.estimator import learner as Ln
 from lde.params import load_vehicle
 from lde.units import DEG, STEP_S
 
+from helpers import TESTS
 from helpers.linear_truth import rig_on_truth, weave
 
 VX = 100.0 / 3.6
@@ -86,7 +87,6 @@ def _zoo_prior_drive(plant: str, r3_acc: float | None):
     angle-acceleration weighting ``r3_acc`` [rad/s^2] (None: the default)."""
     import csv
     import tempfile
-    from pathlib import Path
 
     from lde.analysis.study.execute import load_sim_vehicle, simulate_run
     from lde.analysis.study.spec import SPEC_SHEET, RunSpec
@@ -94,7 +94,7 @@ def _zoo_prior_drive(plant: str, r3_acc: float | None):
     from lde.can.profiles import load_profile
     from lde.engine.engine import Engine
 
-    truth_csv = Path(__file__).resolve().parents[1] / "vcan_sim" / "zoo" / "true_values.csv"
+    truth_csv = TESTS.parent / "vcan_sim" / "zoo" / "true_values.csv"
     with truth_csv.open() as fh:
         tv = next(r for r in csv.DictReader(fh) if r["plant"] == plant)
     vehicle = spec_sheet_vehicle(load_sim_vehicle(f"zoo:{plant}"), tempfile.mkdtemp(prefix="lde-r3acc-"))

@@ -16,7 +16,9 @@ from lde.io.stream import ReadAhead
 from lde.params import load_vehicle
 from lde.replay.replay import read_inputs, run_replay
 
-DATA = Path(__file__).parent / "data"
+from helpers import TESTS
+
+DATA = TESTS / "data"
 
 
 class Source:

@@ -16,9 +16,11 @@ import pytest
 
 from lde.testing import Bench, Rank, assert_e2e_valid, assert_periodic
 
+from helpers import TESTS
+
 pytestmark = pytest.mark.vcan
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = TESTS.parent
 IDS = (0x2A0, 0x2A8, 0x3D0, 0x3D1, 0x3D2, 0x6E0)
 
 

@@ -44,7 +44,7 @@ def test_the_history_pattern_catches_what_it_must():
 @pytest.mark.parametrize("command", ["run", "replay", "demo", "study", "evaluate"])
 def test_the_help_offers_the_backends_and_no_removed_name(capsys, command):
     """The names are checked against the registry when the command runs (a removed one is an error
-    naming its replacement: tests/test_backends.py); the help names the three backends only."""
+    naming its replacement: tests/engine/test_backends.py); the help names the three backends only."""
     text = " ".join(_help(capsys, command).split())
     if command in ("run", "replay", "demo"):
         assert "fixed (default)" in text and "float:" in text and "paper:" in text

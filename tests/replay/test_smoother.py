@@ -21,7 +21,9 @@ from lde.replay import smoother as S
 from lde.replay.replay import CSV_COLUMNS, STATUS_COLUMNS, replay
 from lde.status import VALID
 
-DATA = Path(__file__).parent / "data"
+from helpers import TESTS
+
+DATA = TESTS / "data"
 SAMPLE = DATA / "sample_linear.log"
 TRUTH = DATA / "sample_linear_truth.csv"
 SAMPLE_VEHICLE = DATA / "sample_linear_vehicle.toml"

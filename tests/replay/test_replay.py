@@ -17,13 +17,15 @@ from lde.io import read_log, read_mcap
 from lde.params import load_vehicle
 from lde.replay.replay import CSV_COLUMNS, csv_columns, replay, replay_log, write_csv, write_recording
 
-DATA = Path(__file__).parent / "data"
+from helpers import TESTS
+
+DATA = TESTS / "data"
 SAMPLE = DATA / "sample_linear.log"
 SAMPLE_MCAP = DATA / "sample_linear.mcap"
 TRUTH = DATA / "sample_linear_truth.csv"
 #: the sample's plant parameters (the estimator runs on them; robust to changes of the reference vehicle)
 SAMPLE_VEHICLE = DATA / "sample_linear_vehicle.toml"
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = TESTS.parent
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,9 @@ from lde.engine.receiver import decode_batch
 from lde.io import read_log
 from lde.units import DEG, KMH
 
-REPO = Path(__file__).resolve().parents[1]
+from helpers import TESTS
+
+REPO = TESTS.parent
 NAME = "rav4_2017_highway.log.gz"
 
 

@@ -2,19 +2,19 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 from numba.core.registry import cpu_target
 
 import lde.testing.bench  # noqa: F401  (before pytester's inline run: it restores sys.modules)
+
+from helpers import TESTS
 
 # numba imports its extra registries (numpy polynomials, ...) at its first compile or cache load.
 # Done inside pytester's inline run, those modules leave sys.modules afterwards while their
 # registrations stay, and the next test's first kernel load fails ("duplicate registration").
 cpu_target.target_context.refresh()
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = TESTS.parent
 
 
 def _readme_test() -> str:

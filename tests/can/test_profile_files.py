@@ -19,7 +19,9 @@ from lde.cli import PROFILE_CHOICES, main
 from lde.engine.receiver import Receiver, RxTables, decode_batch
 from lde.errors import ConfigError
 
-REPO = Path(__file__).resolve().parents[1]
+from helpers import TESTS
+
+REPO = TESTS.parent
 DBC = REPO / "dbc"
 
 

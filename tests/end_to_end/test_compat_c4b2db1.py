@@ -12,7 +12,6 @@ import gzip
 import io
 import json
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,7 +22,9 @@ from lde.io.recording import ESTIMATE_TOPIC
 from lde.params import load_vehicle
 from lde.replay.replay import replay_log
 
-DATA = Path(__file__).resolve().parent / "data" / "c4b2db1"
+from helpers import TESTS
+
+DATA = TESTS / "data" / "c4b2db1"
 
 
 def _columns(text: str) -> dict[str, list[str]]:

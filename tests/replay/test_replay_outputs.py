@@ -16,10 +16,12 @@ from lde.cli import main
 from lde.replay.columns import CSV_COLUMNS, SMOOTHED, STATUS_COLUMNS, csv_columns
 from lde.status import STATUS_BITS, Status
 
-DATA = Path(__file__).parent / "data"
+from helpers import TESTS
+
+DATA = TESTS / "data"
 SAMPLE = DATA / "sample_linear.log"
 SAMPLE_VEHICLE = DATA / "sample_linear_vehicle.toml"
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = TESTS.parent
 BASE = ["replay", str(SAMPLE), "--vehicle", str(SAMPLE_VEHICLE), "--backend", "float"]
 
 

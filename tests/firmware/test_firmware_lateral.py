@@ -21,7 +21,6 @@ import os
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -53,7 +52,7 @@ from lde.units import KMH
 from helpers import TESTS
 from helpers.firmware_drives import extreme_drive, lateral_drive
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = TESTS.parent
 
 FAST_PATH = [
     FX.step_kernel,

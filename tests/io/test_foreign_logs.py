@@ -1,7 +1,7 @@
 """``lde replay`` on logs lde did not write (docs/guide/reliability.md, "Bad input").
 
 Each case builds a log as an independent producer could within SPEC sections 3-4 (generators in
-``tests/foreign_logs.py``): other frame periods on both profiles, jitter, bursts, slight disorder,
+``tests/helpers/foreign_logs.py``): other frame periods on both profiles, jitter, bursts, slight disorder,
 a relative time base, a start mid-stream, a gap, other channel names, no interface column,
 foreign / 29-bit / CAN FD / remote / error frames, ASC, BLF, CSV, TRC, MCAP from the ``mcap``
 library, a missing input message, signals at their DBC limits. Each is replayed through

@@ -17,9 +17,10 @@ from lde.io import McapWriter, read_log
 from lde.params import load_vehicle
 from lde.replay.replay import read_inputs, run_replay
 
+from helpers import TESTS
 from helpers.mcap_chunks import chunk_spans
 
-DATA = Path(__file__).parent / "data"
+DATA = TESTS / "data"
 
 
 def _damaged_mcap(tmp_path: Path) -> tuple[Path, int]:

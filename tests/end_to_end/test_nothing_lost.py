@@ -1,7 +1,7 @@
 """Nothing lost (issue 13 item 3): every cut or unclosed log says where it stopped; signals close the
 outputs; a full disk leaves the file so far readable with a one-line error.
 
-SIGKILL of a recording process is in ``tests/test_recording.py`` (what it loses) and
+SIGKILL of a recording process is in ``tests/io/test_recording.py`` (what it loses) and
 ``bench/bench_sigkill.py`` (``lde run --record`` and ``lde sim`` on a real bus, repeated: median and
 max); a killed ``lde sim`` here;
 ``lde sim`` stopped by SIGINT / SIGTERM in ``tests/sim/test_sim_bus_cli.py``.
@@ -37,7 +37,7 @@ from lde.replay.replay import end_note
 from helpers import TESTS
 from helpers.recorded_steps import record_steps
 
-DATA = Path(__file__).parent / "data"
+DATA = TESTS / "data"
 SAMPLE = DATA / "sample_linear.log"
 
 

@@ -17,7 +17,9 @@ import pytest
 from lde.cli import main
 from lde.io import McapWriter, read_log, write_candump
 
-ROOT = Path(__file__).resolve().parents[1]
+from helpers import TESTS
+
+ROOT = TESTS.parent
 SAMPLE = ROOT / "tests" / "data" / "sample_linear.log"
 
 

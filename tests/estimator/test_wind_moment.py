@@ -11,6 +11,8 @@ from lde.estimator import lateral as E
 from lde.estimator.outputs import N_OUT, O_FW_WIND, O_MW, O_MW_WIND
 from lde.params import load_vehicle
 
+from helpers import TESTS
+
 
 def _out(fw_wind: float, mw_wind: float) -> np.ndarray:
     out = np.zeros(N_OUT)
@@ -52,13 +54,12 @@ def test_both_backends_report_the_blend_and_keep_the_filter(backend):
     """With w > 0 the reported Mw (and Mw_wind) is the blend of the w = 0 run's own M_wind and F_wind:
     the filter, the learner and Fw are untouched (they see the filter's M_wind), on both backends."""
     from dataclasses import replace
-    from pathlib import Path
 
     from lde.can.profiles import load_profile
     from lde.io import read_log
     from lde.replay.replay import replay
 
-    data = Path(__file__).parent / "data"
+    data = TESTS / "data"
     frames = read_log(data / "sample_linear.log").frames
     profile = load_profile("lde")
     v0 = load_vehicle(data / "sample_linear_vehicle.toml")

@@ -18,9 +18,10 @@ import pytest
 
 from lde.io import McapWriter, can_payloads
 
+from helpers import TESTS
 from helpers.frames import random_frames
 
-TS = Path(__file__).parent / "ts"
+TS = TESTS / "ts"
 
 
 def _node_ready() -> str | None:

@@ -14,7 +14,9 @@ from numba import njit
 
 from lde.cli import kernels
 
-SAMPLE = Path(__file__).parent / "data" / "sample_linear.log"
+from helpers import TESTS
+
+SAMPLE = TESTS / "data" / "sample_linear.log"
 
 CALLEE = """
 from numba import njit

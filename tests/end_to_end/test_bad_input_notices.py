@@ -23,7 +23,9 @@ from lde.io import (
     read_log,
 )
 
-DATA = Path(__file__).parent / "data"
+from helpers import TESTS
+
+DATA = TESTS / "data"
 SAMPLE = DATA / "sample_linear.log"
 SAMPLE_VEHICLE = DATA / "sample_linear_vehicle.toml"
 OPTS = ["--vehicle", str(SAMPLE_VEHICLE), "--backend", "float"]

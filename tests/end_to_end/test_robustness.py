@@ -7,7 +7,7 @@ speed, a long silence, two time bases in one log), bad vehicle files and bad ``l
 and fuzzes the candump parser and :func:`lde.engine.receiver.decode_batch` with hypothesis.
 
 Most checks call :func:`lde.cli.main` in-process (the same code path as the ``lde`` command, without
-the start-up cost of a subprocess); ``tests/test_cli_contract.py`` runs the real command.
+the start-up cost of a subprocess); ``tests/cli/test_cli_contract.py`` runs the real command.
 """
 
 from __future__ import annotations

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import shutil
-from pathlib import Path
 
 import cantools
 import pytest
@@ -12,7 +11,9 @@ from lde.can.profiles import ESC_INPUTS, INPUT_NAMES, MDPS_INPUTS, OUTPUT_MESSAG
 from lde.errors import ConfigError
 from lde.units import DEG, KMH
 
-REPO = Path(__file__).resolve().parents[1]
+from helpers import TESTS
+
+REPO = TESTS.parent
 
 # Message ids of opendbc's hyundai_kia_generic.dbc (commaai/opendbc, commit 00b271f), the real car's
 # C-CAN: lde's outputs on the hyundai profile must not use any of them.
