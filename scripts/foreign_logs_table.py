@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-import foreign_logs as F
-
 from lde.cli import main
 from lde.io import write_candump
+
+from helpers import foreign_logs as F
 
 args = sys.argv[1:]
 out = Path(args[args.index("--out") + 1]) if "--out" in args else Path("foreign_logs_cases")
