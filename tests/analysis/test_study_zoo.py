@@ -331,10 +331,6 @@ def test_warm_runs_once_per_prior_and_an_unknown_prior_is_refused():
     [
         (["--prior", "no_such_drive"], "lde: error: unknown prior scenario(s) no_such_drive"),
         (["--modes", "cold", "--prior", "slalom"], "lde: error: --prior applies to warm runs"),
-        (
-            ["--prior", "slalom", "--readme", "README.md"],
-            "lde: error: --readme/--doc write the full zoo table",
-        ),
     ],
 )
 def test_evaluate_prior_errors_are_one_line(capsys, tmp_path, argv, message):
