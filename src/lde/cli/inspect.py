@@ -24,6 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "inspect",
         help="what a log holds, which profile fits it, and physics checks of the profile's signs and scales",
         description=__doc__.split("\n\n")[1] if __doc__ else None,
+        epilog=__doc__.split("\n\n")[2] if __doc__ else None,
     )
     p.add_argument("log", metavar="LOG", help="MCAP, candump -L text, ASC, BLF, TRC, CSV, ... (also as .gz)")
     p.add_argument(

@@ -424,7 +424,10 @@ def _torque(grid: Grid, geo: Geometry, base: _Base, name: str, unit: str) -> Che
     n = int(np.count_nonzero(use))
     rel = fit_relation(x, grid.values[name], use)
     outcome, why = _judge(rel, n, 0.05, None, f"{base.gates}, |v r| <= {MAX_LAT_ACCEL:g} m/s^2")
-    why += f" (slope in {unit} per m/s^2; sign only)"
+    why += (
+        f" (slope in {unit} per m/s^2; sign only: a torque toward the turn, whoever applies it, the driver,"
+        " the boost or a lane-keeping command; its scale and the boost's share are not checked)"
+    )
     return Check(name, "d", title, outcome, why, (name, "yaw_rate"), rel, None, _numbers(rel, n))
 
 
