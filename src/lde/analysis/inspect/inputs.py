@@ -228,7 +228,7 @@ def decode_inputs(frames: FrameBatch, profile: Profile) -> ProfileInputs:
         s = Series(
             frames.t_ns[good],
             _input_values(im, profile.signals[im.message], frames.data[good]),
-            int(spec.timeout_ns),
+            int(spec.timeout_ns) or _observed_timeout(frames.t_ns[good]),
         )
         series[name] = s
         stats.append(_stats(name, im.message, SI_UNITS[name], s))
@@ -256,7 +256,7 @@ def decode_inputs(frames: FrameBatch, profile: Profile) -> ProfileInputs:
 
 
 def _observed_timeout(t_ns: np.ndarray) -> int:
-    """Three median periods of a message the profile does not time (a wheel-speed message that is
-    not an input)."""
+    """Three median periods (the default timeout, SPEC section 3) of a message the profile does not
+    time: a wheel-speed message that is not an input, or a DBC without cycle times."""
     d = np.diff(np.sort(t_ns))
     return int(3 * np.median(d)) if d.size else 0
