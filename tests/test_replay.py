@@ -494,7 +494,7 @@ def test_a_cold_kernel_cache_is_announced_at_once(tmp_path: Path, capsys, monkey
     d = cache_dirs()[0]
     d.mkdir(parents=True)
     tag = f"py{sys.version_info[0]}{sys.version_info[1]}"
-    (d / f"pipeline.run_paper-173.{tag}.nbi").write_bytes(b"")
+    (d / f"loop.run_paper-173.{tag}.nbi").write_bytes(b"")
     assert is_warm()
     assert main(args) == 0
     assert "compiling" not in capsys.readouterr().err

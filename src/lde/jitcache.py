@@ -40,7 +40,7 @@ def _subpath(src_dir: Path) -> str:
 
 def cache_dirs() -> list[Path]:
     """Where numba keeps (or would keep) the kernels of ``lde`` itself, in numba's order."""
-    return _dir_cache_dirs(Path(__file__).resolve().parent)
+    return _dir_cache_dirs(Path(__file__).resolve().parent / "engine")
 
 
 def _dir_cache_dirs(src_dir: Path) -> list[Path]:
@@ -204,7 +204,7 @@ def is_warm(loops: tuple[str, ...] = LOOPS) -> bool:
     tag = f"py{sys.version_info[0]}{sys.version_info[1]}"
     for d in cache_dirs():
         for loop in loops:
-            if d.is_dir() and next(d.glob(f"pipeline.{loop}-*.{tag}.nbi"), None) is not None:
+            if d.is_dir() and next(d.glob(f"loop.{loop}-*.{tag}.nbi"), None) is not None:
                 return True
     return False
 

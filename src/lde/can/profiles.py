@@ -288,12 +288,12 @@ _OUTPUT_CHECKSUMS = ("CRC",)
 
 def dbc_dir() -> Path:
     """The directory holding the shipped ``*.dbc`` files (repo ``dbc/`` or the package's ``data/``)."""
-    here = Path(__file__).resolve()
-    for d in (here.parents[2] / "dbc", here.parent / "data"):
+    package = Path(__file__).resolve().parents[1]  # src/lde
+    for d in (package.parents[1] / "dbc", package / "data"):
         if (d / "lde.dbc").is_file():
             return d
     raise ConfigError(
-        f"cannot find the DBC directory (looked in {here.parents[2] / 'dbc'} and {here.parent / 'data'})"
+        f"cannot find the DBC directory (looked in {package.parents[1] / 'dbc'} and {package / 'data'})"
     )
 
 
