@@ -201,7 +201,7 @@ def test_cli_calibrate_writes_a_file_that_replay_uses(tmp_path):
         tmp_path / "lc.csv",
     )
     assert rc == 0
-    rc, text = run("calibrate", log, "-o", tmp_path / "cal.toml", "--keep-tires")
+    rc, text = run("calibrate", log, "--toml", tmp_path / "cal.toml", "--keep-tires")
     assert rc == 0, text
     cal = load_vehicle(tmp_path / "cal.toml")
     assert cal.tires == load_vehicle("reference").tires

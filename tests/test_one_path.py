@@ -25,7 +25,7 @@ from lde.clock import SimulatedClock
 from lde.engine.grid import locked_step_times
 from lde.io.recording import Recorder, read_recording
 from lde.params import load_vehicle
-from lde.replay.replay import CSV_COLUMNS, replay, replay_log, write_csv
+from lde.replay.replay import csv_columns, replay, replay_log, write_csv
 from lde.service.diagnostics import DEADLINE_MISS_NS
 from lde.service.service import Service
 from lde.status import DEADLINE_MISS, ESC_FAULT, MDPS_FAULT, NOT_CONVERGED, VALID
@@ -139,7 +139,7 @@ def test_live_and_replay_give_identical_rows(tmp_path: Path, backend: str, lde_b
     bare_csv = tmp_path / "bare.csv"
     write_csv(bare_csv, res2)
     a, b = _csv(live_csv), _csv(bare_csv)
-    assert list(a) == [c for c, _, _ in CSV_COLUMNS]
+    assert list(a) == [c for c, _, _ in csv_columns()]
     for col in a:
         assert a[col] == b[col], col
 

@@ -15,7 +15,7 @@ from lde.can.profiles import load_profile
 from lde.cli import main
 from lde.io import read_log, read_mcap
 from lde.params import load_vehicle
-from lde.replay.replay import CSV_COLUMNS, replay, replay_log, write_csv, write_recording
+from lde.replay.replay import CSV_COLUMNS, csv_columns, replay, replay_log, write_csv, write_recording
 
 DATA = Path(__file__).parent / "data"
 SAMPLE = DATA / "sample_linear.log"
@@ -160,7 +160,8 @@ def test_csv_contract(sample_replay, tmp_path: Path):
         rows = list(csv.reader(fh))
     header, body = rows[0], rows[1:]
     assert header[:4] == ["t", "Fw", "Mw", "T_overlay"]
-    assert header == [c for c, _, _ in CSV_COLUMNS]
+    assert header[: len(CSV_COLUMNS)] == [c for c, _, _ in CSV_COLUMNS]  # the estimate columns first
+    assert header == [c for c, _, _ in csv_columns()]
     assert len(body) == len(res)
     # t: seconds in the log's own time base, printed exactly (microseconds)
     first = int(log.frames.t_ns[0])

@@ -18,7 +18,7 @@ from lde.estimator import lateral as E
 from lde.io import McapLog, read_log
 from lde.params import load_vehicle
 from lde.replay import smoother as S
-from lde.replay.replay import CSV_COLUMNS, replay
+from lde.replay.replay import CSV_COLUMNS, STATUS_COLUMNS, replay
 from lde.status import VALID
 
 DATA = Path(__file__).parent / "data"
@@ -262,9 +262,13 @@ def test_cli_smooth_csv_and_mcap(tmp_path, capsys):
     )
     head_c, causal = _read_csv(tmp_path / "c.csv")
     head_s, smooth = _read_csv(tmp_path / "s.csv")
-    assert head_c == [c for c, _, _ in CSV_COLUMNS]
-    assert head_s == head_c + SMOOTH_NAMES
-    np.testing.assert_array_equal(smooth[:, : len(head_c)], causal)  # the causal columns unchanged
+    n_est = len(CSV_COLUMNS)
+    status_names = [c for c, _, _ in STATUS_COLUMNS]
+    assert head_c == [c for c, _, _ in CSV_COLUMNS] + status_names
+    # the smoothed columns after the estimate columns, the decoded status last (positions only append)
+    assert head_s == head_c[:n_est] + SMOOTH_NAMES + status_names
+    np.testing.assert_array_equal(smooth[:, :n_est], causal[:, :n_est])  # the causal columns unchanged
+    np.testing.assert_array_equal(smooth[:, -len(status_names) :], causal[:, n_est:])
     fw_s = smooth[:, head_s.index("Fw_smooth")]
     assert np.isfinite(fw_s).all() and not np.array_equal(fw_s, smooth[:, head_s.index("Fw")])
     m = McapLog(tmp_path / "s.mcap")
@@ -290,7 +294,8 @@ def test_cli_smooth_with_the_fixed_backend_says_what_is_smoothed(tmp_path, capsy
     assert rc == 0
     assert "--smooth with backend fixed: the *_smooth columns are the float lateral filter's" in err
     head, rows = _read_csv(tmp_path / "f.csv")
-    assert head[-len(SMOOTH_NAMES) :] == SMOOTH_NAMES
+    n_est = len(CSV_COLUMNS)
+    assert head[n_est : n_est + len(SMOOTH_NAMES)] == SMOOTH_NAMES  # after the estimate columns
 
 
 @pytest.mark.parametrize(

@@ -13,8 +13,8 @@ import pytest
 from lde.analysis import metrics
 from lde.analysis.study import EstOptions, RunResult, RunSpec, SimOptions, zoo
 from lde.analysis.study.specsheet import SPEC_SHEET_KEYS, spec_sheet_vehicle
-from lde.cli import replay_in_process as cli_engine
 from lde.cli import main
+from lde.cli import replay_in_process as cli_engine
 from lde.errors import ConfigError
 from lde.params import load_vehicle
 

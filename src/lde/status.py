@@ -25,6 +25,7 @@ import enum
 __all__ = [
     "Status",
     "STATUS_BITS",
+    "STATUS_MEANINGS",
     "VALID",
     "DEGRADED",
     "MDPS_FAULT",
@@ -67,3 +68,16 @@ NOT_READY_BITS = NOT_CONVERGED | LOW_SPEED
 
 #: lower-case bit names in bit order (recording fields ``valid``, ``degraded``, ...)
 STATUS_BITS: tuple[str, ...] = tuple(str(flag.name).lower() for flag in Status)
+
+#: what each bit means, for a user (the CSV's decoded status columns, ``lde replay --help``)
+STATUS_MEANINGS: dict[str, str] = {
+    "valid": "the estimate is usable (none of mdps_fault, esc_fault, low_speed, not_converged)",
+    "degraded": "a yaw-rate-only update during an MDPS fault, a saturation in the fixed-point step, or a "
+    "non-finite output replaced by 0",
+    "mdps_fault": "MDPS inputs stale, rejected by the E2E check or not finite (input fault)",
+    "esc_fault": "ESC inputs stale, rejected by the E2E check or not finite (input fault; the filter holds)",
+    "low_speed": "below the model's minimum speed (the filter holds)",
+    "not_converged": "within the convergence time after a (re)start, or held",
+    "shadow_deviation": "the fixed-point step left its float shadow's bound (fixed backends)",
+    "deadline_miss": "the live step started more than 1 ms late (recordings of lde run)",
+}

@@ -30,14 +30,30 @@ from collections.abc import Sequence
 
 from lde.errors import LdeError
 
-#: the backends' names and aliases (lde.engine.backends' registry and ALIASES; kept here so that building the
-#: parser stays light, tests/test_backends.py holds them equal)
-BACKEND_CHOICES = ("fixed", "float", "paper-fixed", "paper", "lateral")
+
+class _Choices(tuple):
+    """The names a ``--backend`` option shows (iteration: the help, argparse's error) and the ones
+    it accepts (``in``: the names and the old aliases, which still work but are not offered)."""
+
+    aliases: frozenset[str] = frozenset()
+
+    def __new__(cls, names: Sequence[str], aliases: Sequence[str] = ()) -> _Choices:
+        obj = super().__new__(cls, names)
+        obj.aliases = frozenset(aliases)
+        return obj
+
+    def __contains__(self, name: object) -> bool:
+        return super().__contains__(name) or name in self.aliases
+
+
+#: the backends' names, and accepted aliases (lde.engine.backends' registry and ALIASES; kept here so that
+#: building the parser stays light, tests/test_backends.py holds them equal)
+BACKEND_CHOICES = _Choices(("fixed", "float", "paper-fixed", "paper"), aliases=("lateral",))
 #: the help of every --backend option
 BACKEND_HELP = (
     "estimator: fixed (default): the lateral filter in fixed point with its float shadow check; "
     "float: the lateral filter in float; paper-fixed / paper: the paper's 4-state filter in fixed point "
-    "/ float; lateral: = float"
+    "/ float"
 )
 
 #: subcommand name -> module below lde.cli. A module that does not exist yet is skipped.

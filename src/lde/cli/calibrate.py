@@ -1,15 +1,23 @@
 """``lde calibrate LOG``: identify C_f, C_r, K (and steering friction, offsets) from a drive.
 
-LOG is any log ``lde replay`` reads (MCAP, candump ``-L``, python-can formats) of a drive *without
-significant disturbance* (still air, flat road) with transient steering: a few lane changes or a
-slalom at 60-120 km/h. Body parameters (mass, yaw inertia, CG, steering ratio) come from
-``--vehicle`` (default: reference); the result is a vehicle file that ``extends`` it and overrides
-``[tires]`` and ``[corrections]`` (steering friction, torsion-bar twist, steering-angle offset,
-yaw-rate bias, torque offset: removed from the inputs before the step, ``lde.estimator.conditioning``), for
-``lde run/replay --vehicle FILE``. ``--no-corrections`` writes only effective ``[tires]`` for the
-paper's step. The command replays the drive with the base and the calibrated file and prints the
-RMS of both estimates (the drive has no disturbance: lower is better). Method: ``lde.analysis.calibrate``
-(least squares on the bicycle-model equations; friction and offsets as extra regressors).
+LOG is any log ``lde replay`` reads (MCAP, candump ``-L``, python-can formats, also as .gz) of a drive
+*without significant disturbance* (still air, flat road) with transient steering: a few lane changes
+or a slalom at 60-120 km/h. Body parameters (mass, yaw inertia, CG, steering ratio) come from
+``--vehicle`` (default: reference); the result (``--toml``, default calibrated.toml) is a vehicle file
+that ``extends`` it and overrides ``[tires]`` and ``[corrections]`` (steering friction, torsion-bar
+twist, steering-angle offset, yaw-rate bias, torque offset: removed from the inputs before the step,
+``lde.estimator.conditioning``), for ``lde run/replay --vehicle FILE``. ``--no-corrections`` writes only
+effective ``[tires]`` for the paper's filter. Method: ``lde.analysis.calibrate`` (least squares on the
+single-track model's equations with Fw = Mw = 0; friction and offsets as extra regressors): the
+identification uses no estimator backend, so there is no ``--backend`` option.
+
+The command then replays the drive with the base and with the calibrated file and prints the RMS
+of both estimates (the drive has no disturbance: lower is better). That check always runs the
+paper's float filter (backend ``paper``, where ``lde run``, ``replay`` and ``demo`` default to
+``fixed``): it uses the file's tires and corrections as written and learns nothing while it runs, so
+the two figures compare the files alone (the lateral filter's online learner would adapt the tires
+itself). To see the product's estimator on the calibrated file, run ``lde replay LOG --vehicle
+calibrated.toml``.
 """
 
 from __future__ import annotations
@@ -31,16 +39,24 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("log", type=Path, help="CAN log of a drive without disturbance")
-    p.add_argument("--vehicle", default=None, help="base vehicle file or shipped name (default: reference)")
-    p.add_argument("--profile", default="lde", help="CAN profile: lde, hyundai or a .dbc path")
     p.add_argument(
-        "-o",
-        "--out",
+        "log", metavar="LOG", type=Path, help="CAN log of a drive without disturbance (formats as lde replay)"
+    )
+    p.add_argument("--vehicle", default=None, help="base vehicle file or shipped name (default: reference)")
+    p.add_argument(
+        "--profile",
+        default=None,
+        help="CAN profile: lde, hyundai or a .dbc path (default: the one an lde recording names, else lde)",
+    )
+    p.add_argument(
+        "--toml",
         type=Path,
         default=Path("calibrated.toml"),
-        help="vehicle file to write (calibrated.toml)",
+        metavar="OUT.toml",
+        help="the vehicle file to write (default: calibrated.toml)",
     )
+    # the earlier spelling, still accepted (--out names a directory in lde study and lde evaluate)
+    p.add_argument("-o", "--out", dest="toml", type=Path, default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     p.add_argument("--name", default="calibrated", help="name inside the written vehicle file")
     p.add_argument(
         "--torsion",
@@ -69,12 +85,12 @@ def run(args: argparse.Namespace) -> int:
 
     from lde.can.profiles import load_profile
     from lde.params import load_vehicle as _load
-    from lde.replay.replay import replay
+    from lde.replay.replay import recorded_profile, replay
     from lde.status import VALID
 
     base = load_vehicle(args.vehicle)
-    profile = load_profile(args.profile)
     log = read_log(args.log)
+    profile = load_profile(args.profile or recorded_profile(log) or "lde")
     grid = grid_from_frames(log.frames, profile)
     drive = drive_from_grid(grid)
     if args.corrections:
@@ -93,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     out = write_vehicle(
         cal,
         base,
-        args.out,
+        args.toml,
         name=args.name,
         log=str(args.log),
         corrections=args.corrections,
@@ -108,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
 
     # self-check on the same drive: it has no disturbance, so the estimate should be ~0
     def rms(vehicle):  # (RMS Fw [N], RMS Mw [Nm]) over the valid steps
-        r = replay(log.frames, profile, vehicle, "paper")  # the filter the corrections feed
+        r = replay(log.frames, profile, vehicle, "paper")  # no online learning: the files alone (help)
         ok = (r.status & VALID) != 0
         if not ok.any():
             return float("nan"), float("nan")

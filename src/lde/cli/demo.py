@@ -27,7 +27,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
     p.add_argument("--backend", choices=BACKEND_CHOICES, default="fixed", help=BACKEND_HELP)
     p.add_argument("--mcap", default="lde_demo.mcap", metavar="FILE", help="recording of the overlay run")
-    p.add_argument("--plot", default="lde_demo.png", metavar="FILE", help="PNG plot (Figs. 13-14 style)")
+    p.add_argument(
+        "--plot",
+        default="lde_demo.png",
+        metavar="FILE",
+        help="PNG plot: Fw and Mw against the truth, the driver's torque and the drift with and without "
+        "the overlay, the overlay torque and the speed",
+    )
     p.add_argument("--no-mcap", action="store_true", help="do not write the recording")
     p.add_argument("--no-plot", action="store_true", help="do not write the plot")
     p.add_argument(

@@ -1,10 +1,13 @@
-"""``lde evaluate``: accuracy of the estimator on simulator scenarios (issues 6 and 11).
+"""``lde evaluate``: accuracy of the estimator on simulator scenarios.
 
 For every (scenario, payload, seed) the simulator produces CAN frames and truth, the estimator runs
 over the frames, and the table reports, after a 2 s settling window: NRMSE of Fw and of Mw (about the
 actual CG, as in the paper) with the Mw figure about the unloaded reference CG beside it; for a
 bank-only scenario the Mw error is normalised by 1 m x max|Fw|; for a disturbance-free scenario the
-figures are the RMS of the estimate in N and Nm (``lde.analysis.metrics``).
+figures are the RMS of the estimate in N and Nm (``lde.analysis.metrics``). The default backend here is
+``paper`` (``lde run``, ``replay`` and ``demo`` default to ``fixed``): the accuracy tables in
+docs/study.md were measured with the paper's float filter; give ``--backend fixed`` for the
+product's estimator. ``--zoo`` runs ``fixed`` and ``float`` unless ``--backends`` says otherwise.
 
 ``lde evaluate --zoo``: the estimator on cars it was never fitted to (``vcan_sim/zoo``). For every
 plant x scenario x profile x backend: simulate (seeded), write the candump log, run

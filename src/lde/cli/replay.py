@@ -1,10 +1,11 @@
 """``lde replay LOG... [--profile P] [--vehicle FILE] [--backend B] [--csv OUT] [--mcap OUT] [--smooth]``.
 
-Replays CAN logs (MCAP, candump ``-L``, or any python-can format; each also gzip-compressed, as
-``x.log.gz``) through the estimator on the 3.9 ms grid and writes one CSV row per step (``t`` in the
-log's own time base) and/or an MCAP recording. A short summary goes to stderr. With several LOGs,
-``--csv`` / ``--mcap`` name directories (one ``<log stem>.csv`` / ``.mcap`` each, the stem without
-``.gz``) and a progress bar shows.
+Replays CAN logs (MCAP, candump -L, or any python-can format; each also gzip-compressed, as
+x.log.gz) through the estimator on the 3.9 ms grid and writes one CSV row per step (t in the log's
+own time base; the columns are listed below) and/or an MCAP recording. A short summary goes to
+stderr and names the files written; without --csv or --mcap nothing is written (the summary says so).
+With several LOGs, --csv / --mcap name directories (one <log stem>.csv / .mcap each, the stem without
+.gz) and a progress bar shows on a terminal.
 
 Before anything is read or written, the outputs are checked: a LOG given twice (by any spelling of
 its path) is an error, and so is an output that is one of the LOGs or another output (an output never
@@ -25,6 +26,7 @@ from types import FrameType
 
 from lde.cli import BACKEND_CHOICES, BACKEND_HELP
 from lde.errors import ConfigError, LdeError
+from lde.replay.columns import columns_help
 
 #: exit code of a replay that ran but gave no VALID estimate (no step, or every step invalid): the
 #: outputs are written, and hold nothing usable (the warning says why); 2 is an error (unreadable log,
@@ -37,6 +39,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "replay",
         help="replay CAN logs through the estimator (CSV / MCAP out)",
         description=__doc__.split("\n\n")[1] if __doc__ else None,
+        epilog=columns_help(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
         "logs", nargs="+", metavar="LOG", help="MCAP, candump -L text, ASC, BLF, TRC, CSV, ... (also as .gz)"
@@ -172,10 +176,10 @@ def _check_paths(logs: list[Path], outputs: list[tuple[str, Path]], many: bool =
 
 
 def _summary(rep) -> str:
-    """The summary of one replay (``rep``: its :class:`lde.replay.fleet.LogReport`)."""
+    """The summary of one replay (``rep``: its :class:`lde.replay.fleet.LogReport`), ending with the files
+    it wrote."""
     causes = ", ".join(f"{k} {v}" for k, v in rep.rejected_by_cause.items() if v) or "none"
-    extra = [f"{v} {k.replace('_', ' ')}" for k, v in rep.skipped.items()]
-    not_read = f"; not read: {', '.join(extra)}" if extra else ""
+    not_read = f"; not read: {', '.join(rep.not_read)}" if rep.not_read else ""
     lines = [
         f"{rep.log}: {rep.format}, {rep.frames} frames, {rep.steps} steps = {rep.duration_s:.3f} s stepped"
         f" in {rep.segments} segment{'' if rep.segments == 1 else 's'}"
@@ -195,7 +199,29 @@ def _summary(rep) -> str:
         lines.append(
             "  note: no estimator step: the log has no accepted frame of the profile's anchor (MDPS) message"
         )
+    if rep.written:
+        lines.append("  wrote " + ", ".join(f"{what} {path}" for what, path in rep.written))
     return "\n".join(lines)
+
+
+def _nothing_written_note(args: argparse.Namespace) -> str | None:
+    """What a replay without ``--csv`` / ``--mcap`` did not write, and how to write it."""
+    if args.csv is not None or args.mcap is not None:
+        return None
+    what = "the estimates were not written" if args.learned is not None else "nothing written"
+    return (
+        f"lde replay: {what} (no --csv or --mcap given): add --csv OUT.csv for a table of the estimates "
+        "(columns: lde replay --help) and/or --mcap OUT.mcap for a recording (Foxglove); with several "
+        "LOGs give directories"
+    )
+
+
+def _outputs_note(args: argparse.Namespace, reports: list) -> str | None:
+    """With several LOGs: where their outputs went (the directories and how many files each)."""
+    n = sum(1 for r in reports if r.ok)
+    files = "file" if n == 1 else "files"
+    parts = [f"{n} {kind} {files} in {d}" for kind, d in (("CSV", args.csv), ("MCAP", args.mcap)) if d]
+    return f"lde replay: wrote {' and '.join(parts)}" if parts and n else None
 
 
 @contextlib.contextmanager
@@ -237,8 +263,7 @@ def run(args: argparse.Namespace) -> int:
 def _gc_off() -> Iterator[Callable[[], None]]:
     """The collector off until ``resume()``, which freezes what the start-up made; unfrozen at the
     end. The imports and numba's kernel loads make ~10^5 long-lived objects: collecting while they
-    were made, and walking them in every full collection after, took 0.1-0.2 s of a warm start
-    (issue 12)."""
+    were made, and walking them in every full collection after, took 0.1-0.2 s of a warm start."""
     was_enabled = gc.isenabled()
     gc.disable()
 
@@ -364,15 +389,15 @@ def _run(args: argparse.Namespace, resume_gc: Callable[[], None]) -> int:
             for p in logs
         ]
         on_dask = args.scheduler is not None or (args.jobs is not None and (args.jobs > 1 or many))
-        show_bar = (many or on_dask) and not args.quiet
+        # a bar only on a terminal: its carriage returns would land in a file or a pipe
+        show_bar = (many or on_dask) and not args.quiet and sys.stderr.isatty()
 
         def report(rep) -> None:
             lines = [f"lde replay: warning: {rep.log}: {w}" for w in rep.warnings]  # even with -q
             if not args.quiet and rep.ok:
                 lines.append(_summary(rep))
-            if rep.error and many:
-                err = rep.error if rep.error.startswith(str(rep.log)) else f"{rep.log}: {rep.error}"
-                lines.append(f"lde: error: {err}")
+            if rep.error and many:  # said once, here (the table marks the log "error")
+                lines.append(f"lde: error: {rep.error_line}")
             for text in lines:
                 if show_bar:
                     from tqdm import tqdm
@@ -396,12 +421,18 @@ def _run(args: argparse.Namespace, resume_gc: Callable[[], None]) -> int:
             rest = f"; {left} log{'s' if left > 1 else ''} not replayed" if left else ""
             print(f"lde replay: stopped by {stopped[0].name}{rest}", file=sys.stderr)
             return 128 + int(stopped[0])
+        notes = [] if args.quiet else [n for n in (_nothing_written_note(args),) if n]
         if not many:
             if reports[0].error:
                 raise LdeError(reports[0].error)
+            for text in notes:
+                print(text, file=sys.stderr)
             return 0 if reports[0].usable else EXIT_NOTHING_USABLE
         if not args.quiet:
             print(summary_table(reports), file=sys.stderr)
+            notes += [n for n in (_outputs_note(args, reports),) if n]
+            for text in notes:
+                print(text, file=sys.stderr)
         if any(not r.ok for r in reports):
             return 2
         return 0 if all(r.usable for r in reports) else EXIT_NOTHING_USABLE

@@ -1,21 +1,26 @@
-"""``lde study``: parameter sweeps on Dask (issue 6, items 2 and 6), results as CSV + PNG.
+"""``lde study``: parameter sweeps of the estimator on simulated drives, on Dask; results as CSV + PNG.
 
 Presets (``--preset``):
 
-- ``paper`` — the paper's section-5 study: every Table 1 candidate set (``est1`` .. ``est5``) as the
-  estimator's nominal parameters on the heavy and light lateral-load scenarios, for every payload
-  case of the simulator (mass, inertia and CG as in Fig. 9) and ``--seeds`` seeds; ranks the sets by
-  the eq. (19) error index (Fig. 11) and plots the winner's estimates against truth (Figs. 13-14).
+- ``paper`` — the paper's section-5 study: its five nominal parameter candidates (``est1`` .. ``est5``)
+  as the estimator's parameters on the heavy and light lateral-load scenarios, for every payload
+  case of the simulator (mass, yaw inertia and CG) and ``--seeds`` seeds; ranks the sets by the
+  paper's error index (RMS error of Fw in N plus that of Mw in Nm per metre) and plots the winner's
+  estimates against the truth.
 - ``smoke`` — 4 short runs (est1/est3 on heavy/light): checks the whole chain in seconds.
 - ``ladder`` — what each estimator step buys on the target scenarios (heavy, light, every payload,
   the undisturbed lane change): reference file, + ``lde calibrate`` (tires and input corrections
-  from an undisturbed drive, the product path), Table 1 winner, + Fig. 12 tires (identified on the
-  simulator under heavy and light load), + ``lde calibrate``, then the prototypes of
-  ``lde.analysis.adaptive``: mass/inertia/CG scheduled on the load, lateral acceleration, secant tires.
+  from an undisturbed drive, the product path), the best candidate, + representative tires
+  (identified on the simulator under heavy and light load), + ``lde calibrate``, then the prototypes
+  of ``lde.analysis.adaptive``: mass/inertia/CG scheduled on the load, lateral acceleration, secant tires.
 - ``faults`` — steering friction and sensor offsets in the simulator: the product with the
   reference file as shipped and with the input corrections (and tires) ``lde calibrate`` learns.
-- ``all`` — Fig. 12, then three Table 1 sweeps (shipped tires; Fig. 12 tires; + ``lde calibrate``),
-  the ladder and the faults with their winners; ``summary_all.md``.
+- ``all`` — the tire identification, then three candidate sweeps (shipped tires; the identified
+  tires; + ``lde calibrate``), the ladder and the faults with their winners; ``summary_all.md``.
+
+The default backend here is ``paper`` (``lde run``, ``replay`` and ``demo`` default to ``fixed``):
+the presets reproduce the paper's study, and the tables in docs/study.md were measured with the
+paper's float filter. Give ``--backend fixed`` for the product's estimator.
 
 Runs go to a ``LocalCluster(n_workers=--workers, threads_per_worker=1)`` by default or to an existing
 scheduler with ``--scheduler tcp://HOST:8786``; ``--workers 0`` runs in this process.
@@ -66,7 +71,8 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
         "--backend",
         choices=BACKEND_CHOICES,
         default=None,
-        help="replay backend (default: paper, the paper's float filter the study tables were measured with)",
+        help="replay backend (default here: paper, the paper's float filter, which the tables in "
+        "docs/study.md were measured with; lde run, replay and demo default to fixed)",
     )
     g.add_argument("--profile", default=None, help="CAN profile of the simulated bus: lde (default), hyundai")
     g.add_argument(
@@ -139,7 +145,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--preset",
         choices=("paper", "smoke", "ladder", "faults", "all"),
         default="paper",
-        help="which sweep (default: paper; all = paper + Fig. 12 + ladder + faults)",
+        help="which sweep (default: paper; all = the tire identification + paper + ladder + faults)",
     )
     p.add_argument(
         "--winner", help="candidate set for ladder/faults (default: the paper sweep's winner, else est3)"
@@ -236,7 +242,8 @@ class _Ctx:
 
 
 def _sweep(ctx: _Ctx, preset: str, candidates, sweep_kw: dict, what: str) -> str:
-    """A candidate sweep: CSV, scores, Fig. 11-style bars and Fig. 13/14-style traces; the winner."""
+    """A candidate sweep: CSV, scores, error-index bars and the winner's traces against the truth;
+    the winner."""
     base = "smoke" if preset == "smoke" else "paper"
     specs = study.preset_specs(base, seeds=ctx.seeds, candidates=candidates, **sweep_kw)
     results = _run(specs, preset, ctx)

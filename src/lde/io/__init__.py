@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import shutil
 import tempfile
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -60,6 +60,7 @@ __all__ = [
     "LogData",
     "LogStream",
     "ReadStats",
+    "describe_skipped",
     "open_log",
     "read_log",
     "detect_format",
@@ -95,10 +96,13 @@ class ReadStats:
         frames: data frames returned.
         error_frames: error frames skipped.
         remote_frames: remote frames skipped.
-        malformed_lines: candump lines that did not parse (first one: ``first_malformed_line``).
-        truncated_last_line: 1 if the last line of a text log (or the last record of an MCAP file
-            without summary: a recording cut by a crash) was cut off and skipped.
-        bad_messages: MCAP CAN-channel messages of the wrong size/encoding (skipped).
+        malformed_lines: candump lines that did not parse (first one: ``first_malformed_line``;
+            the first few: ``malformed_at``, 1-based line numbers).
+        truncated_last_line: 1 if the last line of a text log (or the last record of a binary
+            log: an MCAP recording or a BLF file cut by a crash) was cut off and skipped; where it
+            is comes from :attr:`LogStream.end`. The name is kept for the text logs it began with.
+        bad_messages: MCAP CAN-channel messages of the wrong size/encoding (skipped); the byte
+            offsets of the chunks holding the first few: ``bad_messages_at``.
         late_frames: frames more than the reorder window behind a frame before them in the file
             (a streamed text or python-can log; skipped: see :func:`open_log`).
     """
@@ -111,6 +115,8 @@ class ReadStats:
     first_malformed_line: int = 0
     bad_messages: int = 0
     late_frames: int = 0
+    malformed_at: tuple[int, ...] = ()
+    bad_messages_at: tuple[int, ...] = ()
 
     @property
     def skipped(self) -> int:
@@ -237,7 +243,7 @@ class LogStream:
                 self.last_t_ns = t if self.last_t_ns is None else max(self.last_t_ns, t)
                 yield piece
         try:
-            _require_frames(self.path, self.format, self.frames_read, self.stats, self.mcap)
+            _require_frames(self.path, self.format, self.frames_read, self.stats, self.mcap, self.end)
         except LogFormatError as exc:
             e = self.end
             if e is None or not e.lossy:
@@ -303,7 +309,12 @@ def open_log(
             raise
 
         def mcap_stats() -> ReadStats:
-            return ReadStats(frames=0, bad_messages=m.bad_can_messages, truncated_last_line=int(m.truncated))
+            return ReadStats(
+                frames=0,
+                bad_messages=m.bad_can_messages,
+                truncated_last_line=int(m.truncated),
+                bad_messages_at=tuple(m.bad_chunks),
+            )
 
         it = m.iter_frames(tx=not skip_tx, chunk_frames=chunk_frames)
         stream = LogStream(p, "mcap", it, mcap_stats, mcap=m, skip_tx=skip_tx, end=lambda: _mcap_end(m))
@@ -324,7 +335,11 @@ def open_log(
         stream._stats = lambda: _candump_stats(parser, reorder, stream.frames_read)
         return stream
     end = _pycan_end(p, fmt)
-    reader = PycanReader(p, limit=end.offset if end is not None and end.cut and fmt in PYCAN_TEXT else None)
+    reader = PycanReader(
+        p,
+        limit=end.offset if end is not None and end.cut and fmt in PYCAN_TEXT else None,
+        text=fmt in PYCAN_TEXT,
+    )
     stream = LogStream(
         p, fmt, _ordered(iter(reader), reorder, chunk_frames), lambda: ReadStats(0), end=lambda: end
     )
@@ -374,6 +389,7 @@ def _candump_stats(parser: CandumpBlocks, reorder: Reorder, n: int) -> ReadStats
         truncated_last_line=parser.truncated_last_line,
         first_malformed_line=int(c[C_FIRST_BAD]),
         late_frames=reorder.late,
+        malformed_at=parser.malformed_at,
     )
 
 
@@ -437,7 +453,14 @@ def _require_rx(m: McapLog, skip_tx: bool) -> None:
         )
 
 
-def _require_frames(path: Path, fmt: str, n: int, stats: ReadStats, mcap: McapLog | McapData | None) -> None:
+def _require_frames(
+    path: Path,
+    fmt: str,
+    n: int,
+    stats: ReadStats,
+    mcap: McapLog | McapData | None,
+    end: FileEnd | None = None,
+) -> None:
     """LogFormatError for a log without a single data frame (or, read with ``skip_tx``, an MCAP
     recording that holds only the frames lde itself sent)."""
     if n:
@@ -447,7 +470,7 @@ def _require_frames(path: Path, fmt: str, n: int, stats: ReadStats, mcap: McapLo
     n_rx = topics[TOPIC_RX].count if TOPIC_RX in topics else 0
     if n_tx > 0 and n_rx == 0:
         raise LogFormatError(f"{path}: only frames lde sent ({n_tx} on {TOPIC_TX}): no received input frames")
-    raise LogFormatError(f"{path}: no CAN data frames in this {fmt} log ({_describe(stats)})")
+    raise LogFormatError(f"{path}: no CAN data frames in this {fmt} log ({_describe(stats, end)})")
 
 
 def _open_gzip(
@@ -566,18 +589,56 @@ def read_log(
         return LogData(p, fmt, frames, s.stats)
 
 
-def _describe(s: ReadStats) -> str:
-    parts = [f"{s.frames} frames"]
-    names = (
-        "error_frames",
-        "remote_frames",
-        "malformed_lines",
-        "truncated_last_line",
-        "bad_messages",
-        "late_frames",
-    )
-    for name in names:
-        v = getattr(s, name)
-        if v:
-            parts.append(f"{v} {name.replace('_', ' ')}")
-    return ", ".join(parts)
+def _describe(s: ReadStats, end: FileEnd | None = None) -> str:
+    return ", ".join([f"{s.frames} frames", *describe_skipped(s, end)])
+
+
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
+def _first_at(where: Sequence[int], n: int, prep: str, one: str, many: str) -> str:
+    """`` (first at lines 12, 57, 58)``: where the first few of ``n`` bad records are (``one`` /
+    ``many``: the words before one position / several)."""
+    if not where:
+        return ""
+    first = "" if len(where) == n else "first "
+    return f" ({first}{prep} {one if len(where) == 1 else many} {', '.join(str(w) for w in where)})"
+
+
+def describe_skipped(s: ReadStats, end: FileEnd | None) -> list[str]:
+    """What a reader skipped, in words, each with where it is in the file: the line numbers of
+    malformed lines (text logs), the byte offsets of bad records (binary logs) and the cut last
+    line or record (``end``: :attr:`LogStream.end`; None: not known). Empty when nothing was
+    skipped."""
+    out = []
+    if s.error_frames:
+        out.append(_plural(s.error_frames, "error frame"))
+    if s.remote_frames:
+        out.append(_plural(s.remote_frames, "remote frame"))
+    if s.malformed_lines:
+        at = s.malformed_at or ((s.first_malformed_line,) if s.first_malformed_line else ())
+        where = _first_at(at, s.malformed_lines, "at", "line", "lines")
+        out.append(_plural(s.malformed_lines, "malformed line") + where)
+    if s.truncated_last_line:
+        out.append(_cut_record(end))
+    if s.bad_messages:
+        out.append(
+            _plural(s.bad_messages, "CAN message")
+            + " of the wrong size or encoding"
+            + _first_at(s.bad_messages_at, s.bad_messages, "in", "the chunk at byte", "the chunks at bytes")
+        )
+    if s.late_frames:
+        out.append(_plural(s.late_frames, "late frame"))
+    return out
+
+
+def _cut_record(end: FileEnd | None) -> str:
+    """The record a file ends inside of (skipped), and where."""
+    if end is None or not end.cut:
+        return "the cut last record"
+    de = " decompressed" if end.compressed else ""
+    if end.what == "line":
+        return f"the cut last line (line {end.line + 1}, from byte {end.offset}{de}, no newline)"
+    what = end.what or "record"
+    return f"the cut last {what} (bytes {end.offset}-{end.size}{de}, cut short)"

@@ -35,6 +35,7 @@ from lde.errors import LogFormatError
 __all__ = [
     "CandumpParse",
     "CandumpBlocks",
+    "BAD_LINES_KEPT",
     "parse_candump_bytes",
     "looks_like_candump",
     "write_candump",
@@ -53,8 +54,12 @@ ST_BLANK = 4
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF
 
-# counts of the kernel: lines, error frames, remote frames, malformed lines, first malformed line
+# counts of the kernel: lines, error frames, remote frames, malformed lines, then the 1-based line
+# numbers of the first BAD_LINES_KEPT malformed lines (0: none) from C_FIRST_BAD on
 C_LINES, C_ERROR, C_REMOTE, C_MALFORMED, C_FIRST_BAD = range(5)
+#: malformed lines whose numbers are kept (a warning names the first few, not thousands)
+BAD_LINES_KEPT = 3
+N_COUNTS = C_FIRST_BAD + BAD_LINES_KEPT
 
 #: hex digit value of every byte, -1 for the others
 _HEX = np.full(256, -1, np.int64)
@@ -78,7 +83,8 @@ def _sp(c):  # pragma: no cover - compiled
 def _parse_block(buf, hexv, t_out, id_out, ext_out, dlc_out, word_out, rx_out, counts):  # pragma: no cover
     """Parse every line of ``buf`` (which ends with a newline) in one pass; frames are packed into
     the output rows (payload as a little-endian word), the other line kinds counted in ``counts``
-    (``C_*``; ``C_FIRST_BAD`` numbered from ``counts[C_LINES]`` on). Returns the frames written.
+    (``C_*``; the malformed lines' numbers from ``C_FIRST_BAD`` on, counted from ``counts[C_LINES]``).
+    Returns the frames written.
     The grammar is the module doc's; the kernel never reads past the block's last newline."""
     n = buf.shape[0]
     i = 0
@@ -219,9 +225,9 @@ def _parse_block(buf, hexv, t_out, id_out, ext_out, dlc_out, word_out, rx_out, c
         elif st == ST_REMOTE:
             counts[C_REMOTE] += 1
         elif st == ST_MALFORMED:
+            if counts[C_MALFORMED] < BAD_LINES_KEPT:
+                counts[C_FIRST_BAD + counts[C_MALFORMED]] = counts[C_LINES] + line
             counts[C_MALFORMED] += 1
-            if counts[C_FIRST_BAD] == 0:
-                counts[C_FIRST_BAD] = counts[C_LINES] + line
     counts[C_LINES] += line
     return k
 
@@ -263,6 +269,7 @@ class CandumpParse:
         malformed_lines: lines that did not parse (excluding a truncated last line).
         truncated_last_line: 1 if the last line had no newline and did not parse, else 0.
         first_malformed_line: 1-based number of the first malformed line, 0 if none.
+        malformed_at: 1-based numbers of the first :data:`BAD_LINES_KEPT` malformed lines.
     """
 
     frames: FrameBatch
@@ -272,6 +279,7 @@ class CandumpParse:
     malformed_lines: int
     truncated_last_line: int
     first_malformed_line: int
+    malformed_at: tuple[int, ...] = ()
 
 
 class CandumpBlocks:
@@ -282,7 +290,7 @@ class CandumpBlocks:
     and :attr:`truncated_last_line`."""
 
     def __init__(self) -> None:
-        self.counts = np.zeros(5, np.int64)
+        self.counts = np.zeros(N_COUNTS, np.int64)
         self.truncated_last_line = 0
         self.cut_bytes = 0  # bytes of the cut last line (not parsed)
         self._carry = b""
@@ -344,7 +352,14 @@ class CandumpBlocks:
             malformed_lines=int(c[C_MALFORMED]),
             truncated_last_line=self.truncated_last_line,
             first_malformed_line=int(c[C_FIRST_BAD]),
+            malformed_at=self.malformed_at,
         )
+
+    @property
+    def malformed_at(self) -> tuple[int, ...]:
+        """1-based numbers of the first :data:`BAD_LINES_KEPT` malformed lines so far."""
+        kept = self.counts[C_FIRST_BAD : C_FIRST_BAD + min(BAD_LINES_KEPT, int(self.counts[C_MALFORMED]))]
+        return tuple(int(x) for x in kept)
 
 
 def parse_candump_bytes(raw: bytes | bytearray | memoryview) -> CandumpParse:

@@ -71,6 +71,8 @@ __all__ = ["McapLog", "McapData", "TopicInfo", "read_mcap"]
 # what the walk kernel does with a channel's messages
 W_COUNT, W_FRAME, W_TABLE = 0, 1, 2
 _NO_CHANNEL = -1
+#: chunks with bad CAN messages whose offsets are kept (a warning names the first few)
+BAD_CHUNKS_KEPT = 3
 
 
 @dataclass(frozen=True)
@@ -344,6 +346,7 @@ class McapLog:
             messages, and a JSON channel's chunks are followed by their message indexes.
         fast_path: False when the ``mcap`` library's per-message reader is used.
         bad_can_messages: CAN-channel messages of the wrong size or encoding, skipped so far.
+        bad_chunks: byte offsets of the first :data:`BAD_CHUNKS_KEPT` chunks that held them.
         chunks_read, chunks_skipped: chunks decompressed / left compressed so far.
 
     Raises:
@@ -382,6 +385,7 @@ class McapLog:
             raise LogFormatError("not an MCAP file (no MCAP magic)")
         self.truncated = False
         self.bad_can_messages = 0
+        self.bad_chunks: list[int] = []
         self.chunks_read = 0
         self.chunks_skipped = 0
         self._library: _LibraryData | None = None
@@ -583,6 +587,8 @@ class McapLog:
         for j, c in enumerate(chunks):
             w = self._guard("chunk", self._walk, c, want, not self._counted)
             self.bad_can_messages += w.bad
+            if w.bad and len(self.bad_chunks) < BAD_CHUNKS_KEPT:
+                self.bad_chunks.append(c.offset)
             pool.add(w.frames, self._rank[c.offset])
             del w  # the decompressed chunk is not held while the pieces are used
             bound = starts[j + 1] if j + 1 < len(chunks) else None

@@ -3,7 +3,9 @@
 The format's ``can.LogReader`` is iterated and its messages are turned into columns in batches of
 :data:`BATCH` (file order). python-can gives float-second timestamps: they are converted with
 :func:`lde.can.frames.seconds_to_ns` (rounded to the microsecond). Error and remote frames are skipped
-with a count. Any exception of the format's reader becomes a :class:`LogFormatError`.
+with a count. Any exception of the format's reader becomes a :class:`LogFormatError` that says
+where the reader was: the line (text formats: ASC, TRC, CSV, read through a line-counting text
+file) or the byte offset it had read up to (binary formats such as BLF).
 """
 
 from __future__ import annotations
@@ -45,10 +47,13 @@ class PycanReader:
             iterating).
     """
 
-    def __init__(self, path: str | Path, batch: int = BATCH, limit: int | None = None) -> None:
+    def __init__(
+        self, path: str | Path, batch: int = BATCH, limit: int | None = None, text: bool = False
+    ) -> None:
         self.path = Path(path)
         self.batch = batch
         self.limit = limit  # a text log read only up to this byte (its cut last line left out)
+        self.text = text  # a text format: read through a line counter (errors name the line)
         self.error_frames = 0
         self.remote_frames = 0
 
@@ -56,8 +61,13 @@ class PycanReader:
         import can
 
         p = self.path
+        lines: _LineCounter | None = None
         try:
-            reader = can.LogReader(str(p)) if self.limit is None else _limited_reader(p, self.limit)
+            if self.text or self.limit is not None:
+                lines = _text_file(p, self.limit)
+                reader = _text_reader(p, lines)
+            else:
+                reader = can.LogReader(str(p))
         except ValueError as exc:
             raise LogFormatError(f"{p}: no reader for this file type ({exc})") from exc
         except Exception as exc:  # noqa: BLE001 - format readers raise anything on bad input
@@ -65,8 +75,8 @@ class PycanReader:
                 f"{p}: cannot open as a {p.suffix} log ({type(exc).__name__}: {exc})"
             ) from exc
         cols = _Columns()
-        try:
-            with reader:
+        with reader:  # the error names the reader's position: taken before the file is closed
+            try:
                 for m in reader:
                     if m.is_error_frame:
                         self.error_frames += 1
@@ -77,12 +87,43 @@ class PycanReader:
                     cols.add(m)
                     if cols.n >= self.batch:
                         yield cols.take()
-        except LogFormatError:
-            raise
-        except Exception as exc:  # noqa: BLE001
-            raise LogFormatError(f"{p}: corrupt {p.suffix} log ({type(exc).__name__}: {exc})") from exc
+            except Exception as exc:  # noqa: BLE001
+                raise LogFormatError(
+                    f"{p}: corrupt {p.suffix} log {_where(reader, lines)}({type(exc).__name__}: {exc})"
+                ) from exc
         if cols.n:
             yield cols.take()
+
+
+def _where(reader: Any, lines: _LineCounter | None) -> str:
+    """Where a reader failed: ``at line N `` (text) or ``before byte N `` (the position of its
+    binary file: the record it failed in ends there), else nothing."""
+    if lines is not None:
+        return f"at line {lines.lines} "
+    try:
+        return f"before byte {int(reader.file.tell())} "
+    except Exception:  # noqa: BLE001 - a reader without a seekable file: say nothing
+        return ""
+
+
+class _LineCounter(io.TextIOWrapper):
+    """A text file that counts the lines read from it (python-can's text readers iterate it or
+    call ``readline``; iterating goes through ``readline`` here): :attr:`lines` is the number of
+    the line read last."""
+
+    lines = 0
+
+    def __next__(self) -> str:  # type: ignore[override]  # typeshed: the base class's bytes
+        line = self.readline()
+        if not line:
+            raise StopIteration
+        return line
+
+    def readline(self, size: int | None = -1) -> str:  # type: ignore[override]
+        line = super().readline(-1 if size is None else size)
+        if line:
+            self.lines += 1
+        return line
 
 
 class _Head(io.RawIOBase):
@@ -105,15 +146,28 @@ class _Head(io.RawIOBase):
         super().close()
 
 
-def _limited_reader(p: Path, limit: int) -> can.io.generic.MessageReader:
-    """python-can's text reader for ``p`` over its first ``limit`` bytes (the encoding python-can
-    uses for a path)."""
+def _text_file(p: Path, limit: int | None) -> _LineCounter:
+    """``p`` as text (the encoding python-can uses for a path), over its first ``limit`` bytes
+    when given, counting lines."""
+    fh = p.open("rb")
+    raw: io.BufferedReader = fh if limit is None else io.BufferedReader(_Head(fh, limit))
+    return _LineCounter(raw, locale.getpreferredencoding(False))
+
+
+def _text_reader(p: Path, text: _LineCounter) -> can.io.generic.MessageReader:
+    """python-can's text reader for ``p``'s suffix over the open ``text``."""
     from can.io import player
 
     player._update_reader_plugins()
-    cls: Any = player.MESSAGE_READERS[p.suffix.lower()]  # a text reader: takes a text file too
-    text = io.TextIOWrapper(io.BufferedReader(_Head(p.open("rb"), limit)), locale.getpreferredencoding(False))
-    return cls(file=text)
+    cls: Any = player.MESSAGE_READERS.get(p.suffix.lower())
+    if cls is None:
+        text.close()
+        raise ValueError(f"no reader for {p.suffix!r}")
+    try:
+        return cls(file=text)
+    except BaseException:
+        text.close()
+        raise
 
 
 class _Columns:

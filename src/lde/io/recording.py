@@ -67,7 +67,7 @@ from lde.errors import LogFormatError
 from lde.estimator.paper import N_OUT
 from lde.io import TOPIC_RX, TOPIC_TX, McapLog, McapWriter
 from lde.io.textfmt import EXACT, Column, format_rows, time_column
-from lde.status import DEADLINE_MISS, STATUS_BITS
+from lde.status import DEADLINE_MISS, STATUS_BITS, STATUS_MEANINGS
 
 if TYPE_CHECKING:  # python-can is imported by whoever hands in can.Message objects
     import can
@@ -237,7 +237,10 @@ ESTIMATE = StepTopic(
         _num("Mw_wind", "the wind's yaw moment [Nm] (null: not told apart)", EXACT, lambda b, _: b.mw_wind),
         _num("bank_deg", "road bank [deg], left side lower positive", EXACT, lambda b, _: np.degrees(b.bank)),
         _int("learn_state", "0 not learned, 1 learning, 2 learned, 3 no learner", lambda b, _: b.learn_state),
-        *(_int(name, f"Status bit{i}", _status_bit(i)) for i, name in enumerate(STATUS_BITS)),
+        *(
+            _int(name, f"0/1, Status bit{i}: {STATUS_MEANINGS[name]}", _status_bit(i))
+            for i, name in enumerate(STATUS_BITS)
+        ),
     ),
 )
 _INPUT_DOC = {

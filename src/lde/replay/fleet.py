@@ -22,7 +22,7 @@ from typing import Any
 
 from lde.can.profiles import load_profile
 from lde.errors import LdeError, OutputError
-from lde.io import REORDER_WINDOW_NS
+from lde.io import REORDER_WINDOW_NS, describe_skipped
 from lde.params import load_vehicle
 from lde.replay.replay import (
     CsvWriter,
@@ -98,10 +98,19 @@ class LogReport:
     learned_origin: str = ""  # where learning started: a --learned file, the recording, "" (vehicle)
     stopped: bool = False  # stopped by a signal before the end of the log (outputs closed, partial)
     last_step_ns: int | None = None  # the time of the last step [ns]
+    #: what the reader skipped, in words, with line numbers or byte offsets (lde.io.describe_skipped)
+    not_read: list[str] = field(default_factory=list)
+    #: the files this replay wrote: (what, path), e.g. ("CSV", "/data/x.csv")
+    written: list[tuple[str, str]] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
         return not self.error
+
+    @property
+    def error_line(self) -> str:
+        """The error naming the log once (most errors start with its path already)."""
+        return self.error if self.error.startswith(str(self.log)) else f"{self.log}: {self.error}"
 
     @property
     def usable(self) -> bool:
@@ -271,11 +280,26 @@ def _replay_outputs(
     rep.timings = {"open": li.read_s, **res.timings}
     rep.learned, rep.learned_origin = res.learned, res.learned_origin
     rep.stopped, rep.last_step_ns = res.stopped, res.last_step_ns
+    rep.not_read = describe_skipped(stats, li.stream.end)
+    rep.written = _written(job)
     if res.stopped:  # the end of the file was not read: nothing to say about it
         rep.warnings = [stopped_note(rep)]
         return
     notes = (end_note(li.stream), no_valid_note(res), gaps_note(res), late_note(stats, job.reorder_window_ns))
     rep.warnings = [w for w in notes if w]
+
+
+def _written(job: ReplayJob) -> list[tuple[str, str]]:
+    """The files a replay that ended wrote: (what, path)."""
+    smooth = job.smooth
+    out = []
+    if job.csv is not None:
+        out.append(("CSV" + (" (with the *_smooth columns)" if smooth else ""), str(job.csv)))
+    if job.mcap is not None:
+        out.append(("MCAP" + (" (with /lde/smooth)" if smooth else ""), str(job.mcap)))
+    if job.learned is not None:
+        out.append(("learned state", str(job.learned)))
+    return out
 
 
 def stopped_note(rep: LogReport) -> str:
@@ -331,7 +355,9 @@ def job_done(bar: Any, rep: LogReport, on_report: Callable[[LogReport], None] | 
 
 
 def summary_table(reports: Iterable[LogReport]) -> str:
-    """One line per log (frames, steps, valid share, rejected, seconds, host) and a total."""
+    """One line per log (frames, steps, valid share, rejected, seconds, host) and a total. A failed
+    log is a row marked ``error``; its error (:attr:`LogReport.error_line`) is said where it
+    happened, not again here."""
     reps = list(reports)
     head = ("log", "format", "frames", "steps", "valid %", "rejected", "seconds", "host")
     rows = []
@@ -372,7 +398,4 @@ def summary_table(reports: Iterable[LogReport]) -> str:
         lines.append("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)))
     lines.append("  ".join("-" * w for w in widths))
     lines.append("  ".join(c.ljust(w) for c, w in zip(rows[-1], widths, strict=True)))
-    for r in reps:
-        if not r.ok:
-            lines.append(f"{r.log}: {r.error}")
     return "\n".join(lines)

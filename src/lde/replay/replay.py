@@ -65,8 +65,9 @@ from lde.io.recording import (
 from lde.io.stream import ReadAhead, split
 from lde.io.textfmt import Column, format_rows, time_column
 from lde.params import Vehicle
-from lde.replay.smoother import NS, S_BANK, SMOOTHED, SmoothTrack, check_backend, smooth_run
-from lde.status import DEADLINE_MISS, VALID
+from lde.replay.columns import CSV_COLUMNS, SMOOTHED, STATUS_COLUMNS, csv_columns
+from lde.replay.smoother import NS, S_BANK, SmoothTrack, check_backend, smooth_run
+from lde.status import DEADLINE_MISS, STATUS_BITS, VALID
 from lde.units import KMH, STEP_NS
 
 __all__ = [
@@ -92,30 +93,11 @@ __all__ = [
     "RecordingWriter",
     "output_frames",
     "CSV_COLUMNS",
+    "STATUS_COLUMNS",
+    "csv_columns",
     "DEFAULT_BACKEND",
     "smoothed_columns",
 ]
-
-
-#: CSV columns: name, decimals, unit/meaning (the first four are the SPEC's contract)
-CSV_COLUMNS: tuple[tuple[str, int, str], ...] = (
-    ("t", 6, "s, step time in the log's own time base"),
-    ("Fw", 3, "N, disturbance force at the CG, left positive"),
-    ("Mw", 3, "Nm, disturbance yaw moment, left positive"),
-    ("T_overlay", 4, "Nm, overlay torque request at the column, left positive"),
-    ("T_align", 4, "Nm, estimated aligning torque at the steering axis, paper sign"),
-    ("status", 0, "LDE_Estimate.Status bit map"),
-    ("overlay_state", 0, "0 off, 1 ramp-in, 2 active, 3 ramp-out, 4 fault"),
-    ("beta", 7, "rad, estimated side slip"),
-    ("yaw_rate", 6, "rad/s, estimated yaw rate"),
-    ("speed", 4, "m/s, input speed (sample-and-hold)"),
-    ("mdps_ok", 0, "1: MDPS inputs fresh and trusted"),
-    ("esc_ok", 0, "1: ESC inputs fresh and trusted"),
-    ("Fw_wind", 3, "N, the wind's part of Fw, left positive (nan: the backend does not tell wind from bank)"),
-    ("Mw_wind", 3, "Nm, the wind's yaw moment, left positive (nan: not told apart)"),
-    ("bank_deg", 4, "deg, road bank angle, road's left side lower positive (nan: not told apart)"),
-    ("learn_state", 0, "tire values: 0 not learned, 1 learning, 2 learned, 3 the backend does not learn"),
-)
 
 
 # ----------------------------------------------------------------------------- results
@@ -925,6 +907,13 @@ def _csv_columns(b: StepBlock) -> list[Column]:
     return cols
 
 
+def _status_columns(b: StepBlock) -> list[Column]:
+    """The decoded status (:data:`lde.replay.columns.STATUS_COLUMNS`): a 0/1 column per bit, then
+    ``overlay_active``."""
+    bits = [Column(name, (b.status >> i) & 1, 0) for i, name in enumerate(STATUS_BITS)]
+    return bits + [Column("overlay_active", b.overlay_active.astype(np.uint8), 0)]
+
+
 def smoothed_columns(rows: np.ndarray) -> list[Column]:
     """The smoother's outputs (:data:`lde.replay.smoother.SMOOTHED`; the bank in degrees) as columns."""
     vals = [rows[:, i] for i in range(NS)]
@@ -933,8 +922,9 @@ def smoothed_columns(rows: np.ndarray) -> list[Column]:
 
 
 class CsvWriter:
-    """The replay CSV (:data:`CSV_COLUMNS`, then with ``smooth`` the smoother's
-    :data:`lde.replay.smoother.SMOOTHED`; NaN as ``nan``) written block by block: a sink of
+    """The replay CSV (:func:`lde.replay.columns.csv_columns`: :data:`CSV_COLUMNS`, then with
+    ``smooth`` the smoother's :data:`~lde.replay.columns.SMOOTHED`, then the decoded
+    :data:`STATUS_COLUMNS`; NaN as ``nan``) written block by block: a sink of
     :func:`run_replay`. ``t`` is the step time in seconds in the log's own time base, printed exactly
     from the integer ns (6 decimals when every step time of a block is a whole microsecond, else 9).
 
@@ -950,9 +940,7 @@ class CsvWriter:
     ) -> None:
         self.path = Path(path)
         self._smooth = smooth
-        names = [name for name, _, _ in CSV_COLUMNS]
-        if smooth is not None:
-            names += [name for name, _, _ in SMOOTHED]
+        names = [name for name, _, _ in csv_columns(smooth is not None)]
         try:
             self._fh = open(self.path, "wb")  # noqa: SIM115 - closed by close()
             self._fh.write((",".join(names) + "\n").encode())
@@ -976,6 +964,7 @@ class CsvWriter:
         cols = _csv_columns(block)
         if self._smooth is not None:
             cols += smoothed_columns(self._smooth.rows_for(block))
+        cols += _status_columns(block)
         if self._pool is None:
             self._write_now(cols)
             return

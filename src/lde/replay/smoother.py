@@ -66,6 +66,7 @@ from lde.engine.receiver import I_SPEED
 from lde.errors import ConfigError, LogFormatError
 from lde.estimator import lateral as E
 from lde.params import Vehicle
+from lde.replay.columns import SMOOTHED
 
 __all__ = [
     "SMOOTHED",
@@ -93,15 +94,7 @@ NT = 35
 
 # --- a smoothed row (float64, SI): the columns of the output -------------------------------------
 S_FW, S_MW, S_FW_WIND, S_MW_WIND, S_BANK = range(5)
-NS = 5
-#: the smoothed outputs: (name, CSV decimals, unit and meaning); the CSV and the MCAP topic use these
-SMOOTHED: tuple[tuple[str, int, str], ...] = (
-    ("Fw_smooth", 3, "N, RTS-smoothed Fw (float lateral filter, non-causal), left positive"),
-    ("Mw_smooth", 3, "Nm, RTS-smoothed Mw, left positive"),
-    ("Fw_wind_smooth", 3, "N, RTS-smoothed wind force, left positive"),
-    ("Mw_wind_smooth", 3, "Nm, RTS-smoothed wind yaw moment, left positive"),
-    ("bank_deg_smooth", 4, "deg, RTS-smoothed road bank angle, road's left side lower positive"),
-)
+NS = 5  # in the order of SMOOTHED (lde.replay.columns): names, CSV decimals, units and meanings
 
 #: backends whose estimate the smoother can stand beside (the lateral filter, float or fixed)
 SMOOTHABLE_BACKENDS = ("float", "fixed")

@@ -9,6 +9,7 @@ order of the specs. ``n_workers=0`` runs in this process (debugging).
 from __future__ import annotations
 
 import logging
+import sys
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -85,7 +86,8 @@ def run_specs(
 
 
 def _progress(it: Iterable[Any], enabled: bool, total: int, desc: str) -> Iterable[Any]:
-    if not enabled:
+    """A tqdm bar over ``it``, only on a terminal (its carriage returns would land in a file)."""
+    if not enabled or not sys.stderr.isatty():
         return it
 
     return tqdm(it, total=total, unit="run", desc=desc)
