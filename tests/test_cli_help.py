@@ -60,7 +60,8 @@ def test_every_backend_default_is_the_same_or_said_with_its_reason(capsys):
         assert "fixed (default)" in _help(capsys, command)
     for command in ("study", "evaluate"):
         text = " ".join(_help(capsys, command).split())
-        assert "default here: paper" in text and "default to fixed" in text and "docs/study.md" in text
+        assert "default here: paper" in text and "default to fixed" in text
+        assert "docs/design/studies.md" in text
     text = " ".join(_help(capsys, "calibrate").split())
     assert "no --backend option" in text.replace("``", "")
     assert "paper's float filter" in text and "learns nothing" in text

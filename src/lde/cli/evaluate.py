@@ -6,7 +6,7 @@ actual CG, as in the paper) with the Mw figure about the unloaded reference CG b
 bank-only scenario the Mw error is normalised by 1 m x max|Fw|; for a disturbance-free scenario the
 figures are the RMS of the estimate in N and Nm (``lde.analysis.metrics``). The default backend here is
 ``paper`` (``lde run``, ``replay`` and ``demo`` default to ``fixed``): the accuracy tables in
-docs/study.md were measured with the paper's float filter; give ``--backend fixed`` for the
+docs/design/studies.md were measured with the paper's float filter; give ``--backend fixed`` for the
 product's estimator. ``--zoo`` runs ``fixed`` and ``float`` unless ``--backends`` says otherwise.
 
 ``lde evaluate --zoo``: the estimator on cars it was never fitted to (``vcan_sim/zoo``). For every
@@ -19,7 +19,7 @@ and OUT/spec_sheets/. ``--modes cold,warm`` (the default): cold runs with the sp
 first replays an earlier drive of the same car with ``--learned S`` and then the run with it
 (``--prior A,B``: which drives, each its own mode ``warm after NAME``; default ``prior_drive``). A
 payload plant also runs with the spec sheet plus the load (``PLANT + load`` rows).
-``--readme README.md --doc docs/study.md`` (full run only) write the summary and the tables between
+``--readme FILE`` / ``--doc FILE`` (full run only) write the summary and the tables between
 the files' two marker comments (``lde evaluate --zoo: begin`` and ``end``).
 """
 
@@ -111,8 +111,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--doc",
         type=Path,
         metavar="FILE",
-        help="write the summary and the tables between the same markers of FILE, e.g. docs/study.md "
-        "(full run only)",
+        help="write the summary and the tables between the same markers of FILE (full run only)",
     )
     z.add_argument("--out", type=Path, default=Path("results/zoo"), help="output directory (results/zoo)")
     z.add_argument("--keep-logs", action="store_true", help="keep every run's log, truth, spec sheet, CSV")

@@ -3,7 +3,7 @@
 What a user needs before trusting a new car: which ids and channels the log holds, at which rates;
 which shipped (or the given) profile fits it; for the profile, each input's range, rate, staleness
 and integrity; and physics checks of its signs and scales, each with pass, fail (and the profile
-line to change) or not enough excitation, and the numbers behind it (docs/inspect.md).
+line to change) or not enough excitation, and the numbers behind it (docs/guide/inspect.md).
 
 Exit status: 0 when the inspection ran (whatever the checks say), 2 on a user error (a missing
 file, a bad profile or vehicle file), 3 when the log has none of the profile's input messages

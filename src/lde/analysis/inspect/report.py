@@ -83,7 +83,7 @@ def _fit_part(insp: Inspection) -> list[str]:
     if insp.profile is None:
         lines.append(
             "  none of the shipped profiles fits this log: write a profile file for this car and give it"
-            " with --profile (docs/inspect.md)"
+            " with --profile (docs/guide/inspect.md)"
         )
     return lines
 
