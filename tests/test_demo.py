@@ -16,25 +16,7 @@ from lde.service.service import STATUS_DEADLINE_MISS
 from lde.units import STEP_S
 
 
-def _fixed_available() -> bool:
-    try:
-        import firmware_model
-
-        return hasattr(firmware_model, "run_batch")
-    except ImportError:
-        return False
-
-
-@pytest.mark.parametrize(
-    "backend",
-    [
-        "float",
-        pytest.param(
-            "fixed",
-            marks=pytest.mark.skipif(not _fixed_available(), reason="firmware_model.run_batch not there yet"),
-        ),
-    ],
-)
+@pytest.mark.parametrize("backend", ["float", "fixed"])
 def test_replay_of_the_recording_reproduces_the_live_outputs_exactly(tmp_path: Path, backend: str) -> None:
     path = tmp_path / "live.mcap"
     live = run_closed_loop("light_load", duration=8.0, seed=3, backend=backend, record=path)

@@ -344,8 +344,6 @@ def test_a_killed_live_sim_leaves_its_files_readable_up_to_about_the_kill(tmp_pa
     each reads (the MCAP without footer, which a replay says, the CSV up to its last whole line) and
     ends near the kill. The bound here is generous (a loaded machine); bench_sigkill.py --target sim
     holds the 1 s promise. The loss is measured against the frames heard on the bus."""
-    pytest.importorskip("msgpack")
-
     from lde.testing.bus import private_multicast
     from vcan_sim.truth import read_truth_csv
 

@@ -463,7 +463,6 @@ def test_input_filters_pass_only_the_input_messages() -> None:
 def test_udp_multicast_socket_filter_drops_foreign_frames_in_the_kernel() -> None:
     """The BPF program on python-can's udp_multicast socket: only the input ids get through (the
     service's own outputs, which the multicast loopback delivers, never reach Python)."""
-    pytest.importorskip("msgpack")
     import time
 
     from lde.service.service import set_input_filters

@@ -17,9 +17,7 @@ from lde.cli import main
 from lde.cli import replay_in_process as cli_engine
 from lde.errors import ConfigError
 from lde.params import load_vehicle
-
-vcan_zoo = pytest.importorskip("vcan_sim.zoo")
-
+from vcan_sim import zoo as vcan_zoo
 
 # --- spec sheets ------------------------------------------------------------------------------------
 

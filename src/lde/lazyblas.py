@@ -9,9 +9,9 @@ of ``scipy.linalg`` (0.2 s on a quiet machine, 0.4-0.5 s at load 9), whatever th
 on disk instead of importing it, and keeps the rest of numba's check (the LP64 / ILP64 width of
 scipy's BLAS against numba's build). Nothing else changes: numba's own ``ensure_blas`` is put back
 at once, so a kernel compiled later imports scipy as before, and a cached kernel that calls LAPACK
-(``lde.estimator.kalman.update_inplace`` with more than two measurement rows) has numba's helper import
-``scipy.linalg.cython_lapack`` at its first call. A replay whose kernels never call LAPACK (the
-``lde`` profile's, both backends) runs without ``scipy.linalg`` in the process.
+has numba's helper import ``scipy.linalg.cython_lapack`` at its first call. lde's own kernels call
+neither BLAS nor LAPACK (scipy is no dependency of lde; where it is installed, this keeps
+``scipy.linalg`` out of the process).
 """
 
 from __future__ import annotations

@@ -35,7 +35,6 @@ make every call go through a function pointer and could not be cached.
 from __future__ import annotations
 
 import math
-import sys
 import types
 from typing import Any
 
@@ -378,8 +377,7 @@ def make_loop(step: Any, name: str) -> Any:
     """The compiled loop (:func:`_run_loop`) with ``step`` bound as its backend step, under its own
     name (its own on-disk cache entry). It releases the GIL: a batch runs a shadow engine beside it."""
     code = _run_loop.__code__.replace(co_name=name)
-    if sys.version_info >= (3, 11):  # numba caches by qualified name
-        code = code.replace(co_qualname=name)
+    code = code.replace(co_qualname=name)  # numba caches by qualified name
     bound = dict(_run_loop.__globals__, STEP=step)
     fn = types.FunctionType(code, bound, name, _run_loop.__defaults__)
     fn.__module__ = _run_loop.__module__
