@@ -309,7 +309,8 @@ def test_lde_run_sigint_closes_its_recording(tmp_path: Path) -> None:
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert rc == 0, proc.stderr.read().decode() if proc.stderr else ""
+    err = proc.stderr.read().decode() if proc.stderr else ""
+    assert rc == 3 and "no input ever arrived" in err, err  # a silent bus: nothing usable, said
     rec = read_recording(path)
     assert rec.complete and len(rec.step_times_ns) > 10
 

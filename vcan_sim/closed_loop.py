@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import can
 
+from lde.can.busio import drain
 from lde.can.codec import MessageCodec
 from lde.can.e2e import E2EStatus, P01Receiver
 from lde.can.profiles import Profile
@@ -112,7 +113,7 @@ def run_lockstep(
             st.sent += 1
         service_step(t_start + latency_ns)
         st.steps += 1
-        while (back := bus.recv(0.0)) is not None:
+        for back in drain(bus):
             t_rx = int(round(back.timestamp * 1e9)) if back.timestamp else t_start + latency_ns
             if receiver.on_message(back, t_rx) is not None:
                 st.overlay_frames += 1

@@ -35,6 +35,7 @@ import numpy as np
 
 from lde.analysis.metrics import Truth, accuracy
 from lde.analysis.plots import plot_demo
+from lde.can.busio import drain
 from lde.can.profiles import load_profile
 from lde.clock import SimulatedClock
 from lde.errors import ConfigError
@@ -117,7 +118,7 @@ class SimDriver:
         rx = self.receiver
         if rx is not None:
             t = self.sim.t_ns
-            while (msg := self.bus.recv(0.0)) is not None:
+            for msg in drain(self.bus):
                 rx.on_message(msg, t)
         req = rx.request(self.sim.t_ns) if rx is not None else None
         frames = self.sim.step(req)
