@@ -47,7 +47,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 
@@ -101,7 +101,7 @@ LOW_LAT_ACCEL = 2.0
 WHEELS = ("wheel_fl", "wheel_fr", "wheel_rl", "wheel_rr")
 
 
-class Outcome(str, Enum):
+class Outcome(StrEnum):
     """What a check says."""
 
     PASS = "pass"
