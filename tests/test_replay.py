@@ -481,26 +481,6 @@ def test_cli_start_up_imports_only_the_named_subcommand(command: str):
     assert proc.returncode == 0 and all(f"    {name} " in proc.stdout for name in SUBCOMMANDS), proc.stdout
 
 
-def test_a_cold_kernel_cache_is_announced_at_once(tmp_path: Path, capsys, monkeypatch):
-    """Without cached kernels (an empty NUMBA_CACHE_DIR), ``lde replay`` says first that it compiles
-    and where it caches; with them it says nothing of the kind."""
-    from lde.jitcache import cache_dirs, is_warm
-
-    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
-    assert not is_warm()
-    args = ["replay", str(SAMPLE), "--backend", "float", "--csv", str(tmp_path / "o.csv")]
-    assert main(args) == 0
-    err = capsys.readouterr().err
-    assert err.startswith("lde: compiling the numba kernels") and str(cache_dirs()[0]) in err.splitlines()[0]
-    d = cache_dirs()[0]
-    d.mkdir(parents=True)
-    tag = f"py{sys.version_info[0]}{sys.version_info[1]}"
-    (d / f"loop.run_paper-173.{tag}.nbi").write_bytes(b"")
-    assert is_warm()
-    assert main(args) == 0
-    assert "compiling" not in capsys.readouterr().err
-
-
 def test_several_logs_go_on_past_a_bad_one_and_exit_non_zero(tmp_path, capsys) -> None:
     """A log that cannot be read is reported and skipped, the others are replayed; exit 2 at the end.
     All readable but one without a VALID step: exit 3 (issue 13 item 4)."""

@@ -24,8 +24,7 @@ import threading
 from types import FrameType
 from typing import TYPE_CHECKING
 
-from lde.cli import BACKEND_CHOICES, BACKEND_HELP
-from lde.cli.coldrun import begin, compile_ahead
+from lde.cli import BACKEND_HELP
 from lde.cli.replay import EXIT_NOTHING_USABLE
 from lde.errors import BusError, ConfigError
 
@@ -92,7 +91,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_bus_arguments(p)
     p.add_argument("--profile", default="lde", help="CAN profile: lde (default) or hyundai")
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
-    p.add_argument("--backend", choices=BACKEND_CHOICES, default="fixed", help=BACKEND_HELP)
+    p.add_argument("--backend", default="fixed", help=BACKEND_HELP)
     p.add_argument("--record", metavar="FILE.mcap", help="record frames, estimates and diagnostics to MCAP")
     p.add_argument(
         "--learned",
@@ -180,7 +179,6 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
     if not (args.status_interval > 0 and math.isfinite(args.status_interval)):
         raise ConfigError(f"--status-interval {args.status_interval}: need seconds > 0 (--quiet: none)")
-    cold = begin(args.backend)  # before the heavy imports: the notice within a second
     from lde.can.profiles import load_profile
     from lde.clock import MonotonicClock
     from lde.params import load_vehicle
@@ -195,7 +193,6 @@ def run(args: argparse.Namespace) -> int:
     vehicle = load_vehicle(args.vehicle)
     if vehicle.defaults:
         log.info("%s", vehicle.defaults_note())
-    compile_ahead(cold)  # before real-time priority: the compilers are not real-time work
     if args.realtime:
         _realtime(args)
     elif args.cpu:

@@ -35,7 +35,6 @@ import sys
 from pathlib import Path
 
 from lde.analysis import study
-from lde.cli import BACKEND_CHOICES
 from lde.cli.replay_in_process import engine
 from lde.errors import ConfigError
 
@@ -69,7 +68,6 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--backend",
-        choices=BACKEND_CHOICES,
         default=None,
         help="replay backend (default here: paper, the paper's float filter, which the tables in "
         "docs/design/studies.md were measured with; lde run, replay and demo default to fixed)",

@@ -64,7 +64,7 @@ from lde.can.profiles import INPUT_NAMES
 from lde.engine.engine import OUTPUT_MESSAGES, StepBlock
 from lde.engine.receiver import N_INPUTS
 from lde.errors import LogFormatError
-from lde.estimator.paper import N_OUT
+from lde.estimator.outputs import N_OUT
 from lde.io import TOPIC_RX, TOPIC_TX, McapLog, McapWriter
 from lde.io.textfmt import EXACT, Column, format_rows, time_column
 from lde.status import DEADLINE_MISS, STATUS_BITS, STATUS_MEANINGS

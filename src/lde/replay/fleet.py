@@ -60,7 +60,6 @@ class ReplayJob:
     use_recorded_steps: bool = True
     reorder_window_ns: int | None = REORDER_WINDOW_NS
     mcap_index: bool = False
-    shadow_thread: bool = False
     learned: Path | None = None
     smooth: bool = False  # also the RTS smoother's columns / topic (lde.replay.smoother): a second pass
     # the log read one piece ahead and the CSV written in threads of their own (on a spare core);
@@ -163,7 +162,7 @@ def _replay(job: ReplayJob, rep: LogReport, stop: Callable[[], bool] | None = No
     if job.vehicle not in _VEHICLES:
         _VEHICLES[job.vehicle] = load_vehicle(job.vehicle)
     vehicle = _VEHICLES[job.vehicle]
-    backend, _fn, _note = resolve_backend(job.backend)
+    backend = resolve_backend(job.backend)
     track = _smoothed(job, profile, vehicle, backend) if job.smooth else None
     try:
         _replay_outputs(job, rep, profile, vehicle, backend, track, stop)
@@ -244,7 +243,6 @@ def _replay_outputs(
             overlay_enable=li.overlay_enable,
             extra_status=li.extra_status,
             output_frames=job.mcap is not None,
-            shadow_thread=job.shadow_thread,
             read_ahead=job.helper_threads,
             learned=job.learned,
             learned_start=li.learned_start,

@@ -237,12 +237,10 @@ class ReplayResult:
 
 
 # ----------------------------------------------------------------------------- backends
-def resolve_backend(backend: str | None) -> tuple[str, Callable[..., Any] | None, str]:
-    """(name, the backend's array-API ``run_batch`` or None, note) from the registry
-    (:mod:`lde.engine.backends`);
-    ``None`` is :data:`DEFAULT_BACKEND`. An unknown name raises ConfigError (never a fallback)."""
-    b = get_backend(DEFAULT_BACKEND if backend is None else backend)
-    return b.name, b.run_batch, ""
+def resolve_backend(backend: str | None) -> str:
+    """The registered backend's name (:mod:`lde.engine.backends`); ``None`` is :data:`DEFAULT_BACKEND`.
+    An unknown or removed name raises ConfigError (never a fallback)."""
+    return get_backend(DEFAULT_BACKEND if backend is None else backend).name
 
 
 # ----------------------------------------------------------------------------- the path
@@ -300,7 +298,6 @@ def run_replay(
     extra_status: np.ndarray | None = None,
     output_frames: bool = True,
     chunk_frames: int = CHUNK_FRAMES,
-    shadow_thread: bool = False,
     learned: str | Path | None = None,
     learned_start: str | None = None,
     stop: Callable[[], bool] | None = None,
@@ -312,27 +309,23 @@ def run_replay(
     ``frames``: one batch (any order: sorted here, then cut in pieces of ``chunk_frames``) or an
     iterable of pieces already in time order (a :class:`lde.io.LogStream`), read one at a time.
     ``tx_frames``: the log's count of frames lde sent when the pieces do not hold them all (or a
-    function giving it once the pieces are read). ``shadow_thread``: the fixed backend's float
-    shadow in a second thread (:class:`lde.engine.engine.Engine`; default inline: one core).
-    ``learned``: a learned-state file (``--learned``), read first when it exists and written
-    (atomically) at the end. ``learned_start``: the text of the learned state a live run started
-    from (its recording's ``learned_start``): used by a learning backend when ``learned`` names no
-    existing file, so that the recording replays to the live estimates. ``stop``: asked after
+    function giving it once the pieces are read). ``learned``: a learned-state file
+    (``--learned``), read first when it exists and written (atomically) at the end.
+    ``learned_start``: the text of the learned state a live run started from (its recording's
+    ``learned_start``): used by a learning backend when ``learned`` names no existing file, so that
+    the recording replays to the live estimates. ``stop``: asked after
     every piece; True ends the replay there (SIGINT / SIGTERM: the sinks have every row so far
     and can be closed; :attr:`ReplaySummary.stopped`). ``read_ahead`` (default True): an iterable of
     pieces is read in a thread one piece ahead of the engine (:class:`lde.io.stream.ReadAhead`: a
     candump block parsed, an MCAP chunk decompressed and walked on the other core; the timing
     ``read`` is then the time the engine waited for a piece; an error of the reader is raised here
     after the pieces before it). The piece in flight costs an MCAP replay about 10 MiB of peak RSS
-    (the decompressed chunk and its columns), paid for by scipy.linalg no longer being loaded
-    (:mod:`lde.lazyblas`, about 20 MiB). Other arguments as :func:`replay`.
+    (the decompressed chunk and its columns). Other arguments as :func:`replay`.
     """
     name = DEFAULT_BACKEND if backend is None else backend
     t0 = time.perf_counter()
     explicit = step_times_ns is not None
-    engine = Engine(
-        profile, vehicle, name, explicit=explicit, encode_outputs=output_frames, shadow_thread=shadow_thread
-    )
+    engine = Engine(profile, vehicle, name, explicit=explicit, encode_outputs=output_frames)
     origin = ""
     if learned is not None and engine.load_learned(learned) is not None:
         origin = str(learned)

@@ -76,7 +76,7 @@ from lde.engine.grid import L_REF, lock_anchor, lock_deadline, lock_frame, lock_
 from lde.engine.receiver import Receiver
 from lde.errors import ConfigError
 from lde.estimator.learned import LearnedKeeper, LearnedSnapshot
-from lde.estimator.paper import O_BANK, O_LEARN
+from lde.estimator.outputs import O_BANK, O_LEARN
 from lde.io.recording import StepRing
 from lde.params import Vehicle, load_vehicle
 from lde.service.busfaults import FLOOD_FOREIGN_HZ, BusFaults, E2EWindow, WindowCounts
@@ -308,8 +308,9 @@ class Service:
         self._rxw_mv = self._handoff_args[18].data
         self._ring: StepRing | None = None
         self._recorder: Any = None
-        self._after_send = _resolved(after_send, *self._handoff_args)  # no recorder yet: stores nothing
-        self._ints[I_DIAG_CTR] = 0  # the resolving call above advanced it
+        after_send(*self._handoff_args)  # loads (or compiles) it now; no recorder yet: stores nothing
+        self._after_send = after_send
+        self._ints[I_DIAG_CTR] = 0  # the call above advanced it
         self.stats.ctr[:] = 0
         self.stats.rows[:] = 0
         self.recorder = recorder
@@ -338,7 +339,7 @@ class Service:
         self._window: tuple[int, ...] | None = None  # the counts at the previous bus check
         self._e2e_prev: dict[str, tuple[int, ...]] = {}  # message -> E2E counts at that check
         self._warm_up()
-        self._run_engine_empty()  # resolves the pinned overload now (28 ms of numba typing), not at step 1
+        self._run_engine_empty()  # the loop for the live argument types loaded now, not at step 1
         self._newest_input_ns = -1  # receive time of the newest frame fed so far
         self._restamp: bool | None = None  # stamp frames on receipt (decided at the first frame)
         self._last_t_k: int | None = None  # the latest step time run [ns, bus time base]
@@ -443,7 +444,8 @@ class Service:
         lock_deadline(lock)
         lock_timeout(lock, 2 * STEP_NS)
         lock_anchor(lock, 3 * STEP_NS)
-        self._lock_frame = _resolved(lock_frame, new_lock(0), 0)
+        lock_frame(new_lock(0), 0)
+        self._lock_frame = lock_frame
 
     @property
     def receiver(self) -> Receiver:
@@ -638,7 +640,7 @@ class Service:
 
     def _run_engine_empty(self) -> None:
         """The live call with no frame and no step time: nothing runs, nothing changes, but the
-        compiled overload for the live argument types is resolved (``Engine.run_arrays(pinned=True)``)."""
+        compiled loop for the live argument types is loaded (or compiled) now, not at the first step."""
         pt, pid, pext, pdlc, pword = (a[:0] for a in self._pcols)
         fed, steps = self.engine.run_arrays(
             pt,
@@ -652,7 +654,6 @@ class Service:
             enable=self._enable[:0],
             extra_status=self._extra[:0],
             final=True,
-            pinned=True,
         )
         if fed or steps:
             raise RuntimeError(f"the engine ran {steps} steps on no step time")
@@ -1052,18 +1053,6 @@ class Service:
                 self.stats.record_skipped(1)
                 continue
             return t_k, now
-
-
-def _resolved(fn: Any, *args: Any) -> Any:
-    """numba's compiled overload of ``fn`` for the types of ``args`` (compiled or loaded now), to be
-    called directly with arguments of exactly these types: no type dispatch per call (a few us on a
-    cold cache). ``fn`` itself when it is not a numba dispatcher."""
-    overloads = getattr(fn, "overloads", None)
-    if overloads is None:
-        return fn
-    fn(*args)
-    sig = tuple(fn.typeof_pyval(a) for a in args)
-    return overloads[sig].entry_point if sig in overloads else fn
 
 
 def set_input_filters(bus: can.BusABC, profile: Profile) -> str:
