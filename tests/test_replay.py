@@ -389,23 +389,29 @@ def test_recording_replays_under_the_profile_it_names(tmp_path: Path, capsys):
     assert status.size > 0 and not np.any(status.astype(int) & 1)
 
 
-def test_recorded_profile_of_a_dbc_file(tmp_path: Path, profile, sample_replay):
-    """A profile from a user's DBC is recorded with its path; a recording naming a DBC that is not
-    there is a ConfigError asking for --profile; logs without metadata name none."""
+def test_recorded_profile_of_a_profile_file(tmp_path: Path, profile, sample_replay):
+    """A profile from a user's file is recorded with its path; a recording naming a file that is not
+    there, or a DBC (which older versions took as a profile), is a ConfigError asking for --profile;
+    logs without metadata name none."""
     from lde.errors import ConfigError
     from lde.replay.replay import profile_metadata, recorded_profile
 
-    dbc = tmp_path / "mine.dbc"
-    dbc.write_bytes(Path(profile.dbc_path).read_bytes())
-    mine = load_profile(dbc)
+    (tmp_path / "lde.dbc").write_bytes(Path(profile.dbc_path).read_bytes())
+    mine_file = tmp_path / "mine.toml"
+    mine_file.write_bytes(profile.path.read_bytes())
+    mine = load_profile(mine_file)
     log, res = sample_replay
     rec = tmp_path / "r.mcap"
     write_recording(rec, log.frames, res, mine, metadata=profile_metadata(mine))
-    assert recorded_profile(read_log(rec)) == str(dbc.resolve())
+    assert recorded_profile(read_log(rec)) == str(mine_file.resolve())
     assert recorded_profile(read_log(SAMPLE)) is None
-    dbc.unlink()
+    mine_file.unlink()
     with pytest.raises(ConfigError, match="give --profile"):
         recorded_profile(read_log(rec))
+    old = tmp_path / "old.mcap"
+    write_recording(old, log.frames, res, profile, metadata={"profile": "mine", "profile_dbc": "/x/mine.dbc"})
+    with pytest.raises(ConfigError, match=r"DBC /x/mine\.dbc: write a profile file for it.*give --profile"):
+        recorded_profile(read_log(old))
 
 
 def test_cli_replays_a_gzip_compressed_log(tmp_path: Path):

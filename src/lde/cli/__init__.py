@@ -38,6 +38,15 @@ BACKEND_HELP = (
     "shadow check; float: the lateral filter in float; paper: the paper's 4-state filter in float"
 )
 
+#: the shipped CAN profiles (lde.can.profiles.PROFILE_NAMES: kept here so that building the parser
+#: stays light; tests/test_profile_files.py holds them equal)
+PROFILE_CHOICES = ("lde", "hyundai", "toyota_rav4_2017")
+#: the help of every --profile option
+PROFILE_HELP = (
+    f"CAN profile: a shipped one ({', '.join(PROFILE_CHOICES)}) or a profile file (.toml; its format: "
+    "docs/guide/profiles.md)"
+)
+
 #: subcommand name -> module below lde.cli. A module that does not exist yet is skipped.
 SUBCOMMANDS = ("demo", "run", "sim", "replay", "inspect", "evaluate", "study", "calibrate", "warmup")
 

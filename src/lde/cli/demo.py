@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lde.cli import BACKEND_HELP
+from lde.cli import BACKEND_HELP, PROFILE_HELP
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -24,6 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=1, help="seed of wind, driver and sensor noise")
     p.add_argument("--duration", type=float, metavar="SEC", help="simulated seconds (default: scenario)")
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
+    p.add_argument("--profile", default="lde", help=PROFILE_HELP + " (default: lde)")
     p.add_argument("--backend", default="fixed", help=BACKEND_HELP)
     p.add_argument("--mcap", default="lde_demo.mcap", metavar="FILE", help="recording of the overlay run")
     p.add_argument(
@@ -59,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
         duration=args.duration,
         vehicle=vehicle,
         backend=args.backend,
+        profile=args.profile,
         mcap=None if args.no_mcap else args.mcap,
         png=None if args.no_plot else args.plot,
         full_off_run=args.full_off_run,

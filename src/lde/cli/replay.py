@@ -24,7 +24,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import FrameType
 
-from lde.cli import BACKEND_HELP
+from lde.cli import BACKEND_HELP, PROFILE_HELP
 from lde.errors import ConfigError, LdeError
 from lde.replay.columns import columns_help
 
@@ -48,7 +48,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--profile",
         default=None,
-        help="CAN profile: lde, hyundai or a .dbc path (default: the one an lde recording names, else lde)",
+        help=PROFILE_HELP + " (default: the one an lde recording names, else lde)",
     )
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
     p.add_argument(
@@ -186,6 +186,10 @@ def _summary(rep) -> str:
         + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in rep.timings.items())
         + ")",
     ]
+    if rep.buses:  # a log that names its buses: where the inputs came from
+        on = sorted(set(rep.buses.values()))
+        other = f"; {rep.other_bus} frames of them on other buses not used" if rep.other_bus else ""
+        lines.append(f"  input messages read from bus {', '.join(on)}{other}")
     if rep.learned:
         lines.append(f"  learned (from {rep.learned_origin or 'the vehicle file'}): {rep.learned}")
     if rep.steps == 0:
@@ -306,7 +310,8 @@ def _run(args: argparse.Namespace, resume_gc: Callable[[], None]) -> int:
     _check_paths(logs, planned, many)
     # the options are checked here once (each job loads them again where it runs)
     if args.profile is not None:
-        load_profile(args.profile)
+        for line in load_profile(args.profile).notes() if not args.quiet else ():
+            print(f"lde replay: note: {line}", file=sys.stderr)
     vehicle = args.vehicle or "reference"
     if Path(vehicle).suffix.lower() == ".toml" or Path(vehicle).exists():
         vehicle = str(Path(vehicle).resolve())
@@ -340,7 +345,7 @@ def _run(args: argparse.Namespace, resume_gc: Callable[[], None]) -> int:
     learned = absolute(args.learned)
 
     profile = args.profile
-    if profile is not None and Path(profile).suffix.lower() == ".dbc":
+    if profile is not None and Path(profile).is_file():  # a profile file: the jobs may run elsewhere
         profile = str(Path(profile).resolve())
     jobs = [
         ReplayJob(

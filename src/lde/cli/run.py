@@ -24,7 +24,7 @@ import threading
 from types import FrameType
 from typing import TYPE_CHECKING
 
-from lde.cli import BACKEND_HELP
+from lde.cli import BACKEND_HELP, PROFILE_HELP
 from lde.cli.replay import EXIT_NOTHING_USABLE
 from lde.errors import BusError, ConfigError
 
@@ -89,7 +89,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_bus_arguments(p)
-    p.add_argument("--profile", default="lde", help="CAN profile: lde (default) or hyundai")
+    p.add_argument("--profile", default="lde", help=PROFILE_HELP + " (default: lde)")
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
     p.add_argument("--backend", default="fixed", help=BACKEND_HELP)
     p.add_argument("--record", metavar="FILE.mcap", help="record frames, estimates and diagnostics to MCAP")
@@ -190,6 +190,8 @@ def run(args: argparse.Namespace) -> int:
     # one ever hold the interpreter lock, the loop must get it back within a fraction of a step
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
     profile = load_profile(args.profile)
+    for line in profile.notes():
+        log.warning("%s", line)
     vehicle = load_vehicle(args.vehicle)
     if vehicle.defaults:
         log.info("%s", vehicle.defaults_note())
@@ -235,7 +237,7 @@ def run(args: argparse.Namespace) -> int:
             from lde.io.recording import LEARNED_START_KEY, Recorder
 
             meta = {
-                "profile": profile.name,
+                **profile.metadata(),
                 "vehicle": vehicle.name,
                 "vehicle_source": vehicle.source,
                 "backend": args.backend,
@@ -246,7 +248,7 @@ def run(args: argparse.Namespace) -> int:
                 meta["vehicle_defaults"] = "; ".join(vehicle.defaults)
             if service.learned_start:
                 meta[LEARNED_START_KEY] = service.learned_start
-            recorder = service.recorder = Recorder(args.record, metadata=meta)
+            recorder = service.recorder = Recorder(args.record, metadata=meta, frame_bytes=service.rx_width)
         ends = _Ends(service, stop, args.duration, None if args.quiet else args.status_interval)
         log.info(
             "lde run: %s, profile %s, vehicle %s, backend %s, %s grid, input filters: %s%s",

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from lde.can.codec import MessageCodec, words_le
+from lde.can.codec import MessageCodec
 from lde.can.e2e import ReceiverStats
 from lde.can.frames import FrameBatch
 from lde.can.profiles import INPUT_NAMES, Profile
@@ -111,7 +111,7 @@ class OutputTable:
         start, stop, rows = [], [], 0
         cols: dict[str, list[np.ndarray]] = {
             k: []
-            for k in ("shift", "nbits", "le", "signed", "scale", "offset", "lo", "hi", "is_value", "source")
+            for k in ("pos", "nbits", "le", "signed", "scale", "offset", "lo", "hi", "is_value", "source")
         }
         for c in codecs:
             lay = c.layout
@@ -119,7 +119,7 @@ class OutputTable:
             start.append(rows)
             rows += len(c.order)
             stop.append(rows)
-            cols["shift"].append(lay.shift)
+            cols["pos"].append(lay.pos)
             cols["nbits"].append(lay.nbits)
             cols["le"].append(lay.little_endian)
             cols["signed"].append(lay.signed)
@@ -140,7 +140,7 @@ class OutputTable:
             np.stack([c.scheme.checksum_parts for c in codecs]),
             np.array([c.scheme.modulus for c in codecs], np.int64),
             np.array([c.scheme.invalid_counter for c in codecs], np.int64),
-            cat["shift"],
+            cat["pos"],
             cat["nbits"],
             cat["le"],
             cat["signed"],
@@ -359,7 +359,7 @@ class Engine:
         self.rx = RxState.initial(self.rx_tables)
         self.grid = new_grid(MODE_EXPLICIT if self.explicit else MODE_ANCHORED)
         self.prev_t = np.full(1, np.iinfo(np.int64).min, np.int64)  # the previous step's time
-        self.lp = limiter_params(vehicle)
+        self.lp = limiter_params(vehicle, allowed=self.overlay_allowed)
         self.lsi, self.lsf = new_limiter_state()
         self.counters = np.zeros(len(self.outputs.names), np.int64)
         self.used_since = np.zeros(1, np.int64)
@@ -388,6 +388,13 @@ class Engine:
         return make_backend_state(
             self.backend_name, self.vehicle, self._dt, self.profile.angle_above_torsion_bar
         )
+
+    @property
+    def overlay_allowed(self) -> bool:
+        """The overlay may be enabled: not while a torque input of the profile has an unknown
+        scale (a torque request in unknown units is unsafe). The loop's enable is this and the
+        step's own enable (``LP_ALLOWED`` of the limiter's parameters carries it)."""
+        return self.profile.torque_scales_known
 
     @property
     def steps(self) -> int:
@@ -479,7 +486,7 @@ class Engine:
         can_id: np.ndarray,
         is_extended: np.ndarray,
         dlc: np.ndarray,
-        words: np.ndarray,
+        data: np.ndarray,
         is_rx: np.ndarray,
         out: StepBlock,
         *,
@@ -491,7 +498,7 @@ class Engine:
         t_end_ns: int | None = None,
     ) -> tuple[int, int]:
         """The compiled loop on raw frame columns from frame ``i0`` (the live hot path: no copies);
-        ``words`` are the frames' first 8 bytes as little-endian uint64 (:func:`lde.can.codec.words_le`).
+        ``data`` are the frames' bytes, uint8 [n, width] (:attr:`lde.can.frames.FrameBatch.data`).
         Fills ``out`` from row 0; returns (next frame index, rows written).
 
         ``final``: no frame follows these (live: every frame up to the step times has been given;
@@ -505,7 +512,7 @@ class Engine:
             g[G_K] = 0
             g[G_FINISH] = 0
         args = self._args(
-            (t_ns, can_id, is_extended, dlc, words, is_rx),
+            (t_ns, can_id, is_extended, dlc, data, is_rx),
             out,
             i0,
             step_times,
@@ -610,7 +617,6 @@ class Engine:
 
     def _feed(self, frames: FrameBatch, final: bool, t_end_ns: int | None, block_rows: int) -> StepBlock:
         blocks: list[StepBlock] = []
-        words = words_le(frames.data)
         i = 0
         rows = self._rows_hint(frames, block_rows)
         while True:
@@ -620,7 +626,7 @@ class Engine:
                 frames.can_id,
                 frames.is_extended,
                 frames.dlc,
-                words,
+                frames.data,
                 frames.is_rx,
                 out,
                 i0=i,

@@ -11,7 +11,7 @@ For the frames handed in (time order) and the step times the grid makes due (:mo
            -> overlay law + limiter                                    lde.estimator.overlay.overlay_kernel
            -> finalise: a non-finite Fw, Mw, T_align or T_overlay is sent as 0 with VALID cleared
               and DEGRADED set (never NaN on the bus)
-           -> output frames LDE_Estimate, LDE_Overlay (counters, CRCs)   lde.can.codec.encode_word
+           -> output frames LDE_Estimate, LDE_Overlay (counters, CRCs)   lde.can.codec.encode_row
               (``encode`` False: a replay whose frames nobody reads; the counters then stay put)
            -> one row of every output column
 
@@ -46,8 +46,7 @@ from numba import njit, types
 from numba.experimental import structref
 from numba.extending import overload
 
-from lde.can.bitfield import word_to_bytes
-from lde.can.codec import encode_word
+from lde.can.codec import encode_row
 from lde.can.e2e import S_ACCEPTED, S_N_REPEATED, S_N_WRONGCRC, S_N_WRONGSEQ, advance_counter
 from lde.engine.grid import (
     G_FINISH,
@@ -70,7 +69,7 @@ from lde.engine.receiver import (
     rx_sample,
 )
 from lde.estimator.outputs import O_BANK, O_FW, O_FW_WIND, O_GAIN, O_LEARN, O_MW, O_MW_WIND, O_T_ALIGN
-from lde.estimator.overlay import LP_GAIN, LS_STATE, overlay_kernel
+from lde.estimator.overlay import LP_ALLOWED, LP_GAIN, LS_STATE, overlay_kernel
 from lde.status import DEGRADED, VALID
 from lde.units import DEG
 
@@ -158,7 +157,7 @@ def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cov
         a, b = m_start[j], m_stop[j]
         for k in range(a, b):
             values[k - a] = vals[source[k]]
-        w = encode_word(
+        encode_row(
             values[: b - a],
             shift[a:b],
             nbits[a:b],
@@ -175,8 +174,8 @@ def _encode_outputs(otab, vals, counters, frames_row, values):  # pragma: no cov
             m_ctr[j],
             m_chk[j],
             counters[j],
+            frames_row[j],
         )
-        word_to_bytes(w, frames_row[j])
         counters[j] = advance_counter(counters[j], m_mod[j], m_inv[j])
 
 
@@ -261,11 +260,11 @@ def _backend_step(params, state, t_ns, inputs, fresh, mdps_ok, esc_ok, out):
 
 
 @njit(cache=True)
-def feed_frame(tb, st, g, used_since, anchor, t_ns, can_id, is_ext, dlc, w_le):  # pragma: no cover - compiled
+def feed_frame(tb, st, g, used_since, anchor, t_ns, can_id, is_ext, dlc, data):  # pragma: no cover - compiled
     """One received frame of an input message (time ``t_ns`` [ns]): the receiver
     (:func:`lde.engine.receiver.rx_feed`), the count of accepted input frames since the previous step, the
     grid (:func:`lde.engine.grid.grid_frame`)."""
-    m, code = rx_feed(tb, st, t_ns, can_id, is_ext, dlc, w_le)
+    m, code = rx_feed(tb, st, t_ns, can_id, is_ext, dlc, data)
     accepted = code >= 0 and st[0][m, S_ACCEPTED] != 0
     if accepted:
         used_since[0] += 1
@@ -334,8 +333,8 @@ def run_loop(params, state, la, frames, steps, out, i0, final, t_end, have_end, 
     """Interleave frames and due steps (module docstring) from frame ``i0`` on.
 
     ``params``, ``state``: the backend's (:mod:`lde.engine.backends`); ``la``: the loop's
-    :class:`LoopArrays`; ``frames``: the frame columns (time [ns], id, extended, dlc, the first 8
-    data bytes as a little-endian word, ``is_rx``: frames with ``is_rx`` False, lde's own in a
+    :class:`LoopArrays`; ``frames``: the frame columns (time [ns], id, extended, dlc, the data
+    bytes as uint8 rows 8 to 64 wide, ``is_rx``: frames with ``is_rx`` False, lde's own in a
     recording, are skipped); ``steps``: explicit mode's step times [ns] and their overlay enables and
     extra status bits (or empty: on / 0); ``out``: the columns of :class:`lde.engine.engine.StepBlock`
     (in its field order), filled from row 0. ``final``: no frame follows these; once they are fed the
@@ -347,7 +346,7 @@ def run_loop(params, state, la, frames, steps, out, i0, final, t_end, have_end, 
     left (the frames after it stay unfed), or when the grid overflows (``grid[G_OVERFLOW]``). It
     releases the GIL: a replay reads the next piece of its log in another thread meanwhile.
     """
-    t, can_id, is_ext, dlc, words, is_rx = frames
+    t, can_id, is_ext, dlc, data, is_rx = frames
     explicit, ex_enable, ex_extra = steps
     o_t, o_status, o_est, o_tov, o_ovst, o_enable, o_in, o_age, o_mask, o_ok, o_used, o_rej, o_frames = out
     tb, otab, st, g = la.tb, la.otab, la.rxst, la.grid
@@ -359,6 +358,7 @@ def run_loop(params, state, la, frames, steps, out, i0, final, t_end, have_end, 
     cap = o_t.shape[0]
     vals = np.zeros(N_V)
     scratch = np.empty(otab[9].shape[0])
+    allowed = lp[LP_ALLOWED] > 0.0  # Engine.overlay_allowed: the profile's torques have known units
     i = i0
     n = 0
     while n < cap:
@@ -373,12 +373,12 @@ def run_loop(params, state, la, frames, steps, out, i0, final, t_end, have_end, 
         if g[G_OVERFLOW] == 1:
             break
         if due:
-            enable = True
+            enable = allowed
             extra = 0
             if g[G_MODE] == MODE_EXPLICIT:
                 j = g[G_K]
                 if ex_enable.shape[0] > j:
-                    enable = ex_enable[j]
+                    enable = allowed and ex_enable[j]
                 if ex_extra.shape[0] > j:
                     extra = ex_extra[j]
             vin = o_in[n]
@@ -433,7 +433,7 @@ def run_loop(params, state, la, frames, steps, out, i0, final, t_end, have_end, 
                 np.int64(can_id[i]),
                 is_ext[i],
                 np.int64(dlc[i]),
-                words[i],
+                data[i],
             )
         else:  # an id the profile ignores: rx_feed's count and the grid's hook, without the call
             rx_count_ignored(st)

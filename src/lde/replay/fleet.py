@@ -80,6 +80,10 @@ class LogReport:
     rejected_by_cause: dict[str, int] = field(default_factory=dict)
     resync: int = 0
     ignored: int = 0
+    #: frames of input messages on another bus than the one each is read from (not used)
+    other_bus: int = 0
+    #: the bus each input message was read from, when the log names buses
+    buses: dict[str, str] = field(default_factory=dict)
     tx: int = 0
     steps: int = 0
     valid_steps: int = 0
@@ -271,6 +275,7 @@ def _replay_outputs(
     rep.frames, rep.used, rep.rejected, rep.resync = f.total, f.used, f.rejected, f.resync
     rep.rejected_by_cause = f.rejected_by_cause()
     rep.ignored, rep.tx = f.ignored, f.tx
+    rep.other_bus, rep.buses = f.other_bus, {m: b for m, b in f.buses.items() if b}
     rep.steps, rep.valid_steps, rep.segments = res.steps, res.valid_steps, res.segments
     rep.recorded_steps = res.recorded_steps
     rep.skipped = {k: int(getattr(stats, k)) for k in _SKIPPED if getattr(stats, k)}
