@@ -26,6 +26,9 @@ d. **torque** against the steering it causes: in steady cornering the tires' ali
 e. **speed** against the mean of the wheel speeds, ``v = s v_wheels`` (through the origin): a
    vehicle-speed signal with a wrong unit shows here. Only where the speed is another signal than
    the wheel speeds' mean.
+f. **steering rate** against the time derivative of the steering angle, ``rate = s d(delta_sw)/dt +
+   c``: the same sensor's two readings, so the slope is 1 up to the sensor's own filtering
+   (:data:`RATE_SLOPE`). A kinematic relation: no speed gate.
 
 **Outcomes.** *not enough excitation* when fewer than :data:`MIN_SAMPLES` grid samples pass the
 gates, the effective sample size is below :data:`MIN_EFFECTIVE`, the regressor barely moves, or the
@@ -70,6 +73,8 @@ __all__ = [
     "UNDERSTEER_DEG_PER_G",
     "WHEEL_SLOPE",
     "SPEED_SCALE",
+    "RATE_SLOPE",
+    "MIN_RATE_SPREAD",
     "MIN_SAMPLES",
     "MIN_EFFECTIVE",
     "MAX_STEER_RATE",
@@ -87,6 +92,11 @@ UNDERSTEER_DEG_PER_G = (0.0, 8.0)
 WHEEL_SLOPE = (0.8, 1.25)
 #: e: plausible ratio of the speed signal to the wheels' mean (a reference speed, tire wear)
 SPEED_SCALE = (0.95, 1.05)
+#: f: plausible slope of the steering rate on the angle's derivative (one sensor, its own filter)
+RATE_SLOPE = (0.8, 1.25)
+#: f: the least spread (std) of the angle's low-passed derivative that counts as excitation [rad/s]
+#: (half the 1 deg/s step of a typical rate signal: its low-passed mean resolves that much)
+MIN_RATE_SPREAD = 0.5 * DEG
 #: fewer grid samples than this through a check's gates: not enough excitation (5 s at 10/s)
 MIN_SAMPLES = 50
 #: fewer effective independent samples than this: not enough excitation
@@ -449,6 +459,30 @@ def _speed(grid: Grid, geo: Geometry, base: _Base, speed_is_wheels: bool) -> Che
     return Check("speed", "e", title, outcome, why, (), rel, SPEED_SCALE, _numbers(rel, n))
 
 
+def _steering_rate(grid: Grid) -> Check:
+    title = "steering rate against the steering angle's derivative"
+    if not grid.has("steering_rate", "steering_angle"):
+        return Check(
+            "steering_rate", "f", title, Outcome.NOT_APPLICABLE, "the profile lacks an input it needs"
+        )
+    x = grid.rate("steering_angle")
+    use = grid.ok("steering_angle", "steering_rate")
+    n = int(np.count_nonzero(use))
+    rel = fit_relation(x, grid.values["steering_rate"], use)
+    outcome, why = _judge(rel, n, MIN_RATE_SPREAD, RATE_SLOPE, "both fresh")
+    return Check(
+        "steering_rate",
+        "f",
+        title,
+        outcome,
+        why,
+        ("steering_rate", "steering_angle"),
+        rel,
+        RATE_SLOPE,
+        _numbers(rel, n),
+    )
+
+
 def _below_min_speed(check: Check, grid: Grid, geo: Geometry) -> Check:
     """A check without samples because the car never reached the model's minimum speed says so."""
     if check.outcome is not Outcome.NOT_ENOUGH_EXCITATION or not grid.has("speed"):
@@ -471,7 +505,7 @@ def run_checks(
     torque_units: Mapping[str, str] | None = None,
     speed_is_wheels: bool = False,
 ) -> list[Check]:
-    """The checks a-e over ``grid`` (signals named as the profile's inputs, plus :data:`WHEELS`
+    """The checks a-f over ``grid`` (signals named as the profile's inputs, plus :data:`WHEELS`
     where the DBC has them; SI, the profile's signs applied). ``torque_units``: the unit of each
     torque input (``Nm``, or ``counts`` for an unknown scale); ``speed_is_wheels``: the speed input
     is the wheel speeds' mean (check e does not apply). The signs are not yet attributed:
@@ -485,7 +519,7 @@ def run_checks(
         *(_torque(grid, geo, base, t, units.get(t, "Nm")) for t in ("column_torque", "assist_torque")),
         _speed(grid, geo, base, speed_is_wheels),
     ]
-    return [_below_min_speed(c, grid, geo) for c in checks]
+    return [_below_min_speed(c, grid, geo) for c in checks] + [_steering_rate(grid)]
 
 
 # --------------------------------------------------------------------------- which sign is wrong
@@ -523,6 +557,12 @@ def attribute_signs(checks: list[Check]) -> dict[str, SignFinding]:
         out[name] = SignFinding(
             name, None if votes == 0 else votes > 0, tuple(c.key for c in cs), basis, ambiguous
         )
+    # the steering rate relative to the steering angle's verdict
+    angle = out.get("steering_angle")
+    for c in checks:
+        if c.relates == ("steering_rate", "steering_angle") and c.sign != 0 and angle is not None:
+            ok = None if angle.ok is None else (c.sign > 0) == angle.ok
+            out["steering_rate"] = SignFinding("steering_rate", ok, (c.key,), basis, ambiguous)
     return out
 
 
@@ -540,6 +580,7 @@ _SCALE_FIX: Mapping[str, tuple[str, ...]] = {
     ),
     "wheel_speeds": ("the vehicle file's track_front_m / track_rear_m (or [inputs.yaw_rate] scale)",),
     "speed": ("[inputs.speed] scale",),
+    "steering_rate": ("[inputs.steering_rate] scale (or [inputs.steering_angle] scale)",),
 }
 
 

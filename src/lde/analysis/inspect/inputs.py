@@ -1,15 +1,16 @@
 """A profile's inputs decoded from a log: their values in SI, ranges, rates, gaps and integrity.
 
-Each input message's frames are taken on the profile's channel, with its id and its length (a
-frame of another length is counted, not decoded), decoded by the profile's DBC and converted as
-the estimator converts them (:mod:`lde.can.profiles`: scale to SI, sign, offset; the mean or sum
-of several signals). Besides the estimator's inputs, the per-wheel speeds the checks need are
-taken from the DBC when it has them: four signals whose names say wheel and speed and end in
-FL, FR, RL, RR (``WHL_SPD_FL``, ``WHEEL_SPEED_RR``), in the message of the speed input first.
+The inputs are decoded the one way lde decodes a log, by the receiver
+(:func:`lde.engine.receiver.decode_batch`): each input message's frames of its bus and its length,
+checked by the profile's integrity check, converted by the profile (scale to SI, sign, offset; the
+mean or sum of several signals); only the frames the receiver accepts give values. Besides the
+estimator's inputs, the per-wheel speeds the checks need are taken from the DBC when it has them:
+four signals whose names say wheel and speed and end in FL, FR, RL, RR (``WHL_SPD_FL``,
+``WHEEL_SPEED_RR``), in the message of the speed input first.
 
-Integrity per message, on the frames of the right length: checksum failures where the profile's
-check verifies one, and counter jumps (a counter that does not advance by one frame to frame:
-lost, repeated or out-of-order frames) where the message has a counter.
+Integrity per message, as the receiver counts it: checksum failures where the profile's check
+verifies one, and counter faults (frames lost, repeated or out of sequence) where the message has a
+counter.
 """
 
 from __future__ import annotations
@@ -22,10 +23,10 @@ import numpy as np
 
 from lde.analysis.inspect.checks import WHEELS
 from lde.analysis.inspect.resample import Series
-from lde.can.codec import SignalCodec, words_le
-from lde.can.e2e import IntegrityScheme, check_batch, read_counter_batch
+from lde.can.codec import SignalCodec
 from lde.can.frames import FrameBatch
-from lde.can.profiles import InputMap, MessageSpec, Profile, SignalDef
+from lde.can.profiles import Profile, SignalDef
+from lde.engine.receiver import Decoded, decode_batch
 from lde.units import KMH
 
 __all__ = [
@@ -93,8 +94,9 @@ class MessageIntegrity:
     Attributes:
         message, frame_id; check: the profile's integrity check for it.
         frames: frames of the id with the right length; wrong_length: frames with another length.
+        used: frames whose values the receiver used.
         checksum_failures: frames whose checksum / CRC is wrong (None: the check verifies none).
-        counter_jumps: frame-to-frame counter steps other than +1 (None: no counter).
+        counter_jumps: frames lost, repeated or out of sequence by their counter (None: no counter).
     """
 
     message: str
@@ -102,6 +104,7 @@ class MessageIntegrity:
     check: str
     frames: int
     wrong_length: int
+    used: int
     checksum_failures: int | None
     counter_jumps: int | None
 
@@ -126,49 +129,34 @@ class ProfileInputs:
     unknown_scale: frozenset[str]
 
 
-def _frames_of(frames: FrameBatch, spec_id: int, length: int) -> tuple[np.ndarray, np.ndarray]:
-    """Rows of ``frames`` (received, 11-bit) with this id: (all, those of the right length)."""
-    rows = frames.is_rx & ~frames.is_extended & (frames.can_id == spec_id)
-    return rows, rows & (frames.dlc == length)
+def _frames_of(frames: FrameBatch, spec_id: int, length: int) -> np.ndarray:
+    """Rows of ``frames`` (received, 11-bit) with this id and length."""
+    return frames.is_rx & ~frames.is_extended & (frames.can_id == spec_id) & (frames.dlc == length)
 
 
 def _physical(sig: SignalDef, data: np.ndarray) -> np.ndarray:
-    """A signal's physical values (DBC unit) in the frames ``data``."""
-    return SignalCodec.of(sig).decode_batch(words_le(data))
+    """A signal's physical values (DBC unit) in the frames ``data`` (uint8 [n, width])."""
+    return SignalCodec.of(sig).decode_batch(data)
 
 
-def _input_values(im: InputMap, signals: tuple[SignalDef, ...], data: np.ndarray) -> np.ndarray:
-    """The input in SI (the estimator's conversion, :class:`lde.can.profiles.InputMap`)."""
-    by_name = {s.name: s for s in signals}
-    vals = np.mean([_physical(by_name[s], data) for s in im.signals], axis=0)
-    return np.asarray(im.factor * vals, dtype=np.float64)
-
-
-def _integrity_name(scheme: IntegrityScheme) -> str:
-    return str(scheme.kind.value)
-
-
-def _integrity(spec: MessageSpec, frames: FrameBatch) -> MessageIntegrity:
-    rows, good = _frames_of(frames, spec.frame_id, spec.length)
-    data = frames.data[good]
-    sch = spec.scheme
-    fails = None
-    if sch.verifies_checksum:
-        fails = int(np.count_nonzero(~check_batch(sch, spec.frame_id, data, spec.length)))
-    jumps = None
-    if sch.counter_fields:
-        c = read_counter_batch(sch, data)
-        step = np.mod(np.diff(c), sch.modulus)
-        jumps = int(np.count_nonzero(step != 1))
-    return MessageIntegrity(
-        message=spec.name,
-        frame_id=spec.frame_id,
-        check=_integrity_name(sch),
-        frames=int(np.count_nonzero(good)),
-        wrong_length=int(np.count_nonzero(rows & ~good)),
-        checksum_failures=fails,
-        counter_jumps=jumps,
-    )
+def _integrity(profile: Profile, decoded: Decoded) -> tuple[MessageIntegrity, ...]:
+    out = []
+    for name, spec in profile.messages.items():
+        st = decoded.messages[name].stats
+        sch = spec.scheme
+        out.append(
+            MessageIntegrity(
+                message=name,
+                frame_id=spec.frame_id,
+                check=sch.name,
+                frames=st.received,
+                wrong_length=st.malformed,
+                used=st.used,
+                checksum_failures=st.wrong_crc if sch.verifies_checksum else None,
+                counter_jumps=st.lost + st.repeated + st.wrong_sequence if sch.has_counter else None,
+            )
+        )
+    return tuple(out)
 
 
 def _stats(name: str, message: str, unit: str, s: Series) -> InputStats:
@@ -220,27 +208,23 @@ def wheel_signals(profile: Profile) -> tuple[tuple[str, SignalDef, float], ...]:
 
 def decode_inputs(frames: FrameBatch, profile: Profile) -> ProfileInputs:
     """The profile's inputs (and the DBC's wheel speeds) in ``frames`` (module doc)."""
+    decoded = decode_batch(profile, frames)
+    used = decoded.used_profile or profile  # with the timeouts observed where its DBC gives none
     series: dict[str, Series] = {}
     stats = []
     for name, im in profile.inputs.items():
-        spec = profile.messages[im.message]
-        _, good = _frames_of(frames, spec.frame_id, spec.length)
-        s = Series(
-            frames.t_ns[good],
-            _input_values(im, profile.signals[im.message], frames.data[good]),
-            int(spec.timeout_ns) or _observed_timeout(frames.t_ns[good]),
-        )
+        got = decoded.inputs[name]
+        s = Series(got.t_ns, got.value, int(used.messages[im.message].timeout_ns))
         series[name] = s
         stats.append(_stats(name, im.message, SI_UNITS[name], s))
-    integrity = tuple(_integrity(profile.messages[m], frames) for m in profile.messages)
     wheels = wheel_signals(profile)
+    kept = decoded.frames if decoded.frames is not None else frames
     for w, (mname, sig, k) in zip(WHEELS, wheels, strict=False):
-        fid = int(profile.db.get_message_by_name(mname).frame_id)
-        length = int(profile.db.get_message_by_name(mname).length)
-        _, good = _frames_of(frames, fid, length)
-        wspec = profile.messages.get(mname)
-        timeout = int(wspec.timeout_ns) if wspec is not None else _observed_timeout(frames.t_ns[good])
-        series[w] = Series(frames.t_ns[good], k * _physical(sig, frames.data[good]), timeout)
+        msg = profile.db.get_message_by_name(mname)
+        good = _frames_of(kept, int(msg.frame_id), int(msg.length))
+        wspec = used.messages.get(mname)
+        timeout = int(wspec.timeout_ns) if wspec is not None else _observed_timeout(kept.t_ns[good])
+        series[w] = Series(kept.t_ns[good], k * _physical(sig, kept.data[good]), timeout)
     speed = profile.inputs.get("speed")
     speed_is_wheels = bool(
         wheels and speed is not None and sorted(speed.signals) == sorted(s.name for _, s, _ in wheels)
@@ -248,10 +232,10 @@ def decode_inputs(frames: FrameBatch, profile: Profile) -> ProfileInputs:
     return ProfileInputs(
         series=series,
         stats=tuple(stats),
-        integrity=integrity,
+        integrity=_integrity(profile, decoded),
         wheels=tuple(f"{m}.{s.name}" for m, s, _ in wheels),
         speed_is_wheels=speed_is_wheels,
-        unknown_scale=frozenset(),
+        unknown_scale=profile.unknown_scale,
     )
 
 

@@ -67,14 +67,22 @@ class Inspection:
         return all(x.present == 0 for x in self.matches)
 
 
-def wanted(profile: Profile) -> list[Wanted]:
-    """A profile's input messages as :func:`lde.analysis.inspect.match.match_profile` wants them."""
-    return [Wanted(m.name, m.frame_id, m.length) for m in profile.messages.values()]
+def wanted(profile: Profile, channels: tuple[str, ...] = ()) -> list[Wanted]:
+    """A profile's input messages as :func:`lde.analysis.inspect.match.match_profile` wants them:
+    on the bus the profile names for each, except in a log of one bus (whatever its name: that bus
+    is the profile's, as :class:`lde.can.channels.ChannelSelect` takes it)."""
+    one_bus = len(channels) <= 1
+    return [
+        Wanted(m.name, m.frame_id, m.length, None if one_bus else m.channel)
+        for m in profile.messages.values()
+    ]
 
 
 def _on_channel(frames: FrameBatch, channel: str | None) -> FrameBatch:
-    """The frames of one channel. A FrameBatch holds no channel yet: every frame is on ``""``."""
-    return frames
+    """The frames of one channel (all of them in a log of one bus)."""
+    if channel is None or len(frames.channels) <= 1 or channel not in frames.channels:
+        return frames
+    return frames.select(frames.channel == frames.channels.index(channel))
 
 
 def inspect_frames(
@@ -86,11 +94,13 @@ def inspect_frames(
 ) -> Inspection:
     """Inspect a log's frames (module doc): ``given`` the user's profile (checked whether it fits
     or not), ``shipped`` the profiles to rank beside it."""
-    survey = survey_log(frames.t_ns, frames.can_id, frames.is_extended, frames.dlc)
+    survey = survey_log(
+        frames.t_ns, frames.can_id, frames.is_extended, frames.dlc, frames.channel, frames.channels
+    )
     cands = [(p, "shipped") for p in shipped if given is None or p.name != given.name]
     if given is not None:
         cands.insert(0, (given, "given"))
-    matches = rank([match_profile(survey, p.name, wanted(p), origin) for p, origin in cands])
+    matches = rank([match_profile(survey, p.name, wanted(p, survey.channels), origin) for p, origin in cands])
     if given is not None:
         profile, origin = given, "given"
     else:

@@ -137,7 +137,8 @@ def _inputs_part(insp: Inspection) -> list[str]:
         chk = "not verified" if g.checksum_failures is None else f"{g.checksum_failures} checksum failures"
         ctr = "no counter" if g.counter_jumps is None else f"{g.counter_jumps} counter jumps"
         wl = f", {g.wrong_length} of another length" if g.wrong_length else ""
-        lines.append(f"    {g.message} (0x{g.frame_id:X}, {g.check}): {g.frames} frames{wl}; {chk}; {ctr}")
+        head = f"    {g.message} (0x{g.frame_id:X}, {g.check}): {g.frames} frames{wl}, {g.used} used"
+        lines.append(f"{head}; {chk}; {ctr}")
     return lines
 
 
