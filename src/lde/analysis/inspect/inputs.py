@@ -216,7 +216,8 @@ def decode_inputs(frames: FrameBatch, profile: Profile) -> ProfileInputs:
         got = decoded.inputs[name]
         s = Series(got.t_ns, got.value, int(used.messages[im.message].timeout_ns))
         series[name] = s
-        stats.append(_stats(name, im.message, SI_UNITS[name], s))
+        unit = "counts" if im.unknown_scale else SI_UNITS[name]
+        stats.append(_stats(name, im.message, unit, s))
     wheels = wheel_signals(profile)
     kept = decoded.frames if decoded.frames is not None else frames
     for w, (mname, sig, k) in zip(WHEELS, wheels, strict=False):

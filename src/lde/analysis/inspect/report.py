@@ -110,12 +110,11 @@ def _inputs_part(insp: Inspection) -> list[str]:
         ]
     ]
     for st in insp.inputs.stats:
-        unit = "counts" if st.name in insp.inputs.unknown_scale else st.unit
         rows.append(
             [
                 st.name,
                 st.message,
-                unit,
+                st.unit,
                 str(st.frames),
                 _fixed(st.rate_hz, 1),
                 f"{_fixed(st.max_gap_ms, 0)}/{_fixed(st.timeout_ms, 0)}{' STALE' if st.stale_gaps else ''}",
