@@ -33,6 +33,7 @@ def drive(
     seed: int = 0,
     wheels: bool = True,
     k_us: float = K_US,
+    rate: bool = False,
 ) -> dict[str, Series]:
     """Inputs of a drive in SI with ISO signs, each at 100 Hz with its sensor's noise."""
     rng = np.random.default_rng(seed)
@@ -56,6 +57,10 @@ def drive(
         "column_torque": torque,
         "assist_torque": 3.0 * torque,
     }
+    if rate:  # the angle sensor's own rate, in steps of 1 deg/s
+        out["steering_rate"] = (
+            np.round((np.gradient(delta, dt) + 0.5 * DEG * rng.standard_normal(t.size)) / DEG) * DEG
+        )
     if wheels:  # right wheels on the outer circle of a left turn
         half = r * GEO.track / 2.0
         for w in WHEELS:
@@ -64,9 +69,14 @@ def drive(
     return {k: Series(t_ns, x, 30_000_000) for k, x in out.items()}
 
 
-def check(series: dict[str, Series], geo: Geometry = GEO, signs: dict[str, float] | None = None):
+def check(
+    series: dict[str, Series],
+    geo: Geometry = GEO,
+    signs: dict[str, float] | None = None,
+    rate_signed: bool = True,
+):
     """Run the checks with their sign attribution; (checks by key, findings)."""
-    checks = run_checks(common_grid(series), geo, speed_is_wheels=False)
+    checks = run_checks(common_grid(series), geo, speed_is_wheels=False, rate_signed=rate_signed)
     found = attribute_signs(checks)
     fixed = with_fixes(checks, found, signs or {})
     return {c.key: c for c in fixed}, found
@@ -189,3 +199,37 @@ def test_the_speed_against_the_wheels_catches_a_wrong_unit(good):
     assert checks["speed"].outcome is Outcome.FAIL and checks["speed"].fix == ("[inputs.speed] scale",)
     only = run_checks(common_grid(good), GEO, speed_is_wheels=True)
     assert next(c for c in only if c.key == "speed").outcome is Outcome.NOT_APPLICABLE
+
+
+@pytest.fixture(scope="module")
+def with_rate():
+    return drive(rate=True)
+
+
+def test_the_steering_rate_against_the_angles_derivative(with_rate):
+    checks, found = check(with_rate)
+    assert checks["steering_rate"].outcome is Outcome.PASS, checks["steering_rate"].why
+    assert found["steering_rate"].ok is True
+    checks, found = check(flipped(with_rate, "steering_rate"), signs={"steering_rate": 1.0})
+    assert checks["steering_rate"].outcome is Outcome.FAIL
+    assert checks["steering_rate"].fix == ("[inputs.steering_rate] sign = -1",)
+    assert found["steering_rate"].ok is False and found["steering_angle"].ok is True
+
+
+def test_a_flipped_angle_is_blamed_not_its_rate(with_rate):
+    checks, found = check(flipped(with_rate, "steering_angle"), signs={"steering_angle": 1.0})
+    assert {k for k, c in checks.items() if c.outcome is Outcome.FAIL} == {"yaw_vs_steering", "steering_rate"}
+    assert checks["steering_rate"].fix == ("[inputs.steering_angle] sign = -1",)
+    assert found["steering_angle"].ok is False and found["steering_rate"].ok is True
+
+
+def test_a_rate_in_the_wrong_unit_fails_on_its_scale(with_rate):
+    checks, _ = check(flipped(with_rate, "steering_rate", factor=1.0 / DEG))  # deg/s read as rad/s
+    f = checks["steering_rate"]
+    assert f.outcome is Outcome.FAIL and "wrong scale" in f.why
+    assert any("[inputs.steering_rate] scale" in x for x in f.fix)
+
+
+def test_a_rate_that_is_a_magnitude_is_not_checked(with_rate):
+    checks, found = check(with_rate, rate_signed=False)
+    assert checks["steering_rate"].outcome is Outcome.NOT_APPLICABLE and "steering_rate" not in found

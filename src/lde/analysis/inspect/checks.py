@@ -28,7 +28,8 @@ e. **speed** against the mean of the wheel speeds, ``v = s v_wheels`` (through t
    the wheel speeds' mean.
 f. **steering rate** against the time derivative of the steering angle, ``rate = s d(delta_sw)/dt +
    c``: the same sensor's two readings, so the slope is 1 up to the sensor's own filtering
-   (:data:`RATE_SLOPE`). A kinematic relation: no speed gate.
+   (:data:`RATE_SLOPE`). Only where the rate is signed (a magnitude has no sign to check), and, as
+   every check, on the car moving (a standing car's sensors may still be starting up).
 
 **Outcomes.** *not enough excitation* when fewer than :data:`MIN_SAMPLES` grid samples pass the
 gates, the effective sample size is below :data:`MIN_EFFECTIVE`, the regressor barely moves, or the
@@ -459,17 +460,20 @@ def _speed(grid: Grid, geo: Geometry, base: _Base, speed_is_wheels: bool) -> Che
     return Check("speed", "e", title, outcome, why, (), rel, SPEED_SCALE, _numbers(rel, n))
 
 
-def _steering_rate(grid: Grid) -> Check:
+def _steering_rate(grid: Grid, base: _Base, signed: bool) -> Check:
     title = "steering rate against the steering angle's derivative"
     if not grid.has("steering_rate", "steering_angle"):
         return Check(
             "steering_rate", "f", title, Outcome.NOT_APPLICABLE, "the profile lacks an input it needs"
         )
+    if not signed:
+        why = "the steering rate is a magnitude (signed = false): it has no sign to check"
+        return Check("steering_rate", "f", title, Outcome.NOT_APPLICABLE, why)
     x = grid.rate("steering_angle")
-    use = grid.ok("steering_angle", "steering_rate")
+    use = base.moving & grid.ok("steering_angle", "steering_rate")
     n = int(np.count_nonzero(use))
     rel = fit_relation(x, grid.values["steering_rate"], use)
-    outcome, why = _judge(rel, n, MIN_RATE_SPREAD, RATE_SLOPE, "both fresh")
+    outcome, why = _judge(rel, n, MIN_RATE_SPREAD, RATE_SLOPE, base.gates.split(",")[0])
     return Check(
         "steering_rate",
         "f",
@@ -504,11 +508,13 @@ def run_checks(
     *,
     torque_units: Mapping[str, str] | None = None,
     speed_is_wheels: bool = False,
+    rate_signed: bool = True,
 ) -> list[Check]:
     """The checks a-f over ``grid`` (signals named as the profile's inputs, plus :data:`WHEELS`
     where the DBC has them; SI, the profile's signs applied). ``torque_units``: the unit of each
     torque input (``Nm``, or ``counts`` for an unknown scale); ``speed_is_wheels``: the speed input
-    is the wheel speeds' mean (check e does not apply). The signs are not yet attributed:
+    is the wheel speeds' mean (check e does not apply); ``rate_signed``: the steering rate carries
+    its direction (else check f does not apply). The signs are not yet attributed:
     :func:`attribute_signs` then :func:`with_fixes`."""
     units = dict(torque_units or {})
     base = _Base.of(grid, geo)
@@ -518,8 +524,9 @@ def run_checks(
         _wheel_speeds(grid, geo, base),
         *(_torque(grid, geo, base, t, units.get(t, "Nm")) for t in ("column_torque", "assist_torque")),
         _speed(grid, geo, base, speed_is_wheels),
+        _steering_rate(grid, base, rate_signed),
     ]
-    return [_below_min_speed(c, grid, geo) for c in checks] + [_steering_rate(grid)]
+    return [_below_min_speed(c, grid, geo) for c in checks]
 
 
 # --------------------------------------------------------------------------- which sign is wrong

@@ -131,6 +131,7 @@ def inspect_frames(
         base.geometry or Geometry.of(vehicle),
         torque_units=units,
         speed_is_wheels=inputs.speed_is_wheels,
+        rate_signed=profile.steering_rate_signed,
     )
     signs = attribute_signs(checks)
     checks = with_fixes(checks, signs, base.input_signs)
