@@ -1,4 +1,4 @@
-"""``lde inspect LOG [--profile FILE] [--vehicle FILE] [--json]``.
+"""``lde inspect LOG [--profile NAME|FILE.toml] [--vehicle NAME|FILE.toml] [--json]``.
 
 What a user needs before trusting a new car: which ids and channels the log holds, at which rates;
 which shipped (or the given) profile fits it; for the profile, each input's range, rate, staleness
