@@ -153,7 +153,8 @@ class Check:
 
     Attributes:
         key: ``lat_accel``, ``yaw_vs_steering``, ``wheel_speeds``, ``column_torque``,
-            ``assist_torque``, ``speed``; label: its letter in the report (a-e); title: what it relates.
+            ``assist_torque``, ``speed``, ``steering_rate``; label: its letter in the report (a-f);
+            title: what it relates.
         outcome: :class:`Outcome`; why: one line with the numbers behind it.
         relates: the profile inputs whose relative sign it tests (the input it is about first;
             ``wheels`` stands for the DBC's wheel names), empty for a scale-only check.
