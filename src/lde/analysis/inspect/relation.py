@@ -14,7 +14,7 @@ independent samples that would give the same slope variance (``n`` times the OLS
 HAC variance). The interval's critical value is the fixed-b one of Kiefer and Vogelsang
 (:func:`fixed_b_quantile`): with a window that spans a good part of a short drive, the HAC
 variance is itself uncertain, and the normal 1.96 would cover the slope in 80 % of drives, not 95 %
-(tests/test_inspect_relation.py measures it).
+(tests/analysis/test_inspect_relation.py measures it).
 
 Both signals are measured: noise in ``x`` (quantised sensors, lags not removed by the low-pass)
 biases the slope of ``y`` on ``x`` toward zero, and noise in ``y`` biases the slope of ``x`` on

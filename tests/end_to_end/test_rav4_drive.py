@@ -24,7 +24,9 @@ from lde.cli import main
 from lde.params import TireParams, load_vehicle, validate
 from lde.units import DEG
 
-RAV4 = Path(__file__).parent / "data" / "real" / "rav4_2017_highway.log.gz"
+from helpers import TESTS
+
+RAV4 = TESTS / "data" / "real" / "rav4_2017_highway.log.gz"
 ARGS = ("--profile", "toyota_rav4_2017", "--vehicle", "toyota_rav4_2017")
 #: the estimate may be invalid for its convergence time after the start (and after a restart): of a
 #: 60 s drive whose inputs never go stale, at least this share of the steps above the minimum speed

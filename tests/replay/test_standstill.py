@@ -8,11 +8,12 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-from pathlib import Path
 
 from lde.cli import main
 
-KONA = Path(__file__).parent / "data" / "real" / "kona_ev_2019_standstill.log.gz"
+from helpers import TESTS
+
+KONA = TESTS / "data" / "real" / "kona_ev_2019_standstill.log.gz"
 #: the checks that need the car moving (e: the hyundai speed is the wheels' mean)
 MOVING = ("lat_accel", "yaw_vs_steering", "wheel_speeds", "column_torque", "assist_torque")
 

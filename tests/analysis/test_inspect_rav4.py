@@ -19,7 +19,9 @@ import pytest
 from lde.can.profiles import dbc_dir
 from lde.cli import main
 
-RAV4 = Path(__file__).parent / "data" / "real" / "rav4_2017_highway.log.gz"
+from helpers import TESTS
+
+RAV4 = TESTS / "data" / "real" / "rav4_2017_highway.log.gz"
 PROFILE = "toyota_rav4_2017"
 #: the checks a drive with gentle curves in both directions decides (the drive's lane-keeping holds
 #: the wheel, so the driver's torque may stay undecided: it must not fail)
