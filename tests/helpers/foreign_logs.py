@@ -180,10 +180,13 @@ def at_dbc_limits(f: FrameBatch, profile: str, t0_s: float, t1_s: float) -> Fram
 
 
 def _counter_of(spec: object, raw: bytes) -> int:
-    """The frame's counter from its (little-endian, LSB part first) counter fields."""
+    """The frame's counter from its counter fields (least significant part first; the shipped
+    profiles' counters are little-endian DBC fields)."""
     w = int.from_bytes(raw.ljust(8, b"\0"), "little")
     c, shift = 0, 0
-    for start, length in spec.scheme.counter_fields:  # type: ignore[attr-defined]
+    for start, length, little_endian in spec.scheme.counter_fields:  # type: ignore[attr-defined]
+        if not little_endian:
+            raise ValueError(f"{spec.name}: a big-endian counter field is not generated here")  # type: ignore[attr-defined]
         c |= ((w >> start) & ((1 << length) - 1)) << shift
         shift += length
     return c
@@ -192,9 +195,13 @@ def _counter_of(spec: object, raw: bytes) -> int:
 # ----------------------------------------------------------------------------- writers
 def write_pycan(path: Path, f: FrameBatch, channel: str | int = "vcan0", extra: list | None = None) -> None:
     """Through python-can's own writer for the suffix (ASC, BLF, CSV, TRC, ...); ``extra``
-    python-can messages (FD, remote, error frames) merged in by time."""
+    python-can messages (FD, remote, error frames) merged in by time, on the same bus when they name
+    none."""
     import can
 
+    for m in extra or []:
+        if m.channel is None:
+            m.channel = channel
     msgs = f.to_messages(channel) + list(extra or [])
     msgs.sort(key=lambda m: m.timestamp)
     with can.Logger(str(path)) as w:

@@ -164,14 +164,17 @@ def test_a_replay_without_its_helper_threads_writes_the_same_csv(logs, tmp_path)
 
 
 @pytest.mark.slow
-def test_a_local_clusters_workers_keep_glibcs_trim_threshold():
+def test_a_local_clusters_workers_keep_glibcs_trim_threshold(monkeypatch):
     """The local cluster's workers run without dask's MALLOC_TRIM_THRESHOLD_=65536 (a replay frees
     MB-sized pieces all along; the trimming tripled its system time) and keep dask's other
-    settings (one OpenMP thread)."""
+    settings (one OpenMP thread). dask's nanny writes its pre-spawn variables into the spawning
+    process's own environment, so a cluster an earlier test started in this process leaves the
+    variable behind for every later child: this test starts from an environment without it."""
     from distributed import Client
 
     from lde.replay.fleet_dask import _local_cluster
 
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
     cluster = _local_cluster(1)
     try:
         with Client(cluster) as client:
