@@ -22,7 +22,7 @@ from lde.can.profiles import Profile, load_profile
 from lde.clock import SimulatedClock
 from lde.params import load_vehicle
 from lde.service.diagnostics import DEADLINE_MISS_NS
-from lde.service.service import STATUS_DEADLINE_MISS, Service
+from lde.service.service import ID_CHECK_S, STATUS_DEADLINE_MISS, Service
 from lde.testing import Bench, InputFeeder
 from lde.testing.bench import DEFAULT_START_NS
 from lde.units import DEG, KMH, STEP_NS
@@ -184,7 +184,8 @@ def test_send_errors_are_counted_not_raised(rig) -> None:
 
 @pytest.mark.lde_bench(capture=False)
 def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path, lde_bench: Bench) -> None:
-    """``lde run`` in-process on a virtual bus fed from a thread; --duration ends it cleanly."""
+    """``lde run`` in-process on a virtual bus fed from a thread; --duration ends it cleanly. It sends
+    from the first step 1 s after its start (the output ids' check: nobody else sends them here)."""
     import threading
     import time
 
@@ -214,7 +215,7 @@ def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path, lde_bench: Bench) 
                 "--channel",
                 ch,
                 "--duration",
-                "0.5",
+                "1.5",
                 "--backend",
                 "float",
                 "--grid",
@@ -232,11 +233,15 @@ def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path, lde_bench: Bench) 
     assert rec.complete
     n = len(rec.step_times_ns)
     steps = rec.step_times_ns
-    assert steps[-1] - steps[0] >= 0.5e9 - STEP_NS  # --duration (plus the ramp-out)
+    assert steps[-1] - steps[0] >= 1.5e9 - STEP_NS  # --duration (plus the ramp-out)
     # the fixed grid: every step on the 3.9 ms grid (the MDPS-locked grid, lde run's default, is checked
     # deterministically on a simulated clock in test_run_on_the_mdps_grid_...; the other lde run tests use it)
     np.testing.assert_array_equal(np.diff(steps) % STEP_NS, 0)
-    assert len(rec.rx) > 100 and len(rec.tx) == 4 * n  # LDE_Estimate, _Overlay, _Disturbance, _Diag
+    sending = int(np.sum(steps >= steps[0] + ID_CHECK_S * 1e9))
+    assert 0 < sending < n
+    # from then on LDE_Estimate, _Overlay, _Disturbance and _Diag every step
+    assert len(rec.rx) > 100 and len(rec.tx) == 4 * sending
+    assert rec.tx.t_ns[0] >= steps[0] + ID_CHECK_S * 1e9
     assert rec.metadata["backend"] == "float"
 
 
@@ -565,7 +570,7 @@ def test_the_mdps_grid_skips_the_windows_it_fell_behind_by_and_counts_them() -> 
 
 
 class _CallRecorder:
-    """A recorder without rings: the service calls it per frame and per step (the Python hand-off)."""
+    """A recorder of its own kind: the service calls it per frame and per step (the Python hand-off)."""
 
     def __init__(self) -> None:
         self.frames: list[tuple[int, int, int, int, bool]] = []
@@ -579,7 +584,7 @@ class _CallRecorder:
 
 
 def test_the_compiled_hand_off_sends_and_records_what_the_python_path_does(tmp_path) -> None:
-    """The step's compiled hand-off (lde.service.handoff: timing, LDE_Diag, the recorder's rings) against a
+    """The step's compiled hand-off (lde.service.handoff: timing, LDE_Diag, the recorder's records) against a
     recorder called from Python, on the same inputs and start times: the same LDE_Diag frames (and
     their values those of lde.service.diagnostics.diag_values, saturations included), the same sent frames and
     step rows in the recording."""
@@ -587,15 +592,14 @@ def test_the_compiled_hand_off_sends_and_records_what_the_python_path_does(tmp_p
     from lde.service.diagnostics import diag_signals
 
     runs = []
-    for ringed in (True, False):
+    for compiled in (True, False):
         ch = f"lde-test-handoff-{next(_channels)}"
         feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
         svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
         clock = SimulatedClock(T0)
-        rec = Recorder(tmp_path / "ring.mcap") if ringed else _CallRecorder()
+        rec = Recorder(tmp_path / "run.mcap") if compiled else _CallRecorder()
         profile, vehicle = load_profile("lde"), load_vehicle("reference")
         svc = Service(svc_bus, profile, vehicle, clock, backend="float", recorder=rec)
-        assert (svc._ring is not None) == ringed
         fd = feeder(feed_bus, svc.profile)
         results = []
         # late starts: inside the range, past a deadline, past every LDE_Diag range (saturated)
@@ -607,7 +611,7 @@ def test_the_compiled_hand_off_sends_and_records_what_the_python_path_does(tmp_p
             late = lateness.get(k, 0)
             clock.sleep_until(t_k + late)
             results.append(svc.step_once(t_k, t_start=t_k + late))
-        if ringed:
+        if compiled:
             rec.close()
         names = ("LDE_Estimate", "LDE_Overlay", "LDE_Disturbance", "LDE_Diag")
         ids = {svc.profile.output_id(n) for n in names}
@@ -629,14 +633,14 @@ def test_the_compiled_hand_off_sends_and_records_what_the_python_path_does(tmp_p
     assert diags[42]["PeriodError"] == 8191 and diags[43]["DeadlineMisses"] == 3
     assert [r.timing for r in results] == [r.timing for r in results_py]
 
-    got = read_recording(tmp_path / "ring.mcap")
+    got = read_recording(tmp_path / "run.mcap")
     tx = got.tx
     cols = zip(tx.t_ns, tx.can_id, tx.data, tx.dlc, strict=True)
     sent = [(int(t), int(i), bytes(d[:n])) for t, i, d, n in cols]
     sent_py = [(t, i, int(w).to_bytes(8, "little")[:n]) for t, i, n, w, is_rx in calls.frames if not is_rx]
     assert sent == sent_py
     assert [s[2] for s in sent] == [bytes(m.data) for m in out]
-    # the received frames: handed to the ring by the compiled hand-off after the sends, the same
+    # the received frames: recorded by the compiled hand-off after the sends, the same
     rx = got.rx
     rcols = zip(rx.t_ns, rx.can_id, rx.data, rx.dlc, strict=True)
     received = [(int(t), int(i), bytes(d[:n])) for t, i, d, n in rcols]
