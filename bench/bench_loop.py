@@ -275,7 +275,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--channel", default=None, help="default: a multicast group of its own (udp_multicast)")
     ap.add_argument("--port", type=int, default=None, help="udp_multicast port (default: random)")
     ap.add_argument("--scenario", default="heavy_load")
-    ap.add_argument("--backend", choices=("fixed", "float", "paper-fixed", "paper"), default="fixed")
+    ap.add_argument("--backend", choices=("fixed", "float", "paper"), default="fixed")
     ap.add_argument("--grid", choices=("mdps", "fixed"), default="mdps")
     ap.add_argument("--record", default=None, help="also record to this MCAP file")
     ap.add_argument("--realtime", action="store_true", help="the service at SCHED_FIFO --priority, mlockall")

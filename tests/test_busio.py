@@ -210,7 +210,7 @@ def test_message_fields_of_every_kind_of_frame() -> None:
     fd = can.Message(
         timestamp=ts, arbitration_id=0x123, data=bytes(range(12)), is_fd=True, is_extended_id=False
     )
-    assert message_fields(fd)[3:] == (12, int.from_bytes(bytes(range(8)), "little"))
+    assert message_fields(fd)[3:] == (12, int.from_bytes(bytes(range(12)), "little"))  # every byte
 
 
 #: frames of every kind the SocketCAN path must read like python-can

@@ -71,12 +71,12 @@ def test_overlay_relieves_the_driver_and_estimate_tracks_truth(tmp_path: Path) -
     assert "driver torque" in text and "lateral drift" in text
 
 
-@pytest.mark.parametrize("backend", ["paper-fixed", "fixed"])
+@pytest.mark.parametrize("backend", ["paper", "fixed"])
 def test_closed_loop_estimate_tracks_truth_on_light_load(backend: str) -> None:
     """Closed loop (the simulator's driver + the overlay applied by the simulated MDPS): no limit
     cycle. Before the law's band limit (docs/overlay.md, "Closed loop") the lateral filter (`fixed`)
     sat at the overlay's rate limit on 88 % of the steps, 1.9 Hz, Fw NRMSE 40 %; measured after it
-    (seed 2, 14 s): `fixed` 6.9 % with no rate-limited step, `paper-fixed` 4.4 %."""
+    (seed 2, 14 s): `fixed` 6.9 % with no rate-limited step; the paper's filter (`paper`) beside it."""
     summary, on, _ = run_demo("light_load", seed=2, duration=14.0, backend=backend, mcap=None, png=None)
     assert summary.accuracy.nrmse_fw < 0.15
     s = on.series

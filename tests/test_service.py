@@ -266,7 +266,7 @@ def test_sigterm_ends_lde_run_cleanly(tmp_path) -> None:
         "--channel",
         "term",
         "--backend",
-        "lateral",
+        "float",
         "--record",
         str(path),
         "--learned",
@@ -730,12 +730,14 @@ def test_the_engine_prewarm_before_the_mdps_frame_changes_nothing(lost) -> None:
         out = [(m.arbitration_id, bytes(m.data)) for m in _outputs(tap) if m.arbitration_id in ours]
         tap.shutdown()
         rows = [(r.t_ns, r.fw, r.mw, r.status, r.t_overlay, r.frames_used) for r in seen]
-        info = svc.engine.est.info  # the filter's, its shadow's and the learner's state, the limiter's
+        st = svc.engine.est.state  # the filter's, its shadow's and the learner's state, the limiter's
         kept = [
-            *info["state"],
-            *info["shadow_state"],
-            info["learner"],
-            info["p"],
+            st.x,
+            st.P,
+            st.aux,
+            *st.shadow[:4],
+            st.ls,
+            st.p,
             svc.engine.lsf,
             svc.engine.lsi,
         ]

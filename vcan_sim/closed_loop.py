@@ -38,6 +38,7 @@ class OverlayReceiver:
     def __init__(self, profile: Profile, ramp_rate: float = 5.0) -> None:
         self.spec = profile.spec("LDE_Overlay")
         self.codec = MessageCodec(profile, "LDE_Overlay")
+        assert self.spec.receiver is not None  # lde's outputs always have their timeout
         self.e2e = P01Receiver(self.spec.receiver, data_id=self.spec.frame_id, scheme=self.spec.scheme)
         self.ramp_rate = float(ramp_rate)
         self.stats = OverlayStats()

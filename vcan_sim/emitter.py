@@ -22,7 +22,7 @@ import numpy as np
 
 from lde.can.busio import drain
 from lde.can.codec import MessageCodec, MessageEncoder, encode_frames, si_to_dbc
-from lde.can.frames import FrameBatch, ns_to_seconds
+from lde.can.frames import FrameBatch, data_width, ns_to_seconds
 from lde.can.profiles import Profile
 from lde.clock import MonotonicClock
 from lde.units import STEP_NS
@@ -57,7 +57,7 @@ class MessageStream:
     sent: int = 0
     encoder: MessageEncoder | None = None  # scalar path for the few frames of one live step
     fault_hits: list[tuple[Fault, np.ndarray]] = field(default_factory=list)
-    checksum_fields: tuple[tuple[int, int], ...] = ()
+    checksum_fields: tuple[tuple[int, int, bool], ...] = ()
     last_data: np.ndarray | None = None  # data of the last frame sent (REPEAT faults)
 
 
@@ -176,7 +176,7 @@ def _encode_scalar(stream: MessageStream, cols: dict, t_abs: np.ndarray, first: 
     enc = stream.encoder
     assert enc is not None  # emit_range only calls this with an encoder
     n = t_abs.shape[0]
-    data = np.zeros((n, 8), np.uint8)
+    data = np.zeros((n, data_width(enc.codec.length)), np.uint8)
     for i in range(n):
         enc.counter = _counter(first + i, stream.modulus)
         raw = enc.encode({k: float(np.asarray(v).reshape(-1)[i]) for k, v in cols.items()})
@@ -256,6 +256,7 @@ def to_messages(frames: FrameBatch, channel: str | None = None) -> list[can.Mess
             is_extended_id=bool(frames.is_extended[i]),
             dlc=int(frames.dlc[i]),
             data=bytes(frames.data[i, : frames.dlc[i]]),
+            is_fd=int(frames.dlc[i]) > 8,
             channel=channel,
         )
         for i in range(len(frames))

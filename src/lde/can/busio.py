@@ -24,7 +24,8 @@ ignores other ids itself.
 
 The service needs five numbers per frame, not a ``can.Message``: :meth:`BusIO.recv` gives
 ``(t_ns, can_id, is_extended, dlc, word)``, ``t_ns`` the receive time [ns] rounded to the microsecond
-(:func:`lde.can.frames.seconds_to_ns`), ``word`` the first 8 data bytes little-endian, ``can_id``
+(:func:`lde.can.frames.seconds_to_ns`), ``word`` the data bytes as a little-endian integer (64 bits
+for a classic frame, up to 512 for CAN FD), ``can_id``
 :data:`NOT_DATA` (-1) for a remote frame, :data:`ERROR_FRAME` (-2) for an error frame (``word``: its
 error class). Output frames are built once (:class:`TxFrame`) and their data bytes refilled in place.
 """
@@ -439,7 +440,7 @@ def message_fields(msg: can.Message) -> RxFrame:
     if msg.is_remote_frame:
         return (0, NOT_DATA, False, 0, 0)
     data = msg.data
-    word = int.from_bytes(data if len(data) <= 8 else data[:8], "little")
+    word = int.from_bytes(data, "little")
     return (seconds_to_ns(msg.timestamp), msg.arbitration_id, msg.is_extended_id, msg.dlc, word)
 
 
@@ -526,7 +527,7 @@ def socketcan_fields(cf: bytes, ts: float) -> RxFrame:
     dlc = cf[4]
     if len(cf) != _CANFD_MTU and dlc == 8 and 8 < cf[7] <= 15:
         dlc = cf[7]
-    word = int.from_bytes(cf[8 : 8 + min(dlc, 8)], "little")
+    word = int.from_bytes(cf[8 : 8 + dlc], "little")
     return (seconds_to_ns(ts), can_id & (0x1FFFFFFF if ext else 0x7FF), ext, dlc, word)
 
 

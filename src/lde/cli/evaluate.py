@@ -35,7 +35,6 @@ from lde.analysis.study import zoo, zooreport
 from lde.analysis.study.execute import load_sim_vehicle
 from lde.analysis.study.specsheet import write_spec_sheet
 from lde.analysis.study.tables import write_rows
-from lde.cli import BACKEND_CHOICES
 from lde.cli.replay_in_process import engine
 from lde.cli.study import add_cluster_arguments, add_run_arguments, cluster_config, est_options, sim_options
 from lde.errors import ConfigError
@@ -195,9 +194,10 @@ def run_zoo(args: argparse.Namespace) -> int:
         raise ConfigError("--prior applies to warm runs: add warm to --modes")
     profiles = args.profiles or ((args.profile,) if args.profile else zoo.PROFILES)
     backends = args.backends or ((args.backend,) if args.backend else zoo.BACKENDS)
+    from lde.engine.backends import get_backend
+
     for b in backends:
-        if b not in BACKEND_CHOICES:
-            raise ConfigError(f"unknown backend {b!r} ({', '.join(BACKEND_CHOICES)})")
+        get_backend(b)  # ConfigError for an unknown or removed name
     out: Path = args.out
     if args.readme or args.doc:
         _check_full(args, modes, profiles, backends)

@@ -29,8 +29,7 @@ import threading
 from types import FrameType
 from typing import TYPE_CHECKING
 
-from lde.cli import BACKEND_CHOICES, BACKEND_HELP
-from lde.cli.coldrun import begin, compile_ahead
+from lde.cli import BACKEND_HELP, PROFILE_HELP
 from lde.cli.replay import EXIT_NOTHING_USABLE
 from lde.errors import BusError, ConfigError
 
@@ -96,9 +95,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_bus_arguments(p)
-    p.add_argument("--profile", default="lde", help="CAN profile: lde (default) or hyundai")
+    p.add_argument("--profile", default="lde", help=PROFILE_HELP + " (default: lde)")
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
-    p.add_argument("--backend", choices=BACKEND_CHOICES, default="fixed", help=BACKEND_HELP)
+    p.add_argument("--backend", default="fixed", help=BACKEND_HELP)
     p.add_argument("--record", metavar="FILE.mcap", help="record frames, estimates and diagnostics to MCAP")
     p.add_argument(
         "--learned",
@@ -203,7 +202,6 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
     if not (args.status_interval > 0 and math.isfinite(args.status_interval)):
         raise ConfigError(f"--status-interval {args.status_interval}: need seconds > 0 (--quiet: none)")
-    cold = begin(args.backend)  # before the heavy imports: the notice within a second
     from lde.can.profiles import load_profile
     from lde.clock import MonotonicClock
     from lde.params import load_vehicle
@@ -215,12 +213,13 @@ def run(args: argparse.Namespace) -> int:
     # one ever hold the interpreter lock, the loop must get it back within a fraction of a step
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
     profile = load_profile(args.profile)
+    for line in profile.notes():
+        log.warning("%s", line)
     grid = svc_mod.grid_for(profile, args.grid)
     transmit, why_tx = _transmission(profile, args.transmit)
     vehicle = load_vehicle(args.vehicle)
     if vehicle.defaults:
         log.info("%s", vehicle.defaults_note())
-    compile_ahead(cold)  # before real-time priority: the compilers are not real-time work
     if args.realtime:
         _realtime(args)
     elif args.cpu:
@@ -265,7 +264,7 @@ def run(args: argparse.Namespace) -> int:
             from lde.io.recording import LEARNED_START_KEY, Recorder
 
             meta = {
-                "profile": profile.name,
+                **profile.metadata(),
                 "vehicle": vehicle.name,
                 "vehicle_source": vehicle.source,
                 "backend": args.backend,
@@ -276,7 +275,7 @@ def run(args: argparse.Namespace) -> int:
                 meta["vehicle_defaults"] = "; ".join(vehicle.defaults)
             if service.learned_start:
                 meta[LEARNED_START_KEY] = service.learned_start
-            recorder = service.recorder = Recorder(args.record, metadata=meta)
+            recorder = service.recorder = Recorder(args.record, metadata=meta, frame_bytes=service.rx_width)
         ends = _Ends(service, stop, args.duration, None if args.quiet else args.status_interval)
         log.info(
             "lde run: %s, profile %s, vehicle %s, backend %s, %s grid (%s), %s (%s), input filters: %s%s",

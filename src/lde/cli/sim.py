@@ -32,6 +32,7 @@ from dataclasses import replace
 from pathlib import Path
 from types import FrameType
 
+from lde.cli import PROFILE_HELP
 from lde.cli.run import add_bus_arguments, bus_kwargs
 from lde.errors import ConfigError
 
@@ -46,7 +47,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--list", action="store_true", help="list the scenarios and exit")
     p.add_argument("--scenario", "-s", metavar="NAME", help="scenario name (see --list)")
-    p.add_argument("--profile", default="lde", help="CAN profile: lde (default), hyundai, or a .dbc path")
+    p.add_argument("--profile", default="lde", help=PROFILE_HELP + " (default: lde)")
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random part (default 0)")
     p.add_argument("--duration", type=float, metavar="SEC", help="length [s] (default: the scenario's)")

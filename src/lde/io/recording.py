@@ -61,7 +61,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from lde.can.frames import FrameBatch, seconds_to_ns
+from lde.can.frames import MAX_DATA, FrameBatch, seconds_to_ns
 from lde.can.profiles import INPUT_NAMES
 from lde.engine.engine import OUTPUT_MESSAGES, StepBlock
 from lde.errors import LogFormatError
@@ -457,7 +457,7 @@ def _frames_of(rec: np.ndarray) -> FrameBatch:
         can_id=rec["can_id"].copy(),
         is_extended=(flags & _FLAG_EXT) != 0,
         dlc=rec["dlc"].copy(),
-        data=np.ascontiguousarray(rec["data"][:, :CLASSIC_BYTES]),
+        data=np.ascontiguousarray(rec["data"]),
         is_rx=(flags & _FLAG_RX) != 0,
     )
 
@@ -598,6 +598,8 @@ class Recorder:
         extra_topics: more JSON channels, topic -> {field: JSON-schema property}, written with
             :meth:`json_columns` (the demo's ``/sim/truth``).
         n_outputs: output frames per step row (``StepBlock.frames``).
+        frame_bytes: data bytes kept per frame: 8 (a classic bus), up to 64 (a profile with CAN FD
+            input messages; the service's ``rx_width``).
     """
 
     def __init__(
@@ -608,7 +610,10 @@ class Recorder:
         chunk_size: int = 64 * 1024,
         extra_topics: dict[str, dict[str, dict[str, str]]] | None = None,
         n_outputs: int = len(OUTPUT_MESSAGES),
+        frame_bytes: int = CLASSIC_BYTES,
     ) -> None:
+        if not CLASSIC_BYTES <= frame_bytes <= MAX_DATA:
+            raise ValueError(f"frame_bytes must lie in {CLASSIC_BYTES}..{MAX_DATA}, got {frame_bytes}")
         self.path = Path(path)
         meta = {k: str(v) for k, v in (metadata or {}).items()}
         try:  # a path that cannot be written is an error now, not in the writer (which opens it again)
@@ -617,7 +622,8 @@ class Recorder:
             raise LogFormatError(f"{path}: cannot write: {exc}") from exc
         self.n_outputs = int(n_outputs)
         #: the records' layouts (the service's compiled hand-off fills buffers of these)
-        self.frame_dtype = frame_record()
+        self.frame_bytes = int(frame_bytes)
+        self.frame_dtype = frame_record(self.frame_bytes)
         self.step_dtype = step_record(self.n_outputs)
         self._extra_topics = dict(extra_topics or {})
         self._closed = False
@@ -645,8 +651,9 @@ class Recorder:
             os.close(st_r)
         self._conn = Connection(mine.detach())
         self._conn.send(
-            (self.path, meta, float(flush_interval_s), int(chunk_size), self._extra_topics, self.n_outputs)
-        )
+            (self.path, meta, float(flush_interval_s), int(chunk_size), self._extra_topics,
+             self.n_outputs, self.frame_bytes)
+        )  # fmt: skip
         # the writer has the file open with its header written when this returns (or says why not)
         ok = self._conn.poll(_START_TIMEOUT_S) and self._reply()
         if not ok or ok[0] != "ready":
@@ -713,16 +720,15 @@ class Recorder:
                 self._failed = True
 
     def frame(self, t_ns: int, can_id: int, is_extended: bool, dlc: int, word: int, is_rx: bool) -> None:
-        """A received (``is_rx``) or sent frame at ``t_ns`` [ns]; ``word``: its first 8 data bytes as
-        a little-endian integer."""
+        """A received (``is_rx``) or sent frame at ``t_ns`` [ns]; ``word``: its data bytes as a
+        little-endian integer (the first :attr:`frame_bytes` are kept)."""
         rec = np.zeros(1, self.frame_dtype)
         rec["t_ns"] = t_ns
         rec["can_id"] = can_id
         rec["dlc"] = dlc
         rec["flags"] = (_FLAG_RX if is_rx else 0) | (_FLAG_EXT if is_extended else 0)
-        rec["data"][0, :CLASSIC_BYTES] = np.frombuffer(
-            (word & _WORD).to_bytes(CLASSIC_BYTES, "little"), np.uint8
-        )
+        width = self.frame_bytes
+        rec["data"][0] = np.frombuffer((word & ((1 << 8 * width) - 1)).to_bytes(width, "little"), np.uint8)
         self._write(self._frame_fd, rec.tobytes(), 0)
 
     def step(
@@ -827,11 +833,7 @@ class Recorder:
 
 
 def _word(data: bytes | bytearray) -> int:
-    return int.from_bytes(bytes(data[:CLASSIC_BYTES]), "little")
-
-
-#: a data word's 64 bits
-_WORD = (1 << 64) - 1
+    return int.from_bytes(bytes(data), "little")
 
 
 def _warm_up(n_outputs: int) -> None:
@@ -858,8 +860,8 @@ def _writer_main(conn_fd: int, frame_fd: int, step_fd: int) -> None:
     _background_priority()
     conn: Connection | None = Connection(conn_fd)
     assert conn is not None
-    path, meta, flush_interval, chunk_size, extra_topics, n_out = conn.recv()
-    frames_in = _RecordReader(frame_fd, frame_record())
+    path, meta, flush_interval, chunk_size, extra_topics, n_out, width = conn.recv()
+    frames_in = _RecordReader(frame_fd, frame_record(width))
     steps_in = _RecordReader(step_fd, step_record(n_out))
     try:
         w = McapWriter(path, chunk_size=chunk_size, buffer_bytes=64 << 20, metadata=meta)

@@ -81,7 +81,7 @@ import numpy as np
 
 from lde.can.busio import ERROR_FRAME, RxFrame, TxFrame, bus_io, describe_bus, open_bus, receive_only
 from lde.can.codec import MessageCodec
-from lde.can.frames import FrameBatch, seconds_to_ns
+from lde.can.frames import FrameBatch, data_width, seconds_to_ns
 from lde.can.profiles import Profile, load_profile
 from lde.can.watch import InputWatch, describe_ids
 from lde.clock import SimulatedClock
@@ -90,7 +90,7 @@ from lde.engine.grid import L_REF, lock_anchor, lock_deadline, lock_frame, lock_
 from lde.engine.receiver import Receiver
 from lde.errors import ConfigError
 from lde.estimator.learned import LearnedKeeper, LearnedSnapshot
-from lde.estimator.paper import O_BANK, O_LEARN
+from lde.estimator.outputs import O_BANK, O_LEARN
 from lde.io.recording import Recorder
 from lde.params import Vehicle, load_vehicle
 from lde.service.busfaults import FLOOD_FOREIGN_HZ, BusFaults, E2EWindow, WindowCounts
@@ -147,6 +147,8 @@ _GC_YOUNG = 700
 _BACKLOG_NS = 100_000_000
 #: received frames per step handed to the compiled hand-off for the recorder (more: from Python)
 _RX_CAP = 256
+#: a data word's 64 bits (a CAN FD frame's word is longer)
+_WORD = (1 << 64) - 1
 
 
 _WATCH_PERIOD_NS = 250_000_000  # how often the input watch looks (its warnings repeat every 30 s)
@@ -320,7 +322,7 @@ class Service:
             self.stats.rows,
             self.stats.ctr,
             np.zeros(len(dc.order), np.float64),
-            np.stack([lay.shift, lay.nbits, lay.little_endian, lay.signed, lay.is_value]).astype(np.int64),
+            np.stack([lay.pos, lay.nbits, lay.little_endian, lay.signed, lay.is_value]).astype(np.int64),
             np.stack([lay.scale, lay.offset, lay.lo, lay.hi]).astype(np.float64),
             np.ascontiguousarray(dc.scheme.counter_parts),
             np.ascontiguousarray(dc.scheme.checksum_parts),
@@ -350,12 +352,15 @@ class Service:
         self._frame_size = 0
         self._step_mv = memoryview(b"")
         self._recorder: Any = None
-        self._after_send = _resolved(after_send, *self._handoff_args)  # no recorder yet: stores nothing
-        self._ints[I_DIAG_CTR] = 0  # the resolving call above advanced it
+        after_send(*self._handoff_args)  # loads (or compiles) it now; no recorder yet: stores nothing
+        self._after_send = after_send
+        self._ints[I_DIAG_CTR] = 0  # the call above advanced it
         self.stats.ctr[:] = 0
         self.stats.rows[:] = 0
         self.recorder = recorder
-        # the frames received and not fed yet, in preallocated columns (the engine reads slices)
+        # the frames received and not fed yet, in preallocated columns (the engine reads slices); the
+        # data column is as wide as the profile's longest input message (8 bytes but for CAN FD)
+        self.rx_width = data_width(max(m.length for m in self.profile.messages.values()))
         self._np = 0
         self._pcols: tuple[np.ndarray, ...] = ()
         self._alloc_pending(_PENDING_CAP)
@@ -396,7 +401,7 @@ class Service:
         self._window: tuple[int, ...] | None = None  # the counts at the previous bus check
         self._e2e_prev: dict[str, tuple[int, ...]] = {}  # message -> E2E counts at that check
         self._warm_up()
-        self._run_engine_empty()  # resolves the pinned overload now (28 ms of numba typing), not at step 1
+        self._run_engine_empty()  # the loop for the live argument types loaded now, not at step 1
         self._newest_input_ns = -1  # receive time of the newest frame fed so far
         self._restamp: bool | None = None  # stamp frames on receipt (decided at the first frame)
         self._last_t_k: int | None = None  # the latest step time run [ns, bus time base]
@@ -475,20 +480,23 @@ class Service:
     def _alloc_pending(self, cap: int) -> None:
         """(Re)allocate the pending columns with room for ``cap`` frames, keeping their contents."""
         n = self._np
+        w = self.rx_width
         new: tuple[np.ndarray, ...] = (
             np.zeros(cap, np.int64),  # receive time [ns]
             np.zeros(cap, np.uint32),  # id
             np.zeros(cap, np.bool_),  # extended
             np.zeros(cap, np.uint8),  # dlc
-            np.zeros(cap, np.uint64),  # first 8 data bytes, little-endian
+            np.zeros((cap, w), np.uint8),  # data bytes
         )
         if n:
             for dst, src in zip(new, self._pcols, strict=True):
                 dst[:n] = src[:n]
         self._pcols = new
-        self._pt, self._pid, self._pext, self._pdlc, self._pword = new
-        # _take stores through memoryviews of the columns (half a numpy item store each)
-        self._pmv = tuple(a.data for a in new)
+        self._pt, self._pid, self._pext, self._pdlc, self._pdata = new
+        # _take stores through memoryviews of the columns (half a numpy item store each): classic
+        # frames' 8 bytes as one little-endian word, wider rows as bytes
+        words = self._pdata.view(np.uint64).reshape(cap) if w == 8 else self._pdata.reshape(cap * w)
+        self._pmv = (*(a.data for a in new[:4]), words.data)
         self._prx = np.ones(cap, np.bool_)
         #: n -> the engine's live arguments with the columns' first n rows (views)
         self._heads: dict[int, tuple] = {}
@@ -508,7 +516,8 @@ class Service:
         lock_deadline(lock)
         lock_timeout(lock, 2 * STEP_NS)
         lock_anchor(lock, 3 * STEP_NS)
-        self._lock_frame = _resolved(lock_frame, new_lock(0), 0)
+        lock_frame(new_lock(0), 0)
+        self._lock_frame = lock_frame
 
     @property
     def receiver(self) -> Receiver:
@@ -570,14 +579,18 @@ class Service:
         n = self._np
         if n == self._pt.shape[0]:
             self._alloc_pending(2 * n)
-        pt, pid, pext, pdlc, pword = self._pmv
+        pt, pid, pext, pdlc, pdata = self._pmv
         if n and t_rx < pt[n - 1]:
             self._unsorted = True
         pt[n] = t_rx
         pid[n] = can_id
         pext[n] = False
         pdlc[n] = dlc
-        pword[n] = word
+        w = self.rx_width
+        if w == 8:
+            pdata[n] = word & _WORD
+        else:  # CAN FD: the frame's bytes (a longer frame is malformed for every input message)
+            pdata[n * w : n * w + w] = (word & ((1 << (8 * w)) - 1)).to_bytes(w, "little")
         self._np = n + 1
         self._backlog.append((t_rx, can_id, dlc, word))
         if anchor and self._lock is not None:
@@ -602,7 +615,9 @@ class Service:
     def _find_anchor(self, t_rx: int, can_id: int, dlc: int, word: int) -> None:
         """An MDPS frame before the anchored grid's anchor: the anchor when its values are accepted."""
         assert self._anchor_rx is not None
-        if self._anchor_rx.feed(t_rx, can_id, word.to_bytes(8, "little"), dlc).accepted:
+        w = self.rx_width
+        data = (word & ((1 << 8 * w) - 1)).to_bytes(w, "little")
+        if self._anchor_rx.feed(t_rx, can_id, data, dlc).accepted:
             self.anchor_t = t_rx
             self._anchor_rx = None
 
@@ -652,14 +667,15 @@ class Service:
             return
         saw = self.watch.saw
         rec = self._recorder
-        if handoff and self._put is not None and len(bl) <= _RX_CAP:  # recorded by the compiled hand-off
+        # recorded by the compiled hand-off (classic frames: one word each)
+        if handoff and self._put is not None and len(bl) <= _RX_CAP and self.rx_width == 8:
             rx, rxw = self._rx_mv, self._rxw_mv
             for k, (t_rx, can_id, dlc, word) in enumerate(bl):
                 saw(can_id, t_rx)
                 rx[3 * k] = t_rx
                 rx[3 * k + 1] = can_id
                 rx[3 * k + 2] = dlc
-                rxw[k] = word
+                rxw[k] = word & _WORD
             self._ints_mv[I_N_RX] = len(bl)
         else:
             for t_rx, can_id, dlc, word in bl:
@@ -750,21 +766,20 @@ class Service:
 
     def _run_engine_empty(self) -> None:
         """The live call with no frame and no step time: nothing runs, nothing changes, but the
-        compiled overload for the live argument types is resolved (``Engine.run_arrays(pinned=True)``)."""
-        pt, pid, pext, pdlc, pword = (a[:0] for a in self._pcols)
+        compiled loop for the live argument types is loaded (or compiled) now, not at the first step."""
+        pt, pid, pext, pdlc, pdata = (a[:0] for a in self._pcols)
         fed, steps = self.engine.run_arrays(
             pt,
             pid,
             pext,
             pdlc,
-            pword,
+            pdata,
             self._prx[:0],
             self._block,
             step_times=self._tk[:0],
             enable=self._enable[:0],
             extra_status=self._extra[:0],
             final=True,
-            pinned=True,
         )
         if fed or steps:
             raise RuntimeError(f"the engine ran {steps} steps on no step time")
@@ -1250,18 +1265,6 @@ def _ids_text(ids: frozenset[int] | set[int], profile: Profile) -> str:
     """Output ids with their message names, e.g. ``0x3D1 (LDE_Estimate), 0x3D0 (LDE_Overlay)``."""
     names = {spec.frame_id: name for name, spec in profile.outputs.items()}
     return ", ".join(f"0x{i:X} ({names.get(i, '?')})" for i in sorted(ids))
-
-
-def _resolved(fn: Any, *args: Any) -> Any:
-    """numba's compiled overload of ``fn`` for the types of ``args`` (compiled or loaded now), to be
-    called directly with arguments of exactly these types: no type dispatch per call (a few us on a
-    cold cache). ``fn`` itself when it is not a numba dispatcher."""
-    overloads = getattr(fn, "overloads", None)
-    if overloads is None:
-        return fn
-    fn(*args)
-    sig = tuple(fn.typeof_pyval(a) for a in args)
-    return overloads[sig].entry_point if sig in overloads else fn
 
 
 def set_input_filters(bus: can.BusABC, profile: Profile) -> str:
