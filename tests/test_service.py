@@ -748,3 +748,100 @@ def test_the_engine_prewarm_before_the_mdps_frame_changes_nothing(lost) -> None:
     assert out_w == out and len(out) == 4 * 40
     for a, b in zip(state_w, state, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+_OUTPUT_NAMES = ("LDE_Estimate", "LDE_Overlay", "LDE_Disturbance", "LDE_Diag")
+
+
+def _steps_with_a_bus_tap(tmp_path, n: int, other=None, **kw):
+    """A service on a fresh virtual channel (simulated clock) stepped ``n`` times in lockstep with the
+    feeder, recording; ``other(k, t_k, feed_bus)`` may send frames of its own before step k. Returns
+    the service, its step results, what the others on the bus heard from it and the recording."""
+    from lde.io.recording import Recorder, read_recording
+
+    ch = f"lde-test-tx-{next(_channels)}"
+    feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    clock = SimulatedClock(T0)
+    rec = Recorder(tmp_path / f"{ch}.mcap")
+    try:
+        svc = Service(svc_bus, "lde", "reference", clock, backend="float", recorder=rec, **kw)
+        fd = feeder(feed_bus, svc.profile)
+        results = []
+        for k in range(n):
+            t_k = T0 + k * STEP_NS
+            fd.send_until(t_k)
+            if other is not None:
+                other(k, t_k, feed_bus)
+            clock.sleep_until(t_k)
+            results.append(svc.step_once(t_k))
+        rec.close()
+        ids = {svc.profile.output_id(name) for name in _OUTPUT_NAMES}
+        heard = [m for m in _outputs(feed_bus) if m.arbitration_id in ids]
+    finally:
+        rec.close()
+        feed_bus.shutdown()
+        svc_bus.shutdown()
+    return svc, results, heard, read_recording(tmp_path / f"{ch}.mcap")
+
+
+def test_a_listen_only_service_estimates_and_records_and_sends_nothing(tmp_path) -> None:
+    svc, results, heard, rec = _steps_with_a_bus_tap(tmp_path, 600, transmit=False)
+    assert heard == [] and svc.sent == 0 and not svc.sending
+    assert len(rec.tx) == 0  # nothing recorded as sent
+    assert len(rec.step_times_ns) == 600 and len(rec.rx) > 600  # every step and received frame recorded
+    assert results[-1].status & 1 and math.isfinite(results[-1].fw)  # it estimates
+    assert svc.status().line().endswith(", listen-only")
+
+
+def test_the_output_ids_are_checked_on_the_bus_before_the_first_send(tmp_path) -> None:
+    """Nobody else sends lde's output ids: the service sends from the first step ``id_check_s`` after
+    its first one, every output every step."""
+    check_s = 0.1
+    svc, results, heard, rec = _steps_with_a_bus_tap(tmp_path, 100, transmit=True, id_check_s=check_s)
+    first = T0 + int(check_s * 1e9)
+    sending = sum(r.t_ns >= first for r in results)
+    assert 0 < sending < 100 and svc.sending and svc.collisions == frozenset()
+    assert len(heard) == 4 * sending and len(rec.tx) == 4 * sending
+    assert rec.tx.t_ns.min() >= first
+
+
+def test_another_sender_of_an_output_id_keeps_the_service_listen_only(tmp_path, caplog) -> None:
+    """A frame of LDE_Estimate's id from another sender during the check: one error line naming it,
+    nothing sent, and the service goes on estimating."""
+    est_id = load_profile("lde").output_id("LDE_Estimate")
+
+    def other(k: int, t_k: int, bus: can.BusABC) -> None:
+        if k == 10:
+            bus.send(
+                can.Message(arbitration_id=est_id, data=bytes(8), is_extended_id=False, timestamp=t_k / 1e9)
+            )
+
+    with caplog.at_level("INFO", logger="lde.service.service"):
+        svc, results, heard, rec = _steps_with_a_bus_tap(
+            tmp_path, 600, other=other, transmit=True, id_check_s=0.1
+        )
+    assert not svc.sending and svc.collisions == {est_id} and svc.sent == 0
+    assert heard == []  # (the feeder's bus does not hear the other sender's frame: it sent it)
+    assert len(rec.tx) == 0
+    errors = [
+        r.getMessage() for r in caplog.records if r.levelname == "ERROR" and r.name == "lde.service.service"
+    ]
+    assert len(errors) == 1 and errors[0].startswith(
+        f"not transmitting: 0x{est_id:X} (LDE_Estimate) already on"
+    )
+    assert results[-1].status & 1 and math.isfinite(results[-1].fw)  # still estimating, listen-only
+
+
+def test_the_grid_fits_the_profiles_steering_message() -> None:
+    """The MDPS-locked grid needs a steering message every 3.9 ms; a slower one (the RAV4's 20 ms, the
+    Hyundai's 10 ms) gets replay's anchored grid, and asking for the locked grid there is an error."""
+    from lde.errors import ConfigError
+    from lde.service.service import grid_for
+
+    assert grid_for(load_profile("lde")) == "mdps"
+    assert grid_for(load_profile("hyundai")) == "anchored"
+    rav4 = load_profile("toyota_rav4_2017")
+    assert grid_for(rav4) == "anchored" and grid_for(rav4, "fixed") == "fixed"
+    with pytest.raises(ConfigError, match="STEER_TORQUE_SENSOR every 20 ms: use grid anchored"):
+        grid_for(rav4, "mdps")

@@ -278,14 +278,13 @@ def run(args: argparse.Namespace) -> int:
             recorder = service.recorder = Recorder(args.record, metadata=meta, frame_bytes=service.rx_width)
         ends = _Ends(service, stop, args.duration, None if args.quiet else args.status_interval)
         log.info(
-            "lde run: %s, profile %s, vehicle %s, backend %s, %s grid (%s), %s (%s), input filters: %s%s",
+            "lde run: %s, profile %s, vehicle %s, backend %s, %s grid (%s), %s, input filters: %s%s",
             name,
             profile.name,
             vehicle.name,
             args.backend,
             grid,
             _grid_why(profile, grid, args.grid),
-            "transmitting" if transmit else "listen-only",
             why_tx,
             service.filters,
             f", recording to {args.record}" if args.record else "",
@@ -348,26 +347,35 @@ class _Ends:
 
 
 def _transmission(profile: Profile, asked: bool | None) -> tuple[bool, str]:
-    """Whether ``lde run`` sends (``--transmit`` / ``--listen-only``, else only on lde's own profile:
-    the shipped ``lde`` DBC), and why, for the start-up line."""
+    """Whether ``lde run`` sends (``--transmit`` / ``--listen-only``; else only on lde's own profile,
+    one whose DBC is the shipped ``lde`` DBC), and the start-up line's words for it."""
     from lde.can.profiles import load_profile
+    from lde.service.service import ID_CHECK_S
 
+    after = f"once no other sender of its output ids is heard for {ID_CHECK_S:g} s"
     if asked is not None:
-        return asked, "--transmit" if asked else "--listen-only"
+        return (
+            asked,
+            f"transmitting (--transmit) {after}" if asked else "listen-only (--listen-only): sends nothing",
+        )
     if profile.dbc_sha256 == load_profile("lde").dbc_sha256:
-        return True, "lde's own profile; --listen-only sends nothing"
-    return False, f"the default on a profile not lde's own; --transmit sends on {profile.name}"
+        return True, f"transmitting (lde's own profile; --listen-only sends nothing) {after}"
+    return (
+        False,
+        "listen-only (the default on a profile that is not lde's own; --transmit sends): sends nothing",
+    )
 
 
 def _grid_why(profile: Profile, grid: str, asked: str) -> str:
     """Why this grid, for the start-up line."""
     name = profile.anchor_message
-    every = f"{name} every {profile.messages[name].period_ns / 1e6:g} ms"
+    period = profile.messages[name].period_ns
+    every = f"{name} every {period / 1e6:g} ms" if period else f"{name} of unknown period"
     if asked != "auto":
         return f"--grid {asked}; {every}"
     if grid == "mdps":
         return f"{every}: a step at each"
-    return f"{every}: 3.9 ms steps from its first valid frame, as replay"
+    return f"{every}: 3.9 ms steps from its first accepted frame, as replay"
 
 
 def _nothing_usable(service: Service) -> str:

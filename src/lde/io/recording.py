@@ -632,10 +632,15 @@ class Recorder:
         mine, theirs = socket.socketpair()
         fr_r, self._frame_fd, atomic = _pipe()
         st_r, self._step_fd, _ = _pipe()
-        # record batches written whole or not at all
-        self._batch = tuple(
-            max(1, atomic // d.itemsize) * d.itemsize for d in (self.frame_dtype, self.step_dtype)
-        )
+        sizes = (self.frame_dtype.itemsize, self.step_dtype.itemsize)
+        if max(sizes) > atomic:  # (lde's records: 24-80 and about 330 bytes; POSIX's least: 512)
+            for fd in (fr_r, self._frame_fd, st_r, self._step_fd):
+                os.close(fd)
+            mine.close()
+            theirs.close()
+            raise LogFormatError(f"{path}: records of {max(sizes)} bytes exceed this system's PIPE_BUF")
+        #: bytes of one batch: whole records, written whole or not at all
+        self._batch = tuple(atomic // n * n for n in sizes)
         mine_fd = mine.fileno()
         try:
             self._proc = _WriterProcess(
@@ -707,6 +712,9 @@ class Recorder:
         self._write(self._step_fd, step, 1)
 
     def _write(self, fd: int, buf: memoryview | bytes, kind: int) -> None:
+        """Records (``kind`` 0: frames, 1: steps) to their pipe in batches of at most ``PIPE_BUF``
+        bytes: POSIX writes such a batch to a non-blocking pipe whole, or not at all when it is full,
+        so the writer never reads part of a record."""
         size = self.step_dtype.itemsize if kind else self.frame_dtype.itemsize
         batch = self._batch[kind]
         for at in range(0, len(buf), batch):

@@ -902,7 +902,7 @@ class Service:
             bank=est[O_BANK],
             overlay_state=res.overlay_state if res else 0,
             t_overlay=res.t_overlay if res else 0.0,
-            learn_state=int(est[O_LEARN]),
+            learn_state=int(est[O_LEARN]) if res is not None else 0,  # (no step yet: NaN)
             deadline_misses=self.stats.deadline_misses,
             missing=tuple(self.watch.late(t)) if t is not None else (),
             sending=self.sending,
@@ -1256,7 +1256,9 @@ def grid_for(profile: Profile, grid: str = "auto") -> str:
     if grid == "mdps" and not fits:
         raise ConfigError(
             f"grid mdps steps at each {name} frame and needs one every {STEP_NS / 1e6:g} ms; profile "
-            f"{profile.name!r} sends {name} every {period / 1e6:g} ms: use grid anchored (its default)"
+            f"{profile.name!r} sends {name} "
+            + (f"every {period / 1e6:g} ms" if period else "at an unknown period")
+            + ": use grid anchored (its default)"
         )
     return grid
 

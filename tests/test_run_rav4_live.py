@@ -1,0 +1,239 @@
+"""``lde run --listen-only`` on a real car's bus, played back: the RAV4's 60 s drive (its steering
+message ``STEER_TORQUE_SENSOR`` every 20 ms, the others every 12 ms; ``shared/real/README.md``) sent
+onto python-can's ``udp_multicast`` in real time (``can.LogReader`` + ``can.MessageSync``, bus 0
+only) while ``lde run --listen-only --profile toyota_rav4_2017 --record`` estimates in its own process.
+
+What a user relies on:
+
+* the service says at start that it is listen-only and on which grid (replay's grid, anchored at the
+  first accepted steering frame, as the steering message is slower than a step), and sends nothing:
+  no frame of its output ids reaches the bus, none is recorded as sent;
+* live gives replay's estimates on the same frames: ``lde replay`` of the recording equals the
+  recorded estimates exactly;
+* live gives the estimates of ``lde replay`` of the original log, within what real-time playback
+  moves: the played frames arrive with the sender's and the host's jitter (up to milliseconds on
+  a loaded 2-core host), so a frame near a step time may be used one step (3.9 ms) later or earlier
+  than in the log. The two runs are compared step by step from their anchors.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from lde.can.profiles import load_profile
+from lde.io.recording import read_recording
+from lde.testing.bus import private_multicast
+from lde.units import STEP_NS
+
+pytest.importorskip("msgpack")
+
+REPO = Path(__file__).resolve().parents[1]
+NAME = "rav4_2017_highway.log.gz"
+PROFILE = "toyota_rav4_2017"
+BACKEND = "fixed"
+#: the service's start-up (numba loads its kernels; compiles them on a cold cache) [s]
+START_TIMEOUT_S = 300.0
+
+
+def _real_log() -> Path | None:
+    """The RAV4 log: the repository's test data, ``$LDE_REAL_LOGS``, or the ``shared/real`` folder
+    beside the repository or one of its parents."""
+    places = [REPO / "tests" / "data" / "real"]
+    if os.environ.get("LDE_REAL_LOGS"):
+        places.insert(0, Path(os.environ["LDE_REAL_LOGS"]))
+    places += [p / "shared" / "real" for p in REPO.parents]
+    return next((p / NAME for p in places if (p / NAME).is_file()), None)
+
+
+LOG = _real_log()
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(LOG is None, reason="the real RAV4 log (shared/real) is not on this machine"),
+]
+
+
+def _lde(*args: str) -> list[str]:
+    return [sys.executable, "-m", "lde", *args]
+
+
+class _Lines:
+    """A process's stderr, read line by line in a thread (so it never blocks on a full pipe)."""
+
+    def __init__(self, proc: subprocess.Popen) -> None:
+        self.lines: list[str] = []
+        assert proc.stderr is not None
+        self._stream = proc.stderr
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        for line in self._stream:
+            self.lines.append(line.rstrip("\n"))
+
+    def wait_for(self, pattern: str, timeout_s: float, proc: subprocess.Popen) -> str:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            for x in list(self.lines):
+                if re.search(pattern, x):
+                    return x
+            if proc.poll() is not None:
+                break
+            time.sleep(0.1)
+        raise AssertionError(f"no line matching {pattern!r}:\n" + "\n".join(self.lines))
+
+    def join(self) -> list[str]:
+        self._thread.join(10)
+        return self.lines
+
+
+class _Tap:
+    """Listens on the bus in a thread and keeps the frames of the given ids."""
+
+    def __init__(self, kw: dict, ids: set[int]) -> None:
+        self.bus = can.Bus(**kw)
+        self.ids = ids
+        self.heard: list[can.Message] = []
+        self.stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            m = self.bus.recv(0.1)
+            if m is not None and m.arbitration_id in self.ids:
+                self.heard.append(m)
+
+    def close(self) -> None:
+        self.stop.set()
+        self._thread.join(5)
+        self.bus.shutdown()
+
+
+def _frames(path: Path, channel: str) -> list[can.Message]:
+    """The log's frames of ``channel``, as python-can reads them."""
+    with can.LogReader(str(path)) as reader:
+        return [m for m in reader if m.channel == channel]
+
+
+def _play(kw: dict, msgs: list[can.Message]) -> int:
+    """``msgs`` onto the bus at the pace of their timestamps; returns how many were sent."""
+    n = 0
+    with can.Bus(**kw) as bus:
+        for m in can.MessageSync(msgs, timestamps=True):
+            bus.send(m)
+            n += 1
+    return n
+
+
+def _csv(path: Path) -> dict[str, np.ndarray]:
+    with path.open() as f:
+        rows = list(csv.DictReader(f))
+    return {k: np.array([float(r[k]) for r in rows]) for k in ("t", "Fw", "Mw", "T_align", "valid")}
+
+
+def _replay(log: Path, out: Path) -> dict[str, np.ndarray]:
+    done = subprocess.run(
+        _lde("replay", str(log), "--profile", PROFILE, "--backend", BACKEND, "--csv", str(out), "-q"),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stderr
+    return _csv(out)
+
+
+def test_lde_run_listen_only_on_the_rav4s_bus_gives_replays_estimates(tmp_path) -> None:
+    assert LOG is not None
+    kw = private_multicast()
+    bus = ["-i", "udp_multicast", "-c", kw["channel"], "--bus-kwarg", f"port={kw['port']}"]
+    bus += ["--bus-kwarg", "hop_limit=0"]
+    rec_path = tmp_path / "live.mcap"
+    msgs = _frames(LOG, "can0")
+    service = subprocess.Popen(
+        _lde(
+            "run",
+            *bus,
+            "--profile",
+            PROFILE,
+            "--backend",
+            BACKEND,
+            "--listen-only",
+            "--record",
+            str(rec_path),
+        ),
+        stderr=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
+    err = _Lines(service)
+    out_ids = {spec.frame_id for spec in load_profile(PROFILE).outputs.values()}
+    tap = None
+    try:
+        start = err.wait_for(r"lde run: udp_multicast:", START_TIMEOUT_S, service)
+        assert "listen-only (--listen-only): sends nothing" in start, start
+        assert "anchored grid (STEER_TORQUE_SENSOR every 20 ms" in start, start
+        tap = _Tap(kw, out_ids)
+        played = _play(kw, msgs)
+        time.sleep(0.5)  # the last frames reach the service
+    finally:
+        service.send_signal(signal.SIGINT)
+        try:
+            service.wait(60)
+        finally:
+            if service.poll() is None:
+                service.kill()
+            if tap is not None:
+                tap.close()
+    lines = err.join()
+    assert service.returncode == 0, "\n".join(lines)
+    assert any("grid anchored at the first accepted STEER_TORQUE_SENSOR frame" in x for x in lines), lines
+
+    # listen-only: nothing of lde's on the bus, nothing recorded as sent
+    assert tap.heard == []
+    live = read_recording(rec_path)
+    assert live.complete and len(live.tx) == 0
+    rx_ids = set(np.unique(live.rx.can_id).tolist())
+    assert {0x24, 0x25, 0xAA, 0x260} <= rx_ids and played > 60_000
+
+    # live against replay on the same frames (the recording, its recorded step times): identical
+    again = _replay(rec_path, tmp_path / "live_replayed.csv")
+    t_live = live.step_times_ns
+    np.testing.assert_array_equal(np.round(again["t"] * 1e6).astype(np.int64), t_live // 1000)
+    for col in ("Fw", "Mw", "T_align"):
+        np.testing.assert_array_equal(again[col], live.estimate[col], err_msg=col)
+
+    # live against replay of the original log: the same grid from each one's anchor
+    ref = _replay(LOG, tmp_path / "log_replayed.csv")
+    k_live = (t_live - t_live[0]) // STEP_NS
+    assert np.all((t_live - t_live[0]) % STEP_NS == 0)  # replay's grid: t_a + k * 3.9 ms
+    t_ref = np.round(ref["t"] * 1e9).astype(np.int64)
+    k_ref = np.round((t_ref - t_ref[0]) / STEP_NS).astype(np.int64)
+    common, i_live, i_ref = np.intersect1d(k_live, k_ref, return_indices=True)
+    assert len(common) >= 0.95 * len(k_ref), (len(common), len(k_ref))  # live skipped few steps
+    valid = (live.estimate["status"][i_live].astype(np.int64) & 1).astype(bool)
+    valid_ref = ref["valid"][i_ref].astype(bool)
+    print(
+        f"RAV4 live vs replay: {len(common)} of {len(k_ref)} replay steps, valid {valid.mean():.1%} live"
+        f" / {valid_ref.mean():.1%} replay, agree {np.mean(valid == valid_ref):.1%}"
+    )
+    for col in ("Fw", "Mw"):
+        a, b = live.estimate[col][i_live], ref[col][i_ref]
+        both = valid & valid_ref
+        scale = float(np.percentile(np.abs(b[both]), 95))
+        diff = np.abs(a[both] - b[both])
+        print(
+            f"  {col}: |live - replay| p50 {np.median(diff):.3g}, p99 {np.percentile(diff, 99):.3g},"
+            f" max {diff.max():.3g}; replay's |{col}| p95 {scale:.3g}"
+        )
