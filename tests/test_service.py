@@ -845,3 +845,41 @@ def test_the_grid_fits_the_profiles_steering_message() -> None:
     assert grid_for(rav4) == "anchored" and grid_for(rav4, "fixed") == "fixed"
     with pytest.raises(ConfigError, match="STEER_TORQUE_SENSOR every 20 ms: use grid anchored"):
         grid_for(rav4, "mdps")
+
+
+def test_the_anchored_grid_steps_from_the_first_accepted_mdps_frame_also_when_it_queued_at_start() -> None:
+    """``grid="anchored"`` (replay's grid): no step before the first accepted MDPS frame, then one every
+    3.9 ms from its receive time, also when that frame was already waiting on the bus when
+    :meth:`Service.run` started (taken with the start's backlog)."""
+    ch = f"lde-test-service-{next(_channels)}"
+    feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    profile = load_profile("lde")
+    clock = SimulatedClock(T0)
+    svc = Service(
+        svc_bus, profile, load_vehicle("reference"), clock, backend="float", log_period_s=0, grid="anchored"
+    )
+    fd = feeder(feed_bus, profile, mdps_offset_ns=300_000)
+    mdps: list[int] = []
+    real_send = feed_bus.send
+
+    def send(msg: can.Message, timeout: float | None = None) -> None:
+        if msg.arbitration_id == profile.messages["MDPS_Sensors"].frame_id:
+            mdps.append(round(msg.timestamp * 1e6) * 1000)
+        real_send(msg)
+
+    feed_bus.send = send  # type: ignore[method-assign]
+    seen: list[int] = []
+
+    def on_step(res) -> None:
+        seen.append(res.t_ns)
+        fd.send_until(res.t_ns + 2 * STEP_NS)
+
+    fd.send_until(T0 + 2 * STEP_NS)  # queued before the run starts, the first MDPS frame among them
+    try:
+        svc.run(max_steps=50, on_step=on_step, t0_ns=T0 + 3 * STEP_NS)
+    finally:
+        feed_bus.shutdown()
+        svc_bus.shutdown()
+    assert svc.anchor_t in mdps[:3] and svc.anchor_t < T0 + 3 * STEP_NS
+    assert seen == [svc.anchor_t + k * STEP_NS for k in range(50)]

@@ -375,6 +375,7 @@ class Service:
         #: is per message: the engine's receiver accepts the same frame)
         self.anchor_t: int | None = None
         self._anchor_rx: Receiver | None = Receiver(self.profile) if self.grid == "anchored" else None
+        self._on_anchor_grid = False  # the anchored grid's deadlines run from the anchor
         self._input_ids = frozenset(m.frame_id for m in self.profile.messages.values())
         #: the 11-bit ids the service sends
         self.output_ids = frozenset(int(tx.can_id) for tx in (*self._tx, self._diag_tx))
@@ -1135,12 +1136,13 @@ class Service:
         (None, now) when it did not come; the step at the anchor's time once it has; then the
         deadlines ``t_a + k * STEP_NS`` (:meth:`_next_fixed`). Returns (t_k, start) in the bus time
         base."""
-        if self.anchor_t is not None:
+        if self._on_anchor_grid:
             return self._next_fixed()
         clock, off = self.clock, self.offset_ns
         end = self._t0 + self._k * STEP_NS
         self._k += 1
         recv_until = getattr(clock, "recv_until", None)
+        # (the anchor may have come already: taken with the frames queued at the start)
         while self.anchor_t is None and clock.now_ns() < end:
             try:
                 if recv_until is not None:
@@ -1160,6 +1162,7 @@ class Service:
             return None, now
         self._t0 = self.anchor_t - off  # the deadlines from here: t_a + k * STEP_NS
         self._k = 1
+        self._on_anchor_grid = True
         log.info(
             "grid anchored at the first accepted %s frame (t %.6f s)",
             self.profile.anchor_message,
