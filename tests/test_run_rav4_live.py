@@ -10,10 +10,16 @@ What a user relies on:
   no frame of its output ids reaches the bus, none is recorded as sent;
 * live gives replay's estimates on the same frames: ``lde replay`` of the recording equals the
   recorded estimates exactly;
-* live gives the estimates of ``lde replay`` of the original log, within what real-time playback
-  moves: the played frames arrive with the sender's and the host's jitter (up to milliseconds on
-  a loaded 2-core host), so a frame near a step time may be used one step (3.9 ms) later or earlier
-  than in the log. The two runs are compared step by step from their anchors.
+* live follows ``lde replay`` of the original log, within what real-time playback moves. The two
+  grids start at the same frame (the log's first steering frame, which the service must have
+  received) and are compared step by step. The played frames arrive with the sender's and the host's
+  jitter (median 0.3 ms, p99 6 ms on a loaded 2-core host), so a frame near a step time is used one
+  step (3.9 ms) earlier or later than in the log, and a loaded host skips steps (counted deadline
+  misses: each is a filter step that replay runs and live does not). Hence the tolerances: each
+  input's sampled value equal at >= 85 % of the common steps (92-99 % measured at a load of 8 on 2
+  cores), the valid flag equal at >= 98 % (99.9 %), and the median |difference| of Fw and Mw where
+  both are valid within 2 % of replay's 95th-percentile magnitude (0.3 %). On this log the torques'
+  scale is unknown, so the magnitudes themselves mean little; the test judges the agreement.
 """
 
 from __future__ import annotations
@@ -136,8 +142,8 @@ def _play(kw: dict, msgs: list[can.Message]) -> int:
     return n
 
 
-def _replay(log: Path, out: Path) -> dict[str, np.ndarray]:
-    """``lde replay LOG --mcap OUT``: its per-step estimates (exact values, as the recorder writes them)."""
+def _replay_to(log: Path, out: Path) -> Path:
+    """``lde replay LOG --mcap OUT``: per-step estimates and inputs, exact as the recorder writes them."""
     done = subprocess.run(
         _lde("replay", str(log), "--profile", PROFILE, "--backend", BACKEND, "--mcap", str(out), "-q"),
         capture_output=True,
@@ -145,7 +151,7 @@ def _replay(log: Path, out: Path) -> dict[str, np.ndarray]:
         timeout=600,
     )
     assert done.returncode == 0, done.stderr
-    return read_recording(out).estimate
+    return out
 
 
 def test_lde_run_listen_only_on_the_rav4s_bus_gives_replays_estimates(tmp_path) -> None:
@@ -155,6 +161,7 @@ def test_lde_run_listen_only_on_the_rav4s_bus_gives_replays_estimates(tmp_path) 
     bus += ["--bus-kwarg", "hop_limit=0"]
     rec_path = tmp_path / "live.mcap"
     msgs = _frames(LOG, "can0")
+    first_steer = next(bytes(m.data) for m in msgs if m.arbitration_id == 0x260)
     service = subprocess.Popen(
         _lde(
             "run",
@@ -166,6 +173,8 @@ def test_lde_run_listen_only_on_the_rav4s_bus_gives_replays_estimates(tmp_path) 
             "--listen-only",
             "--record",
             str(rec_path),
+            "--status-interval",
+            "0.2",
         ),
         stderr=subprocess.PIPE,
         text=True,
@@ -178,6 +187,8 @@ def test_lde_run_listen_only_on_the_rav4s_bus_gives_replays_estimates(tmp_path) 
         start = err.wait_for(r"lde run: udp_multicast:", START_TIMEOUT_S, service)
         assert "listen-only (--listen-only): sends nothing" in start, start
         assert "anchored grid (STEER_TORQUE_SENSOR every 20 ms" in start, start
+        # the loop runs (its status line: no step before the first steering frame): none will be missed
+        err.wait_for(r"^lde run: no step, ", START_TIMEOUT_S, service)
         tap = _Tap(kw, out_ids)
         played = _play(kw, msgs)
         time.sleep(0.5)  # the last frames reach the service
@@ -202,31 +213,42 @@ def test_lde_run_listen_only_on_the_rav4s_bus_gives_replays_estimates(tmp_path) 
     assert {0x24, 0x25, 0xAA, 0x260} <= rx_ids and played > 60_000
 
     # live against replay on the same frames (the recording, its recorded step times): identical
-    again = _replay(rec_path, tmp_path / "live_replayed.mcap")
+    again = read_recording(_replay_to(rec_path, tmp_path / "live_replayed.mcap")).estimate
     est = live.estimate
     t_live = est["t_ns"]
     np.testing.assert_array_equal(again["t_ns"], t_live)
     for col in ("Fw", "Mw", "T_align", "status", "learn_state"):
         np.testing.assert_array_equal(again[col], est[col], err_msg=col)
 
-    # live against replay of the original log: the same grid from each one's anchor
-    ref = _replay(LOG, tmp_path / "log_replayed.mcap")
+    # live against replay of the original log, from the same first steering frame
+    steer = live.rx.select(live.rx.can_id == 0x260)
+    assert bytes(steer.data[0, : steer.dlc[0]]) == first_steer  # the service heard the drive from its start
+    ref_rec = read_recording(_replay_to(LOG, tmp_path / "log_replayed.mcap"))
+    ref = ref_rec.estimate
     assert np.all((t_live - t_live[0]) % STEP_NS == 0)  # replay's grid: t_a + k * 3.9 ms
     k_live = (t_live - t_live[0]) // STEP_NS
     k_ref = (ref["t_ns"] - ref["t_ns"][0]) // STEP_NS
     common, i_live, i_ref = np.intersect1d(k_live, k_ref, return_indices=True)
+    assert len(common) == len(k_live) and len(common) >= 0.9 * len(k_ref)  # live skipped few steps
+    report = [f"RAV4 live vs replay: {len(common)} of {len(k_ref)} replay steps"]
+    for name in ("column_torque", "assist_torque", "steering_angle", "yaw_rate", "lat_accel", "speed"):
+        a, b = live.inputs[name][i_live], ref_rec.inputs[name][i_ref]
+        same = float(np.mean((a == b) | (np.isnan(a) & np.isnan(b))))
+        report.append(f"input {name} equal at {same:.1%}")
+        assert same >= 0.85, report
     valid = (est["status"][i_live] & 1).astype(bool)
     valid_ref = (ref["status"][i_ref] & 1).astype(bool)
+    agree = float(np.mean(valid == valid_ref))
+    report.append(f"valid {valid.mean():.1%} live / {valid_ref.mean():.1%} replay, equal at {agree:.1%}")
+    assert agree >= 0.98, report
     both = valid & valid_ref
-    print(
-        f"\nRAV4 live vs replay: {len(common)} of {len(k_ref)} replay steps, valid {valid.mean():.1%} live"
-        f" / {valid_ref.mean():.1%} replay, agree {np.mean(valid == valid_ref):.1%}"
-    )
-    for col in ("Fw", "Mw", "T_align"):
+    for col in ("Fw", "Mw"):
         a, b = est[col][i_live][both], ref[col][i_ref][both]
         scale = float(np.percentile(np.abs(b), 95))
         diff = np.abs(a - b)
-        print(
-            f"  {col}: |live - replay| p50 {np.median(diff):.3g}, p99 {np.percentile(diff, 99):.3g},"
-            f" max {diff.max():.3g}; replay's |{col}| p95 {scale:.3g}"
+        report.append(
+            f"{col}: |live - replay| p50 {np.median(diff):.3g}, p99 {np.percentile(diff, 99):.3g};"
+            f" replay's |{col}| p95 {scale:.3g}"
         )
+        assert np.median(diff) <= 0.02 * scale, report
+    print("\n" + "\n  ".join(report))
