@@ -374,9 +374,16 @@ class Service:
         #: it is known, a receiver of the anchor message alone says which frame it is (its E2E check
         #: is per message: the engine's receiver accepts the same frame)
         self.anchor_t: int | None = None
-        self._anchor_rx: Receiver | None = Receiver(self.profile) if self.grid == "anchored" else None
-        self._on_anchor_grid = False  # the anchored grid's deadlines run from the anchor
         self._input_ids = frozenset(m.frame_id for m in self.profile.messages.values())
+        self._anchor_rx: Receiver | None = None
+        if self.grid == "anchored":
+            self._anchor_rx = Receiver(self.profile)
+            # its compiled feed loaded (or compiled) now, not at the anchor frame: a frame of an id the
+            # profile does not have (ignored), then a fresh state
+            other = next(i for i in range(0x800) if i not in self._input_ids)
+            self._anchor_rx.feed(0, other, bytes(self.rx_width))
+            self._anchor_rx.reset()
+        self._on_anchor_grid = False  # the anchored grid's deadlines run from the anchor
         #: the 11-bit ids the service sends
         self.output_ids = frozenset(int(tx.can_id) for tx in (*self._tx, self._diag_tx))
         #: the outputs go on the bus (False: listen-only, or before the end of the id check, or refused)
