@@ -1,6 +1,6 @@
 """The service's own per-step cost, without a bus: :meth:`lde.service.service.Service.step_once` on a bus
 that takes frames from a list and throws sent frames away, recorder on (its writer process drains the
-rings as live).
+pipes as live).
 
 It separates what lde does per step (drain, decode, estimate, overlay, encode, the three output
 frames, the recorder hand-off) from what a bus costs (python-can's ``udp_multicast`` pack/unpack and

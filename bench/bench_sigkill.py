@@ -8,7 +8,7 @@ this host only), waits until the recording holds steps, waits a random 1-3 s mor
 * ``--target group``: the service *and* its recorder's writer process (its process group): the
   file keeps what the writer had flushed; the loss is the kill time minus the newest frame and
   step in the file;
-* ``--target service``: the service only: the writer sees it gone, writes what the rings hold and
+* ``--target service``: the service only: the writer sees it gone, writes what the pipes hold and
   closes the file (footer written).
 
 Loss [s] = wall time of the kill (epoch) minus the newest received frame's time (``/can/rx``) and

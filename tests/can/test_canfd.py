@@ -16,7 +16,7 @@ from lde.can.profiles import load_profile
 from lde.engine.receiver import Receiver, decode_batch
 from lde.io import McapWriter, read_log, read_mcap, write_candump
 from lde.io.candump import format_candump_bytes, parse_candump_bytes
-from lde.io.recording import StepRing
+from lde.io.recording import Recorder, read_recording
 from lde.units import DEG, KMH
 
 T0 = 1_700_000_000_000_000_000
@@ -137,13 +137,15 @@ def test_python_can_logs_keep_fd_bytes_and_channels(tmp_path: Path, suffix: str)
     assert got.channel_names().tolist() == frames.channel_names().tolist()
 
 
-def test_recorder_ring_keeps_fd_bytes():
+def test_recorder_keeps_fd_bytes(tmp_path: Path):
+    """Frames handed to the recorder (through its writer process) read back with every data byte and
+    the 29-bit flag."""
     frames = fd_frames(200, seed=6, buses=("",))
-    ring = StepRing(frames=256, steps=16, frame_bytes=64)
-    try:
+    path = tmp_path / "fd.mcap"
+    with Recorder(path, frame_bytes=64) as rec:
         for i in range(len(frames)):
             word = int.from_bytes(frames.data[i, : frames.dlc[i]].tobytes(), "little")
-            ring.put_frame(
+            rec.frame(
                 int(frames.t_ns[i]),
                 int(frames.can_id[i]),
                 bool(frames.is_extended[i]),
@@ -151,9 +153,10 @@ def test_recorder_ring_keeps_fd_bytes():
                 word,
                 True,
             )
-        got = ring.take_frames()
-    finally:
-        ring.close()
+    got = read_recording(path).rx
+    np.testing.assert_array_equal(got.t_ns, frames.t_ns)
+    np.testing.assert_array_equal(got.can_id, frames.can_id)
+    np.testing.assert_array_equal(got.is_extended, frames.is_extended)
     np.testing.assert_array_equal(got.dlc, frames.dlc)
     np.testing.assert_array_equal(got.widened(64).data, frames.data)
 

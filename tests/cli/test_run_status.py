@@ -96,3 +96,36 @@ def test_the_timing_line_without_inputs_has_no_nan() -> None:
     assert "nan" not in s.log_line() and "latency: no input frame used" in s.log_line()
     empty = TimingSummary(0, nan, nan, nan, nan, nan, nan, nan, nan, nan, 2, 2)
     assert "nan" not in empty.log_line()
+
+
+@pytest.mark.lde_bench(capture=False)
+def test_on_a_car_profile_lde_run_is_listen_only_and_says_so(lde_bench, caplog, capsys) -> None:
+    """A profile that is not lde's own (hyundai: its steering message every 10 ms): the start-up line
+    names the listen-only default and the anchored grid; before the first steering frame no step runs
+    and the status line says so."""
+    ch = lde_bench.channel  # a fresh virtual channel nobody sends on
+    args = [
+        "run",
+        "-i",
+        "virtual",
+        "-c",
+        ch,
+        "--profile",
+        "hyundai",
+        "--duration",
+        "1.2",
+        "--backend",
+        "float",
+    ]
+    with caplog.at_level("INFO", logger="lde.service.service"):
+        rc = main([*args, "--status-interval", "0.5"])
+    assert rc == EXIT_NOTHING_USABLE
+    start = [r.getMessage() for r in caplog.records if r.getMessage().startswith("lde run: virtual:")]
+    assert len(start) == 1
+    assert (
+        "anchored grid (MDPS12 every 10 ms: 3.9 ms steps from its first accepted frame, as replay), "
+        "listen-only (the default on a profile that is not lde's own; --transmit sends): sends nothing"
+    ) in start[0], start[0]
+    err = capsys.readouterr().err.splitlines()
+    status = [x for x in err if x.startswith("lde run: ") and ", deadline misses " in x]
+    assert status and all(x.startswith("lde run: no step, ") and x.endswith(", listen-only") for x in status)

@@ -140,8 +140,8 @@ def test_sigkill_of_the_service_loses_nothing_the_writer_closes_the_file(tmp_pat
     path, t_kill = _killed_recording(tmp_path, "killed.mcap", group=False)
     deadline = time.monotonic() + 20.0
     while not (r := read_recording(path)).complete and time.monotonic() < deadline:
-        time.sleep(0.1)  # the writer process outlives the service: it drains the rings and closes
-    # the writer process outlived the service: it wrote what the rings held and closed the file
+        time.sleep(0.1)  # the writer process outlives the service: it reads the pipes and closes
+    # the writer process outlived the service: it wrote what the pipes held and closed the file
     assert r.complete
     lost_s = (t_kill - int(r.step_times_ns[-1])) / 1e9
     assert lost_s < 3 * STEP_NS / 1e9 + 0.05, f"the last {lost_s:.3f} s were lost"

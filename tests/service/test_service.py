@@ -22,7 +22,7 @@ from lde.can.profiles import Profile, load_profile
 from lde.clock import SimulatedClock
 from lde.params import load_vehicle
 from lde.service.diagnostics import DEADLINE_MISS_NS
-from lde.service.service import STATUS_DEADLINE_MISS, Service
+from lde.service.service import ID_CHECK_S, STATUS_DEADLINE_MISS, Service
 from lde.testing import Bench, InputFeeder
 from lde.testing.bench import DEFAULT_START_NS
 from lde.units import DEG, KMH, STEP_NS
@@ -184,7 +184,8 @@ def test_send_errors_are_counted_not_raised(rig) -> None:
 
 @pytest.mark.lde_bench(capture=False)
 def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path, lde_bench: Bench) -> None:
-    """``lde run`` in-process on a virtual bus fed from a thread; --duration ends it cleanly."""
+    """``lde run`` in-process on a virtual bus fed from a thread; --duration ends it cleanly. It sends
+    from the first step 1 s after its start (the output ids' check: nobody else sends them here)."""
     import threading
     import time
 
@@ -214,7 +215,7 @@ def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path, lde_bench: Bench) 
                 "--channel",
                 ch,
                 "--duration",
-                "0.5",
+                "1.5",
                 "--backend",
                 "float",
                 "--grid",
@@ -232,11 +233,15 @@ def test_cli_run_on_a_virtual_bus_records_and_stops(tmp_path, lde_bench: Bench) 
     assert rec.complete
     n = len(rec.step_times_ns)
     steps = rec.step_times_ns
-    assert steps[-1] - steps[0] >= 0.5e9 - STEP_NS  # --duration (plus the ramp-out)
+    assert steps[-1] - steps[0] >= 1.5e9 - STEP_NS  # --duration (plus the ramp-out)
     # the fixed grid: every step on the 3.9 ms grid (the MDPS-locked grid, lde run's default, is checked
     # deterministically on a simulated clock in test_run_on_the_mdps_grid_...; the other lde run tests use it)
     np.testing.assert_array_equal(np.diff(steps) % STEP_NS, 0)
-    assert len(rec.rx) > 100 and len(rec.tx) == 4 * n  # LDE_Estimate, _Overlay, _Disturbance, _Diag
+    sending = int(np.sum(steps >= steps[0] + ID_CHECK_S * 1e9))
+    assert 0 < sending < n
+    # from then on LDE_Estimate, _Overlay, _Disturbance and _Diag every step
+    assert len(rec.rx) > 100 and len(rec.tx) == 4 * sending
+    assert rec.tx.t_ns[0] >= steps[0] + ID_CHECK_S * 1e9
     assert rec.metadata["backend"] == "float"
 
 
@@ -565,7 +570,7 @@ def test_the_mdps_grid_skips_the_windows_it_fell_behind_by_and_counts_them() -> 
 
 
 class _CallRecorder:
-    """A recorder without rings: the service calls it per frame and per step (the Python hand-off)."""
+    """A recorder of its own kind: the service calls it per frame and per step (the Python hand-off)."""
 
     def __init__(self) -> None:
         self.frames: list[tuple[int, int, int, int, bool]] = []
@@ -579,7 +584,7 @@ class _CallRecorder:
 
 
 def test_the_compiled_hand_off_sends_and_records_what_the_python_path_does(tmp_path) -> None:
-    """The step's compiled hand-off (lde.service.handoff: timing, LDE_Diag, the recorder's rings) against a
+    """The step's compiled hand-off (lde.service.handoff: timing, LDE_Diag, the recorder's records) against a
     recorder called from Python, on the same inputs and start times: the same LDE_Diag frames (and
     their values those of lde.service.diagnostics.diag_values, saturations included), the same sent frames and
     step rows in the recording."""
@@ -587,15 +592,14 @@ def test_the_compiled_hand_off_sends_and_records_what_the_python_path_does(tmp_p
     from lde.service.diagnostics import diag_signals
 
     runs = []
-    for ringed in (True, False):
+    for compiled in (True, False):
         ch = f"lde-test-handoff-{next(_channels)}"
         feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
         svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
         clock = SimulatedClock(T0)
-        rec = Recorder(tmp_path / "ring.mcap") if ringed else _CallRecorder()
+        rec = Recorder(tmp_path / "run.mcap") if compiled else _CallRecorder()
         profile, vehicle = load_profile("lde"), load_vehicle("reference")
         svc = Service(svc_bus, profile, vehicle, clock, backend="float", recorder=rec)
-        assert (svc._ring is not None) == ringed
         fd = feeder(feed_bus, svc.profile)
         results = []
         # late starts: inside the range, past a deadline, past every LDE_Diag range (saturated)
@@ -607,7 +611,7 @@ def test_the_compiled_hand_off_sends_and_records_what_the_python_path_does(tmp_p
             late = lateness.get(k, 0)
             clock.sleep_until(t_k + late)
             results.append(svc.step_once(t_k, t_start=t_k + late))
-        if ringed:
+        if compiled:
             rec.close()
         names = ("LDE_Estimate", "LDE_Overlay", "LDE_Disturbance", "LDE_Diag")
         ids = {svc.profile.output_id(n) for n in names}
@@ -629,14 +633,14 @@ def test_the_compiled_hand_off_sends_and_records_what_the_python_path_does(tmp_p
     assert diags[42]["PeriodError"] == 8191 and diags[43]["DeadlineMisses"] == 3
     assert [r.timing for r in results] == [r.timing for r in results_py]
 
-    got = read_recording(tmp_path / "ring.mcap")
+    got = read_recording(tmp_path / "run.mcap")
     tx = got.tx
     cols = zip(tx.t_ns, tx.can_id, tx.data, tx.dlc, strict=True)
     sent = [(int(t), int(i), bytes(d[:n])) for t, i, d, n in cols]
     sent_py = [(t, i, int(w).to_bytes(8, "little")[:n]) for t, i, n, w, is_rx in calls.frames if not is_rx]
     assert sent == sent_py
     assert [s[2] for s in sent] == [bytes(m.data) for m in out]
-    # the received frames: handed to the ring by the compiled hand-off after the sends, the same
+    # the received frames: recorded by the compiled hand-off after the sends, the same
     rx = got.rx
     rcols = zip(rx.t_ns, rx.can_id, rx.data, rx.dlc, strict=True)
     received = [(int(t), int(i), bytes(d[:n])) for t, i, d, n in rcols]
@@ -744,3 +748,138 @@ def test_the_engine_prewarm_before_the_mdps_frame_changes_nothing(lost) -> None:
     assert out_w == out and len(out) == 4 * 40
     for a, b in zip(state_w, state, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+_OUTPUT_NAMES = ("LDE_Estimate", "LDE_Overlay", "LDE_Disturbance", "LDE_Diag")
+
+
+def _steps_with_a_bus_tap(tmp_path, n: int, other=None, **kw):
+    """A service on a fresh virtual channel (simulated clock) stepped ``n`` times in lockstep with the
+    feeder, recording; ``other(k, t_k, feed_bus)`` may send frames of its own before step k. Returns
+    the service, its step results, what the others on the bus heard from it and the recording."""
+    from lde.io.recording import Recorder, read_recording
+
+    ch = f"lde-test-tx-{next(_channels)}"
+    feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    clock = SimulatedClock(T0)
+    rec = Recorder(tmp_path / f"{ch}.mcap")
+    try:
+        svc = Service(svc_bus, "lde", "reference", clock, backend="float", recorder=rec, **kw)
+        fd = feeder(feed_bus, svc.profile)
+        results = []
+        for k in range(n):
+            t_k = T0 + k * STEP_NS
+            fd.send_until(t_k)
+            if other is not None:
+                other(k, t_k, feed_bus)
+            clock.sleep_until(t_k)
+            results.append(svc.step_once(t_k))
+        rec.close()
+        ids = {svc.profile.output_id(name) for name in _OUTPUT_NAMES}
+        heard = [m for m in _outputs(feed_bus) if m.arbitration_id in ids]
+    finally:
+        rec.close()
+        feed_bus.shutdown()
+        svc_bus.shutdown()
+    return svc, results, heard, read_recording(tmp_path / f"{ch}.mcap")
+
+
+def test_a_listen_only_service_estimates_and_records_and_sends_nothing(tmp_path) -> None:
+    svc, results, heard, rec = _steps_with_a_bus_tap(tmp_path, 600, transmit=False)
+    assert heard == [] and svc.sent == 0 and not svc.sending
+    assert len(rec.tx) == 0  # nothing recorded as sent
+    assert len(rec.step_times_ns) == 600 and len(rec.rx) > 600  # every step and received frame recorded
+    assert results[-1].status & 1 and math.isfinite(results[-1].fw)  # it estimates
+    assert svc.status().line().endswith(", listen-only")
+
+
+def test_the_output_ids_are_checked_on_the_bus_before_the_first_send(tmp_path) -> None:
+    """Nobody else sends lde's output ids: the service sends from the first step ``id_check_s`` after
+    its first one, every output every step."""
+    check_s = 0.1
+    svc, results, heard, rec = _steps_with_a_bus_tap(tmp_path, 100, transmit=True, id_check_s=check_s)
+    first = T0 + int(check_s * 1e9)
+    sending = sum(r.t_ns >= first for r in results)
+    assert 0 < sending < 100 and svc.sending and svc.collisions == frozenset()
+    assert len(heard) == 4 * sending and len(rec.tx) == 4 * sending
+    assert rec.tx.t_ns.min() >= first
+
+
+def test_another_sender_of_an_output_id_keeps_the_service_listen_only(tmp_path, caplog) -> None:
+    """A frame of LDE_Estimate's id from another sender during the check: one error line naming it,
+    nothing sent, and the service goes on estimating."""
+    est_id = load_profile("lde").output_id("LDE_Estimate")
+
+    def other(k: int, t_k: int, bus: can.BusABC) -> None:
+        if k == 10:
+            bus.send(
+                can.Message(arbitration_id=est_id, data=bytes(8), is_extended_id=False, timestamp=t_k / 1e9)
+            )
+
+    with caplog.at_level("INFO", logger="lde.service.service"):
+        svc, results, heard, rec = _steps_with_a_bus_tap(
+            tmp_path, 600, other=other, transmit=True, id_check_s=0.1
+        )
+    assert not svc.sending and svc.collisions == {est_id} and svc.sent == 0
+    assert heard == []  # (the feeder's bus does not hear the other sender's frame: it sent it)
+    assert len(rec.tx) == 0
+    errors = [
+        r.getMessage() for r in caplog.records if r.levelname == "ERROR" and r.name == "lde.service.service"
+    ]
+    assert len(errors) == 1 and errors[0].startswith(
+        f"not transmitting: 0x{est_id:X} (LDE_Estimate) already on"
+    )
+    assert results[-1].status & 1 and math.isfinite(results[-1].fw)  # still estimating, listen-only
+
+
+def test_the_grid_fits_the_profiles_steering_message() -> None:
+    """The MDPS-locked grid needs a steering message every 3.9 ms; a slower one (the RAV4's 20 ms, the
+    Hyundai's 10 ms) gets replay's anchored grid, and asking for the locked grid there is an error."""
+    from lde.errors import ConfigError
+    from lde.service.service import grid_for
+
+    assert grid_for(load_profile("lde")) == "mdps"
+    assert grid_for(load_profile("hyundai")) == "anchored"
+    rav4 = load_profile("toyota_rav4_2017")
+    assert grid_for(rav4) == "anchored" and grid_for(rav4, "fixed") == "fixed"
+    with pytest.raises(ConfigError, match="STEER_TORQUE_SENSOR every 20 ms: use grid anchored"):
+        grid_for(rav4, "mdps")
+
+
+def test_the_anchored_grid_steps_from_the_first_accepted_mdps_frame_also_when_it_queued_at_start() -> None:
+    """``grid="anchored"`` (replay's grid): no step before the first accepted MDPS frame, then one every
+    3.9 ms from its receive time, also when that frame was already waiting on the bus when
+    :meth:`Service.run` started (taken with the start's backlog)."""
+    ch = f"lde-test-service-{next(_channels)}"
+    feed_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    svc_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
+    profile = load_profile("lde")
+    clock = SimulatedClock(T0)
+    svc = Service(
+        svc_bus, profile, load_vehicle("reference"), clock, backend="float", log_period_s=0, grid="anchored"
+    )
+    fd = feeder(feed_bus, profile, mdps_offset_ns=300_000)
+    mdps: list[int] = []
+    real_send = feed_bus.send
+
+    def send(msg: can.Message, timeout: float | None = None) -> None:
+        if msg.arbitration_id == profile.messages["MDPS_Sensors"].frame_id:
+            mdps.append(round(msg.timestamp * 1e6) * 1000)
+        real_send(msg)
+
+    feed_bus.send = send  # type: ignore[method-assign]
+    seen: list[int] = []
+
+    def on_step(res) -> None:
+        seen.append(res.t_ns)
+        fd.send_until(res.t_ns + 2 * STEP_NS)
+
+    fd.send_until(T0 + 2 * STEP_NS)  # queued before the run starts, the first MDPS frame among them
+    try:
+        svc.run(max_steps=50, on_step=on_step, t0_ns=T0 + 3 * STEP_NS)
+    finally:
+        feed_bus.shutdown()
+        svc_bus.shutdown()
+    assert svc.anchor_t in mdps[:3] and svc.anchor_t < T0 + 3 * STEP_NS
+    assert seen == [svc.anchor_t + k * STEP_NS for k in range(50)]

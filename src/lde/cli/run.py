@@ -8,6 +8,11 @@ on the same bus: give yours a group and port of its own, e.g. ``-c 239.74.163.77
 port=47311``. SIGINT/SIGTERM end the service cleanly: the overlay request ramps to zero, then the
 learned state (``--learned``) is written and the recording is closed.
 
+Transmission: on lde's own profile (``lde``) the service sends its outputs (``LDE_Estimate``,
+``LDE_Overlay``, ``LDE_Disturbance``, ``LDE_Diag``); on any other profile it is listen-only (it
+estimates, records and shows, and sends nothing) until ``--transmit`` is given. Before its first send
+it listens 1 s for its output ids on the bus: another sender of one of them keeps it listen-only.
+
 While it runs it prints one status line a second to stderr (valid share, Fw, Mw, bank, overlay,
 learner, deadline misses, missing inputs). Exit status 3 when no input message ever arrived (nothing
 usable, as ``lde replay``).
@@ -29,7 +34,8 @@ from lde.cli.replay import EXIT_NOTHING_USABLE
 from lde.errors import BusError, ConfigError
 
 if TYPE_CHECKING:
-    from lde.service.service import Service, StepResult
+    from lde.can.profiles import Profile
+    from lde.service.service import Service
 
 log = logging.getLogger("lde.service.service")
 
@@ -101,6 +107,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--duration", type=float, metavar="SEC", help="stop after this many seconds")
     p.add_argument("--no-overlay", action="store_true", help="keep the overlay request at zero")
+    tx = p.add_mutually_exclusive_group()
+    tx.add_argument(
+        "--listen-only",
+        dest="transmit",
+        action="store_false",
+        default=None,
+        help="estimate, record and show; send nothing (the default on every profile but lde's own)",
+    )
+    tx.add_argument(
+        "--transmit",
+        dest="transmit",
+        action="store_true",
+        help="send the estimate, overlay and diagnostic frames (the default on lde's own profile) once "
+        "no other sender of their ids was heard for 1 s",
+    )
     p.add_argument(
         "--realtime", action="store_true", help="SCHED_FIFO, locked memory (falls back with a warning)"
     )
@@ -108,11 +129,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cpu", type=int, action="append", metavar="N", help="pin to CPU N (repeatable)")
     p.add_argument(
         "--grid",
-        choices=("mdps", "fixed"),
-        default="mdps",
-        help="mdps (default): each step runs right after the MDPS frame it consumes (the MDPS-locked grid; "
-        "a step at 1.5 periods when a frame is missing; windows it fell behind by are skipped and counted); "
-        "fixed: absolute 3.9 ms deadlines on the clock (input-to-output latency up to a period)",
+        choices=("auto", "mdps", "anchored", "fixed"),
+        default="auto",
+        help="auto (default): mdps when the profile's MDPS message comes every 3.9 ms, else anchored. "
+        "mdps: each step runs right after the MDPS frame it consumes (the MDPS-locked grid; a step at 1.5 "
+        "periods when a frame is missing; windows it fell behind by are skipped and counted); anchored: "
+        "replay's grid, 3.9 ms deadlines from the first valid MDPS frame (for a slower MDPS message); "
+        "fixed: 3.9 ms deadlines on the clock from the start (input-to-output latency up to a period)",
     )
     p.add_argument(
         "--spin-us",
@@ -192,6 +215,8 @@ def run(args: argparse.Namespace) -> int:
     profile = load_profile(args.profile)
     for line in profile.notes():
         log.warning("%s", line)
+    grid = svc_mod.grid_for(profile, args.grid)
+    transmit, why_tx = _transmission(profile, args.transmit)
     vehicle = load_vehicle(args.vehicle)
     if vehicle.defaults:
         log.info("%s", vehicle.defaults_note())
@@ -228,7 +253,9 @@ def run(args: argparse.Namespace) -> int:
             backend=args.backend,
             overlay_enabled=not args.no_overlay,
             log_period_s=args.log_period,
-            grid=args.grid,
+            grid=grid,
+            transmit=transmit,
+            id_check_s=svc_mod.ID_CHECK_S,
             learned=args.learned,
             bus_name=name,
             **({} if args.flood_rate is None else {"flood_hz": args.flood_rate}),
@@ -251,12 +278,14 @@ def run(args: argparse.Namespace) -> int:
             recorder = service.recorder = Recorder(args.record, metadata=meta, frame_bytes=service.rx_width)
         ends = _Ends(service, stop, args.duration, None if args.quiet else args.status_interval)
         log.info(
-            "lde run: %s, profile %s, vehicle %s, backend %s, %s grid, input filters: %s%s",
+            "lde run: %s, profile %s, vehicle %s, backend %s, %s grid (%s), %s, input filters: %s%s",
             name,
             profile.name,
             vehicle.name,
             args.backend,
-            args.grid,
+            grid,
+            _grid_why(profile, grid, args.grid),
+            why_tx,
             service.filters,
             f", recording to {args.record}" if args.record else "",
         )
@@ -266,7 +295,7 @@ def run(args: argparse.Namespace) -> int:
                 " group and port of its own (--channel 239.74.X.Y --bus-kwarg port=N)",
                 name,
             )
-        summary = service.run(stop_event=stop, on_step=ends.on_step)
+        summary = service.run(stop_event=stop, on_tick=ends.on_tick)
         log.info("%s", summary.log_line())
         log.info("%s", service.fault_summary())
         if service.late_rx:
@@ -305,8 +334,8 @@ class _Ends:
         self.first: int | None = None
         self.next_status = 0
 
-    def on_step(self, res: StepResult) -> None:
-        t = res.t_ns
+    def on_tick(self, t: int) -> None:
+        """After each step (or wait without a step) at bus time ``t`` [ns]."""
         if self.first is None:
             self.first = t
             self.next_status = t + (self.status_ns or 0)
@@ -314,7 +343,39 @@ class _Ends:
             self.stop.set()
         if self.status_ns is not None and t >= self.next_status:
             self.next_status += self.status_ns * max(1, (t - self.next_status) // self.status_ns + 1)
-            print(f"lde run: {self.service.status().line()}", file=sys.stderr, flush=True)
+            print(f"lde run: {self.service.status(t).line()}", file=sys.stderr, flush=True)
+
+
+def _transmission(profile: Profile, asked: bool | None) -> tuple[bool, str]:
+    """Whether ``lde run`` sends (``--transmit`` / ``--listen-only``; else only on lde's own profile,
+    one whose DBC is the shipped ``lde`` DBC), and the start-up line's words for it."""
+    from lde.can.profiles import load_profile
+    from lde.service.service import ID_CHECK_S
+
+    after = f"once no other sender of its output ids is heard for {ID_CHECK_S:g} s"
+    if asked is not None:
+        return (
+            asked,
+            f"transmitting (--transmit) {after}" if asked else "listen-only (--listen-only): sends nothing",
+        )
+    if profile.dbc_sha256 == load_profile("lde").dbc_sha256:
+        return True, f"transmitting (lde's own profile; --listen-only sends nothing) {after}"
+    return (
+        False,
+        "listen-only (the default on a profile that is not lde's own; --transmit sends): sends nothing",
+    )
+
+
+def _grid_why(profile: Profile, grid: str, asked: str) -> str:
+    """Why this grid, for the start-up line."""
+    name = profile.anchor_message
+    period = profile.messages[name].period_ns
+    every = f"{name} every {period / 1e6:g} ms" if period else f"{name} of unknown period"
+    if asked != "auto":
+        return f"--grid {asked}; {every}"
+    if grid == "mdps":
+        return f"{every}: a step at each"
+    return f"{every}: 3.9 ms steps from its first accepted frame, as replay"
 
 
 def _nothing_usable(service: Service) -> str:

@@ -207,8 +207,8 @@ class StepBlock:
     def packed(cls, n: int, n_outputs: int = len(OUTPUT_MESSAGES)) -> tuple[StepBlock, np.ndarray]:
         """:meth:`empty`, with every column a view into one uint8 buffer (returned too; each column
         64-byte aligned): the live service's one-row block, whose row the compiled hand-off
-        (:mod:`lde.service.handoff`) copies into the recorder's rings as bytes. The columns have the same
-        dtypes, shapes and (C-contiguous, aligned, writable) numba types as :meth:`empty`'s."""
+        (:mod:`lde.service.handoff`) copies into the recorder's step record as bytes. The columns have
+        the same dtypes, shapes and (C-contiguous, aligned, writable) numba types as :meth:`empty`'s."""
         like = cls.empty(n, n_outputs)
         cols = [(f.name, getattr(like, f.name)) for f in fields(cls)]
         offs, size = [], 64  # room to align the first column

@@ -29,21 +29,23 @@ Every message's log time is its own time in the bus time base (ns): receive time
 the step time t_k (which a replay uses to step on the same grid). Metadata record ``lde``:
 profile, vehicle, backend, step period.
 
-Hand-off and crash tolerance: the hot path stores rows in preallocated rings in shared memory
-(:class:`StepRing`); a forked writer process drains them every ``flush_interval_s`` (default 0.25 s),
-writes small chunks and flushes them to the file (:meth:`lde.io.McapWriter.flush` writes the
-queued messages as chunks), so the writing never competes with the service for its interpreter
-lock. A SIGKILL of the service loses nothing (the writer notices and closes the file); of both
-processes at most about the last half second. :func:`read_recording` reads a file sequentially and
-stops cleanly at a truncated tail, so a file without footer/summary still gives everything up to its last
-complete chunk.
+Hand-off and crash tolerance: the service hands each step's frames and row to a writer process as
+fixed-size records through two pipes (:class:`Recorder`: one non-blocking ``write`` each per step;
+the kernel's pipe orders the bytes on any CPU). The writer reads them every 20 ms and every
+``flush_interval_s`` (default 0.25 s) writes small chunks and flushes them to the file
+(:meth:`lde.io.McapWriter.flush` writes the queued messages as chunks), so the writing never competes
+with the service for its interpreter lock. A SIGKILL of the service loses nothing (what it wrote
+stays in the pipes: the writer reads it, writes it and closes the file); of both processes at most
+about the last flush interval. :func:`read_recording` reads a file sequentially and stops cleanly at a
+truncated tail, so a file without footer/summary still gives everything up to its last complete
+chunk.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import logging
-import mmap
 import os
 import signal
 import socket
@@ -62,9 +64,7 @@ import numpy as np
 from lde.can.frames import MAX_DATA, FrameBatch, seconds_to_ns
 from lde.can.profiles import INPUT_NAMES
 from lde.engine.engine import OUTPUT_MESSAGES, StepBlock
-from lde.engine.receiver import N_INPUTS
 from lde.errors import LogFormatError
-from lde.estimator.outputs import N_OUT
 from lde.io import TOPIC_RX, TOPIC_TX, McapLog, McapWriter
 from lde.io.textfmt import EXACT, Column, format_rows, time_column
 from lde.status import DEADLINE_MISS, STATUS_BITS, STATUS_MEANINGS
@@ -74,7 +74,8 @@ if TYPE_CHECKING:  # python-can is imported by whoever hands in can.Message obje
 
 __all__ = [
     "Recorder",
-    "StepRing",
+    "frame_record",
+    "step_record",
     "Recording",
     "read_recording",
     "ESTIMATE_TOPIC",
@@ -389,254 +390,146 @@ def _sync(writer: McapWriter) -> None:
     writer.sync()
 
 
-# ring control slots (int64): heads are written by the service only, tails by the writer only
-_F_HEAD, _F_TAIL, _S_HEAD, _S_TAIL, _F_DROPPED, _S_DROPPED, _FAILED = range(7)
-_N_CTL = 8
+# ---------------------------------------------------------------------- the hand-off to the writer
 
-
-class StepRing:
-    """Preallocated single-producer / single-consumer rings of received/sent frames and step rows in
-    memory shared with the recorder's writer process (an anonymous ``memfd`` mapped ``MAP_SHARED`` by
-    both; ``fd`` attaches to an existing one).
-
-    The producer (the service's loop) stores a row's values, then advances the ring's head; the
-    consumer (the writer) reads the head, then the rows before it, then advances the tail. On x86
-    stores become visible in program order, so a row is complete before its head is seen. A full ring
-    drops the new row and counts it (never blocks the loop). Capacities are powers of two.
-
-    Args:
-        frames: frame slots (default 65536: 35 s of lde traffic at 4.5 frames per step, 64 B each).
-        steps: step slots (default 16384: 64 s of steps, about 300 B each).
-        n_outputs: output frames per step row (``StepBlock.frames``).
-        frame_bytes: data bytes kept per frame: 8 (a classic bus), up to 64 (a profile with CAN FD
-            input messages: bytes 8.. are kept in ``f_more``).
-    """
-
-    ctl: np.ndarray
-    f_t: np.ndarray
-    f_word: np.ndarray
-    f_more: np.ndarray | None
-    f_id: np.ndarray
-    f_ext: np.ndarray
-    f_dlc: np.ndarray
-    f_rx: np.ndarray
-    t_ns: np.ndarray
-    status: np.ndarray
-    est: np.ndarray
-    t_overlay: np.ndarray
-    overlay_state: np.ndarray
-    overlay_enable: np.ndarray
-    inputs: np.ndarray
-    ages: np.ndarray
-    valid_mask: np.ndarray
-    ok: np.ndarray
-    frames_used: np.ndarray
-    e2e_rejects: np.ndarray
-    frames: np.ndarray
-    timing: np.ndarray
-
-    def __init__(
-        self,
-        frames: int = 1 << 16,
-        steps: int = 1 << 14,
-        n_outputs: int = len(OUTPUT_MESSAGES),
-        fd: int | None = None,
-        frame_bytes: int = 8,
-    ) -> None:
-        for n in (frames, steps):
-            if n <= 0 or n & (n - 1):
-                raise ValueError(f"ring capacities must be powers of two, got {n}")
-        if not 8 <= frame_bytes <= MAX_DATA:
-            raise ValueError(f"frame_bytes must lie in 8..{MAX_DATA}, got {frame_bytes}")
-        self.nf, self.ns = int(frames), int(steps)
-        self.frame_bytes = int(frame_bytes)
-        f, s = self.nf, self.ns
-        spec: list[tuple[str, Any, tuple[int, ...]]] = [
-            ("ctl", np.int64, (_N_CTL,)),
-            ("f_t", np.int64, (f,)),
-            ("f_word", np.uint64, (f,)),
-            ("f_id", np.uint32, (f,)),
-            ("f_ext", np.bool_, (f,)),
-            ("f_dlc", np.uint8, (f,)),
-            ("f_rx", np.bool_, (f,)),
-            ("t_ns", np.int64, (s,)),
-            ("status", np.uint8, (s,)),
-            ("est", np.float64, (s, N_OUT)),
-            ("t_overlay", np.float64, (s,)),
-            ("overlay_state", np.uint8, (s,)),
-            ("overlay_enable", np.bool_, (s,)),
-            ("inputs", np.float64, (s, N_INPUTS)),
-            ("ages", np.int64, (s, N_INPUTS)),
-            ("valid_mask", np.int64, (s,)),
-            ("ok", np.bool_, (s, 2)),
-            ("frames_used", np.int64, (s,)),
-            ("e2e_rejects", np.int64, (s,)),
-            ("frames", np.uint8, (s, n_outputs, 8)),
-            ("timing", np.int64, (s, 6)),
-        ]
-        if frame_bytes > 8:
-            spec.append(("f_more", np.uint8, (f, frame_bytes - 8)))
-        size = 0
-        offs = []
-        for _, dt, shape in spec:
-            size = (size + 63) & ~63
-            offs.append(size)
-            size += int(np.dtype(dt).itemsize * np.prod(shape))
-        if fd is None:  # an anonymous file in memory; the writer process maps it through its descriptor
-            fd = os.memfd_create("lde-recorder-ring", 0)
-            os.ftruncate(fd, size)
-        self.fd = fd
-        self.n_outputs = int(n_outputs)
-        self._mm = mmap.mmap(fd, size, flags=mmap.MAP_SHARED)
-        for (name, dt, shape), off in zip(spec, offs, strict=True):
-            a = np.frombuffer(self._mm, dtype=dt, count=int(np.prod(shape)), offset=off).reshape(shape)
-            setattr(self, name, a)
-        if frame_bytes == 8:
-            self.f_more = None
-        #: byte offset of each column in the shared memory (:meth:`memory`)
-        self.offsets = {name: off for (name, _, _), off in zip(spec, offs, strict=True)}
-        self._fh = 0  # producer's copies of its heads
-        self._sh = 0
-        self._f_tail_seen = 0
-        self._s_tail_seen = 0
-
-    # ------------------------------------------------------------------ producer (hot path)
-    def put_frame(self, t_ns: int, can_id: int, is_extended: bool, dlc: int, word: int, is_rx: bool) -> None:
-        """One frame; ``word``: its data bytes as a little-endian integer (the first ``frame_bytes``
-        are kept)."""
-        h = self._fh
-        if h - self._f_tail_seen >= self.nf:
-            self._f_tail_seen = int(self.ctl[_F_TAIL])
-            if h - self._f_tail_seen >= self.nf:
-                self.ctl[_F_DROPPED] += 1
-                return
-        i = h & (self.nf - 1)
-        self.f_t[i] = t_ns
-        self.f_word[i] = word & _WORD
-        if self.f_more is not None:
-            self.f_more[i] = np.frombuffer((word >> 64).to_bytes(self.frame_bytes, "little"), np.uint8)[
-                : self.frame_bytes - 8
-            ]
-        self.f_id[i] = can_id
-        self.f_ext[i] = is_extended
-        self.f_dlc[i] = dlc
-        self.f_rx[i] = is_rx
-        self._fh = h + 1
-        self.ctl[_F_HEAD] = h + 1
-
-    def put_step(
-        self, block: StepBlock, row: int, timing: tuple[int, int, int, int, int, int] | None
-    ) -> None:
-        """Row ``row`` of ``block`` and its live timing (period error, step time, latency [ns], miss
-        0/1, misses, skipped; None: no timing)."""
-        h = self._sh
-        if h - self._s_tail_seen >= self.ns:
-            self._s_tail_seen = int(self.ctl[_S_TAIL])
-            if h - self._s_tail_seen >= self.ns:
-                self.ctl[_S_DROPPED] += 1
-                return
-        i = h & (self.ns - 1)
-        self.t_ns[i] = block.t_ns[row]
-        self.status[i] = block.status[row]
-        self.est[i] = block.est[row]
-        self.t_overlay[i] = block.t_overlay[row]
-        self.overlay_state[i] = block.overlay_state[row]
-        self.overlay_enable[i] = block.overlay_enable[row]
-        self.inputs[i] = block.inputs[row]
-        self.ages[i] = block.ages[row]
-        self.valid_mask[i] = block.valid_mask[row]
-        self.ok[i] = block.ok[row]
-        self.frames_used[i] = block.frames_used[row]
-        self.e2e_rejects[i] = block.e2e_rejects[row]
-        self.frames[i] = block.frames[row]
-        if timing is None:
-            self.timing[i, 0] = _NO_TIMING
-        else:
-            self.timing[i] = timing
-        self._sh = h + 1
-        self.ctl[_S_HEAD] = h + 1
-
-    def memory(self) -> np.ndarray:
-        """The rings' shared memory as one uint8 array (the columns are views of it at
-        :attr:`offsets`), for a compiled producer (:mod:`lde.service.handoff`)."""
-        return np.frombuffer(self._mm, np.uint8)
-
-    def published(self, frame_head: int, step_head: int) -> None:
-        """A compiled producer stored rows up to these heads: make them visible to the writer."""
-        self._fh = frame_head
-        self.ctl[_F_HEAD] = frame_head
-        self._sh = step_head
-        self.ctl[_S_HEAD] = step_head
-
-    # ------------------------------------------------------------------ consumer (writer)
-    def take_frames(self) -> FrameBatch:
-        """The frames written since the last call (copies), and frees their slots."""
-        tail, head = int(self.ctl[_F_TAIL]), int(self.ctl[_F_HEAD])
-        idx = np.arange(tail, head) & (self.nf - 1)
-        data = self.f_word[idx].astype("<u8").view(np.uint8).reshape(-1, 8)
-        if self.f_more is not None:  # bytes past a frame's length may be an older frame's: zeros
-            data = np.concatenate([data, self.f_more[idx]], axis=1)
-            data[np.arange(data.shape[1]) >= self.f_dlc[idx][:, None]] = 0
-        fb = FrameBatch(
-            t_ns=self.f_t[idx],
-            can_id=self.f_id[idx],
-            is_extended=self.f_ext[idx],
-            dlc=self.f_dlc[idx],
-            data=data,
-            is_rx=self.f_rx[idx],
-        )
-        self.ctl[_F_TAIL] = head
-        return fb
-
-    def take_steps(self) -> tuple[StepBlock, Timing | None]:
-        """The step rows written since the last call (copies) and their timing (None when a row has
-        none), and frees their slots."""
-        tail, head = int(self.ctl[_S_TAIL]), int(self.ctl[_S_HEAD])
-        idx = np.arange(tail, head) & (self.ns - 1)
-        block = StepBlock(**{f.name: getattr(self, f.name)[idx] for f in fields(StepBlock)})
-        tm = self.timing[idx]
-        self.ctl[_S_TAIL] = head
-        timing = None
-        if len(idx) and not np.any(tm[:, 0] == _NO_TIMING):
-            timing = Timing(*(tm[:, k].copy() for k in range(6)))
-        return block, timing
-
-    @property
-    def dropped(self) -> tuple[int, int]:
-        """(frames, steps) dropped because the ring was full."""
-        return int(self.ctl[_F_DROPPED]), int(self.ctl[_S_DROPPED])
-
-    def close(self) -> None:
-        for name in list(vars(self)):
-            if isinstance(getattr(self, name), np.ndarray):
-                setattr(self, name, None)
-        with contextlib.suppress(BufferError):  # a view still alive: the mapping goes with the process
-            self._mm.close()
-        with contextlib.suppress(OSError):
-            os.close(self.fd)
-
-
-#: the recorder's writer process must have opened the file within this time [s]
-_START_TIMEOUT_S = 120.0
+#: a frame whose data is this wide or narrower fits a classic frame record (:func:`frame_record`)
+CLASSIC_BYTES = 8
+#: POSIX's least ``PIPE_BUF``: writes of at most this many bytes to a pipe are atomic (Linux: 4096,
+#: asked of each pipe: :func:`_pipe`)
+_POSIX_PIPE_BUF = 512
+#: the pipes' capacity asked for [bytes] (Linux ``F_SETPIPE_SZ``; unprivileged at most
+#: ``/proc/sys/fs/pipe-max-size``, 1 MiB by default): about 8 s of lde's traffic
+_PIPE_BYTES = (1 << 20, 1 << 18)
+#: the writer reads the pipes this often [s]: it never wakes per step, and never lets a pipe fill
+_READ_S = 0.02
 #: a period error no live step has: "this row has no timing" (a replay's rows through Recorder.steps)
 _NO_TIMING = np.iinfo(np.int64).min
+#: the recorder's writer process must have opened the file within this time [s]
+_START_TIMEOUT_S = 120.0
 
 
-def _word(data: bytes | bytearray) -> int:
-    return int.from_bytes(bytes(data), "little")
+def frame_record(width: int = CLASSIC_BYTES) -> np.dtype:
+    """One frame as the service hands it to the recorder's writer (little-endian, packed): ``t_ns``
+    int64 its receive or send time [ns], ``can_id`` uint32, ``dlc`` uint8, ``flags`` uint8 (bit 0:
+    received, bit 1: 29-bit id), two pad bytes, then ``data``: ``width`` bytes (the first ``dlc``
+    hold the frame's data, the rest zero). 24 bytes for a classic frame."""
+    return np.dtype(
+        {
+            "names": ["t_ns", "can_id", "dlc", "flags", "data"],
+            "formats": ["<i8", "<u4", "u1", "u1", ("u1", (width,))],
+            "offsets": [0, 8, 12, 13, 16],
+            "itemsize": 16 + width,
+        }
+    )
 
 
-#: a data word's 64 bits
-_WORD = (1 << 64) - 1
+_FLAG_RX, _FLAG_EXT = 1, 2
+
+
+def step_record(n_outputs: int = len(OUTPUT_MESSAGES)) -> np.dtype:
+    """One step as the service hands it to the recorder's writer: the columns of one
+    :class:`lde.engine.engine.StepBlock` row (each at its natural alignment), then ``timing``: 6 int64
+    (period error, step time, latency [ns], miss 0/1, misses, skipped; period error
+    ``_NO_TIMING``: the row has no timing), the record's last 48 bytes."""
+    like = StepBlock.empty(1, n_outputs)
+    names, formats, offsets = [], [], []
+    off = 0
+    for f in fields(StepBlock):
+        a = getattr(like, f.name)
+        align = a.dtype.alignment
+        off = (off + align - 1) // align * align
+        names.append(f.name)
+        formats.append((a.dtype, a.shape[1:]))
+        offsets.append(off)
+        off += a.nbytes
+    off = (off + 7) // 8 * 8
+    names.append("timing")
+    formats.append(("<i8", (6,)))
+    offsets.append(off)
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": off + 48})
+
+
+def _frames_of(rec: np.ndarray) -> FrameBatch:
+    """Frame records as a :class:`lde.can.frames.FrameBatch` (copies)."""
+    flags = rec["flags"]
+    return FrameBatch(
+        t_ns=rec["t_ns"].copy(),
+        can_id=rec["can_id"].copy(),
+        is_extended=(flags & _FLAG_EXT) != 0,
+        dlc=rec["dlc"].copy(),
+        data=np.ascontiguousarray(rec["data"]),
+        is_rx=(flags & _FLAG_RX) != 0,
+    )
+
+
+def _steps_of(rec: np.ndarray) -> tuple[StepBlock, Timing | None]:
+    """Step records as a :class:`lde.engine.engine.StepBlock` and their timing (None when a row has
+    none), copies."""
+    block = StepBlock(**{f.name: np.ascontiguousarray(rec[f.name]) for f in fields(StepBlock)})
+    tm = rec["timing"]
+    timing = None
+    if len(rec) and not np.any(tm[:, 0] == _NO_TIMING):
+        timing = Timing(*(tm[:, k].copy() for k in range(6)))
+    return block, timing
+
+
+def _pipe() -> tuple[int, int, int]:
+    """A pipe: (read end, write end, ``PIPE_BUF``); its write end never blocks; as large as allowed.
+    A write of at most ``PIPE_BUF`` bytes to it is atomic: whole, or not at all when the pipe is full."""
+    r, w = os.pipe()
+    try:
+        atomic = int(os.fpathconf(w, "PC_PIPE_BUF"))
+    except (OSError, ValueError):
+        atomic = _POSIX_PIPE_BUF
+    os.set_blocking(w, False)
+    setsize: int = getattr(fcntl, "F_SETPIPE_SZ", -1)  # Linux only
+    for size in _PIPE_BYTES if setsize >= 0 else ():
+        try:
+            fcntl.fcntl(w, setsize, size)
+            break
+        except OSError:  # above this system's limit for unprivileged users: try less
+            continue
+    return r, w, atomic
+
+
+class _RecordReader:
+    """The writer's end of one pipe of fixed-size records: :meth:`read` takes what has arrived
+    (never blocks), :meth:`take` hands out the whole records read so far."""
+
+    def __init__(self, fd: int, dtype: np.dtype) -> None:
+        self.fd = fd
+        self.dtype = dtype
+        self.buf = bytearray()
+        self.eof = False
+        os.set_blocking(fd, False)
+
+    def read(self) -> None:
+        while not self.eof:
+            try:
+                got = os.read(self.fd, 1 << 20)
+            except BlockingIOError:
+                return
+            if not got:
+                self.eof = True
+            self.buf += got
+
+    def take(self) -> np.ndarray:
+        n = len(self.buf) // self.dtype.itemsize
+        k = n * self.dtype.itemsize
+        rec = np.frombuffer(bytes(self.buf[:k]), self.dtype)
+        del self.buf[:k]
+        return rec
 
 
 class _WriterProcess:
     """The recorder's writer process. Forked when this process has no other thread (``lde run``: fast,
     and no lock can be held by a thread that the child would not have); otherwise a fresh interpreter
     (``python -m lde.io.recording``), because a fork would inherit locks that other threads hold (numba's
-    compiler lock, say) and could hang on them."""
+    compiler lock, say) and could hang on them. ``keep``: the descriptors the writer reads (its end of
+    the connection, then the two pipes' read ends); ``drop``: the service's ends, closed in a forked
+    child (a pipe whose write end only the service holds reads as ended once the service is gone)."""
 
-    def __init__(self, ring_fd: int, mine: socket.socket, theirs: socket.socket) -> None:
+    def __init__(self, keep: tuple[int, int, int], drop: tuple[int, ...]) -> None:
         self.pid = 0
         self.popen: subprocess.Popen | None = None
         if hasattr(os, "fork") and threading.active_count() == 1:
@@ -644,17 +537,16 @@ class _WriterProcess:
             if pid == 0:  # the child: never returns
                 code = 1
                 try:
-                    mine.close()
-                    _writer_main(ring_fd, theirs.detach())
+                    for fd in drop:
+                        os.close(fd)
+                    _writer_main(*keep)
                     code = 0
                 finally:
                     os._exit(code)
             self.pid = pid
         else:
-            cmd = [sys.executable, "-m", "lde.io.recording", str(ring_fd), str(theirs.fileno())]
-            self.popen = subprocess.Popen(
-                cmd, pass_fds=(ring_fd, theirs.fileno()), stdin=subprocess.DEVNULL, close_fds=True
-            )
+            cmd = [sys.executable, "-m", "lde.io.recording", *map(str, keep)]
+            self.popen = subprocess.Popen(cmd, pass_fds=keep, stdin=subprocess.DEVNULL, close_fds=True)
 
     def wait(self, timeout: float | None = None) -> None:
         """Wait for the end of the process (``subprocess.TimeoutExpired`` after ``timeout``)."""
@@ -681,15 +573,20 @@ class _WriterProcess:
 class Recorder:
     """Writes a live run to an MCAP file (:class:`lde.io.McapWriter`) from a writer *process*.
 
-    The service's hot path stores each received/sent frame and each step's row in a preallocated
-    ring in shared memory (:class:`StepRing`: a few array stores, no allocation, no lock); a writer
-    process (:class:`_WriterProcess`: forked, or a fresh interpreter when other threads run) runs as
-    background work, drains the rings every
-    ``flush_interval_s``, writes small chunks and pushes them to the OS. The writing (JSON formatting,
-    MCAP records, compression) thus never holds the service's interpreter lock. When the service dies
-    (SIGKILL included), the writer sees its end of the connection close, writes what the rings hold
-    and closes the file with its summary; if both are killed, at most about the last half second is
-    lost.
+    The service hands each step's frames and row to the writer as fixed-size records
+    (:func:`frame_record`, :func:`step_record`) through two pipes (:meth:`put`: one ``write`` each,
+    from buffers the step's compiled hand-off filled). The kernel's pipe is the synchronisation: a
+    record is complete in the writer's ``read`` once the service's ``write`` has returned, on any CPU,
+    with no memory ordering of lde's own. The service's ends never block: a batch of records up to
+    ``PIPE_BUF`` bytes is written whole or not at all, and a full pipe drops the batch and counts it
+    (:attr:`dropped`). The writer process (:class:`_WriterProcess`: forked, or a fresh interpreter
+    when other threads run) reads the pipes every 20 ms, and every ``flush_interval_s`` writes small
+    chunks and pushes them to the OS. The writing (JSON formatting, MCAP records, compression) thus
+    never holds the service's interpreter lock.
+
+    When the service dies (SIGKILL included) what it wrote stays in the pipes: the writer sees its end
+    of the connection close, reads the rest, writes it and closes the file with its summary. If both
+    are killed, at most about the last flush interval is lost.
 
     Use as a context manager or call :meth:`close` (idempotent; writes the summary/footer).
 
@@ -700,8 +597,9 @@ class Recorder:
         chunk_size: MCAP chunk size bound [bytes, uncompressed] (small: a crash loses little).
         extra_topics: more JSON channels, topic -> {field: JSON-schema property}, written with
             :meth:`json_columns` (the demo's ``/sim/truth``).
-        ring_frames, ring_steps: ring capacities (powers of two; :class:`StepRing`).
-        frame_bytes: data bytes kept per frame (:class:`StepRing`; the service's ``rx_width``).
+        n_outputs: output frames per step row (``StepBlock.frames``).
+        frame_bytes: data bytes kept per frame: 8 (a classic bus), up to 64 (a profile with CAN FD
+            input messages; the service's ``rx_width``).
     """
 
     def __init__(
@@ -711,32 +609,55 @@ class Recorder:
         flush_interval_s: float = 0.25,
         chunk_size: int = 64 * 1024,
         extra_topics: dict[str, dict[str, dict[str, str]]] | None = None,
-        ring_frames: int = 1 << 16,
-        ring_steps: int = 1 << 14,
-        frame_bytes: int = 8,
+        n_outputs: int = len(OUTPUT_MESSAGES),
+        frame_bytes: int = CLASSIC_BYTES,
     ) -> None:
+        if not CLASSIC_BYTES <= frame_bytes <= MAX_DATA:
+            raise ValueError(f"frame_bytes must lie in {CLASSIC_BYTES}..{MAX_DATA}, got {frame_bytes}")
         self.path = Path(path)
         meta = {k: str(v) for k, v in (metadata or {}).items()}
         try:  # a path that cannot be written is an error now, not in the writer (which opens it again)
             self.path.open("wb").close()
         except OSError as exc:
             raise LogFormatError(f"{path}: cannot write: {exc}") from exc
-        self.ring = StepRing(ring_frames, ring_steps, frame_bytes=frame_bytes)
+        self.n_outputs = int(n_outputs)
+        #: the records' layouts (the service's compiled hand-off fills buffers of these)
+        self.frame_bytes = int(frame_bytes)
+        self.frame_dtype = frame_record(self.frame_bytes)
+        self.step_dtype = step_record(self.n_outputs)
         self._extra_topics = dict(extra_topics or {})
         self._closed = False
+        self._failed = False
+        self._dropped = [0, 0]
         mine, theirs = socket.socketpair()
+        fr_r, self._frame_fd, atomic = _pipe()
+        st_r, self._step_fd, _ = _pipe()
+        sizes = (self.frame_dtype.itemsize, self.step_dtype.itemsize)
+        if max(sizes) > atomic:  # (lde's records: 24-80 and about 330 bytes; POSIX's least: 512)
+            for fd in (fr_r, self._frame_fd, st_r, self._step_fd):
+                os.close(fd)
+            mine.close()
+            theirs.close()
+            raise LogFormatError(f"{path}: records of {max(sizes)} bytes exceed this system's PIPE_BUF")
+        #: bytes of one batch: whole records, written whole or not at all
+        self._batch = tuple(atomic // n * n for n in sizes)
+        mine_fd = mine.fileno()
         try:
-            self._proc = _WriterProcess(self.ring.fd, mine, theirs)
+            self._proc = _WriterProcess(
+                (theirs.fileno(), fr_r, st_r), (mine_fd, self._frame_fd, self._step_fd)
+            )
         except OSError as exc:
             mine.close()
-            self.ring.close()
+            self._close_fds()
             raise LogFormatError(f"{path}: cannot start the recorder's writer process: {exc}") from exc
         finally:
             theirs.close()
+            os.close(fr_r)
+            os.close(st_r)
         self._conn = Connection(mine.detach())
         self._conn.send(
             (self.path, meta, float(flush_interval_s), int(chunk_size), self._extra_topics,
-             self.ring.nf, self.ring.ns, self.ring.n_outputs, self.ring.frame_bytes)
+             self.n_outputs, self.frame_bytes)
         )  # fmt: skip
         # the writer has the file open with its header written when this returns (or says why not)
         ok = self._conn.poll(_START_TIMEOUT_S) and self._reply()
@@ -744,45 +665,97 @@ class Recorder:
             self._proc.kill()
             self._proc.wait()
             self._conn.close()
-            self.ring.close()
+            self._close_fds()
             self._closed = True
             why = ok[1] if ok else f"the writer process did not start within {_START_TIMEOUT_S:.0f} s"
             raise LogFormatError(f"{path}: cannot record: {why}")
 
+    def _close_fds(self) -> None:
+        for fd in (self._frame_fd, self._step_fd):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
     def _reply(self) -> tuple[Any, ...]:
+        """The writer's next answer; a note that it failed, which it sends unasked, is taken on the way."""
         try:
-            return self._conn.recv()
+            while True:
+                r = self._conn.recv()
+                if r[0] != "failed":
+                    return r
+                self._failed = True
         except (EOFError, OSError) as exc:
             return ("error", f"{self.path}: the recorder's writer process ended ({exc or 'EOF'})")
 
     @property
     def failed(self) -> bool:
-        """The writer could not write (disk full, ...): recording stopped, the service goes on."""
-        return bool(self.ring.ctl[_FAILED]) if not self._closed else self._failed_at_close
-
-    _failed_at_close = False
-    _dropped_at_close = (0, 0)
+        """The writer could not write (disk full, ...) or is gone: recording stopped, the service goes on."""
+        if not self._closed and not self._failed:
+            try:
+                while self._conn.poll(0):
+                    if self._conn.recv()[0] == "failed":
+                        self._failed = True
+            except (EOFError, OSError):
+                self._failed = True
+        return self._failed
 
     @property
     def dropped(self) -> tuple[int, int]:
-        """(frames, steps) dropped because the writer did not keep up (the rings were full)."""
-        return self.ring.dropped if not self._closed else self._dropped_at_close
+        """(frames, steps) dropped because the writer did not keep up (a pipe was full) or was gone."""
+        return self._dropped[0], self._dropped[1]
 
     # ------------------------------------------------------------------ hot path
+    def put(self, frames: memoryview | bytes, step: memoryview | bytes) -> None:
+        """One step's frame records (:attr:`frame_dtype`, any number) and its step record
+        (:attr:`step_dtype`), as bytes: written to the pipes now, never blocking."""
+        if len(frames):
+            self._write(self._frame_fd, frames, 0)
+        self._write(self._step_fd, step, 1)
+
+    def _write(self, fd: int, buf: memoryview | bytes, kind: int) -> None:
+        """Records (``kind`` 0: frames, 1: steps) to their pipe in batches of at most ``PIPE_BUF``
+        bytes: POSIX writes such a batch to a non-blocking pipe whole, or not at all when it is full,
+        so the writer never reads part of a record."""
+        size = self.step_dtype.itemsize if kind else self.frame_dtype.itemsize
+        batch = self._batch[kind]
+        for at in range(0, len(buf), batch):
+            part = buf[at : at + batch]
+            try:
+                os.write(fd, part)
+            except BlockingIOError:  # the pipe is full: the writer did not keep up
+                self._dropped[kind] += len(part) // size
+            except OSError:  # the writer is gone (EPIPE): recording stopped
+                self._dropped[kind] += len(part) // size
+                self._failed = True
+
     def frame(self, t_ns: int, can_id: int, is_extended: bool, dlc: int, word: int, is_rx: bool) -> None:
         """A received (``is_rx``) or sent frame at ``t_ns`` [ns]; ``word``: its data bytes as a
-        little-endian integer."""
-        self.ring.put_frame(t_ns, can_id, is_extended, dlc, word, is_rx)
+        little-endian integer (the first :attr:`frame_bytes` are kept)."""
+        rec = np.zeros(1, self.frame_dtype)
+        rec["t_ns"] = t_ns
+        rec["can_id"] = can_id
+        rec["dlc"] = dlc
+        rec["flags"] = (_FLAG_RX if is_rx else 0) | (_FLAG_EXT if is_extended else 0)
+        width = self.frame_bytes
+        rec["data"][0] = np.frombuffer((word & ((1 << 8 * width) - 1)).to_bytes(width, "little"), np.uint8)
+        self._write(self._frame_fd, rec.tobytes(), 0)
 
     def step(
         self, block: StepBlock, row: int = 0, timing: tuple[int, int, int, int, int, int] | None = None
     ) -> None:
-        """One step's row of ``block`` (copied now) and its timing (:meth:`StepRing.put_step`)."""
-        self.ring.put_step(block, row, timing)
+        """One step's row of ``block`` (copied now) and its live timing (period error, step time,
+        latency [ns], miss 0/1, misses, skipped; None: no timing)."""
+        rec = np.zeros(1, self.step_dtype)
+        for f in fields(StepBlock):
+            rec[f.name][0] = getattr(block, f.name)[row]
+        if timing is None:
+            rec["timing"][0, 0] = _NO_TIMING
+        else:
+            rec["timing"][0] = timing
+        self._write(self._step_fd, rec.tobytes(), 1)
 
     def rx(self, msg: can.Message) -> None:
         """A received frame (its timestamp is the receive time); its content is copied now."""
-        self.ring.put_frame(
+        self.frame(
             seconds_to_ns(msg.timestamp),
             msg.arbitration_id,
             msg.is_extended_id,
@@ -794,7 +767,7 @@ class Recorder:
     def tx(self, msg: can.Message) -> None:
         """A sent frame (its timestamp is the send time); its content is copied now (the sender
         may reuse the message object)."""
-        self.ring.put_frame(
+        self.frame(
             seconds_to_ns(msg.timestamp),
             msg.arbitration_id,
             msg.is_extended_id,
@@ -805,15 +778,19 @@ class Recorder:
 
     def steps(self, block: StepBlock, timing: Timing | None = None) -> None:
         """Rows of steps (copied now)."""
-        for i in range(len(block)):
-            tm = None
-            if timing is not None:
-                tm = tuple(int(getattr(timing, f.name)[i]) for f in fields(Timing))
-            self.ring.put_step(block, i, tm)  # type: ignore[arg-type]
+        rec = np.zeros(len(block), self.step_dtype)
+        for f in fields(StepBlock):
+            rec[f.name] = getattr(block, f.name)
+        if timing is None:
+            rec["timing"][:, 0] = _NO_TIMING
+        else:
+            for k, f in enumerate(fields(Timing)):
+                rec["timing"][:, k] = getattr(timing, f.name)
+        self._write(self._step_fd, rec.tobytes(), 1)
 
     def json_columns(self, topic: str, t_ns: np.ndarray, columns: dict[str, np.ndarray]) -> None:
         """Many JSON messages at once on an ``extra_topics`` channel (one per element of ``t_ns``);
-        not for the hot path (the columns go to the writer through a pipe)."""
+        not for the hot path (the columns go to the writer through its connection)."""
         if topic not in self._extra_topics:
             raise ValueError(f"topic {topic!r} was not declared in extra_topics")
         self._conn.send(
@@ -822,14 +799,14 @@ class Recorder:
 
     # ------------------------------------------------------------------ writer control
     def _drain(self) -> None:
-        """Have the writer write and flush everything stored so far (returns when it has)."""
+        """Have the writer write and flush everything handed over so far (returns when it has)."""
         if self._closed:
             return
         self._conn.send(("flush",))
         self._reply()
 
     def close(self) -> None:
-        """Write everything stored, the summary and the footer; close the file; end the writer."""
+        """Write everything handed over, the summary and the footer; close the file; end the writer."""
         if self._closed:
             return
         try:
@@ -837,9 +814,9 @@ class Recorder:
             r = self._reply()
             if r[0] == "error":
                 log.error("%s", r[1])
-            self._failed_at_close = bool(self.ring.ctl[_FAILED]) or r[0] != "closed"
+            self._failed = self._failed or r[0] != "closed"
         except (BrokenPipeError, OSError) as exc:
-            self._failed_at_close = True
+            self._failed = True
             log.error("recording to %s: the writer process is gone (%s)", self.path, exc)
         self._closed = True
         try:
@@ -848,16 +825,23 @@ class Recorder:
             self._proc.kill()
             self._proc.wait()
         self._conn.close()
-        self._dropped_at_close = dropped = self.ring.dropped
-        if any(dropped):
-            log.warning("recording %s: ring full, dropped %d frames and %d steps", self.path, *dropped)
-        self.ring.close()
+        self._close_fds()
+        if any(self._dropped):
+            log.warning(
+                "recording %s: the writer fell behind, dropped %d frames and %d steps",
+                self.path,
+                *self._dropped,
+            )
 
     def __enter__(self) -> Recorder:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _word(data: bytes | bytearray) -> int:
+    return int.from_bytes(bytes(data), "little")
 
 
 def _warm_up(n_outputs: int) -> None:
@@ -873,19 +857,20 @@ def _warm_up(n_outputs: int) -> None:
     w.flush()
 
 
-def _writer_main(ring_fd: int, conn_fd: int) -> None:
-    """The writer process (``python -m lde.io.recording RING_FD CONN_FD``): drain the rings every flush
-    interval until told to close or until the service is gone (its end of the connection closes),
-    then close the file."""
+def _writer_main(conn_fd: int, frame_fd: int, step_fd: int) -> None:
+    """The writer process (``python -m lde.io.recording CONN_FD FRAME_FD STEP_FD``): read the pipes
+    every :data:`_READ_S`, write and flush every flush interval, until told to close or until the
+    service is gone (its end of the connection closes); then the rest of the pipes, and close the file."""
     # Ctrl-C reaches the whole process group, a service manager's SIGTERM maybe too: the writer
-    # ends when the service tells it to (or is gone), after writing what the rings hold
+    # ends when the service tells it to (or is gone), after writing what the pipes hold
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     _background_priority()
     conn: Connection | None = Connection(conn_fd)
     assert conn is not None
-    path, meta, flush_interval, chunk_size, extra_topics, nf, ns, n_out, width = conn.recv()
-    ring = StepRing(nf, ns, n_out, fd=ring_fd, frame_bytes=width)
+    path, meta, flush_interval, chunk_size, extra_topics, n_out, width = conn.recv()
+    frames_in = _RecordReader(frame_fd, frame_record(width))
+    steps_in = _RecordReader(step_fd, step_record(n_out))
     try:
         w = McapWriter(path, chunk_size=chunk_size, buffer_bytes=64 << 20, metadata=meta)
         steps = StepTopicWriter(w)
@@ -898,10 +883,13 @@ def _writer_main(ring_fd: int, conn_fd: int) -> None:
     conn.send(("ready",))
     failed = False
 
-    def drain() -> None:
+    def write_out() -> None:
+        """Everything read so far into the file, flushed to the OS."""
         nonlocal failed
-        fb = ring.take_frames()
-        block, timing = ring.take_steps()
+        frames_in.read()
+        steps_in.read()
+        fb = _frames_of(frames_in.take())
+        block, timing = _steps_of(steps_in.take())
         if failed:
             return
         try:
@@ -910,31 +898,39 @@ def _writer_main(ring_fd: int, conn_fd: int) -> None:
             if len(block):
                 steps.write(block, timing)
             _sync(w)
-        except (OSError, ValueError) as exc:  # disk full, closed file: stop recording, keep draining
+        except (OSError, ValueError) as exc:  # disk full, closed file: stop recording, keep reading
             log.error("recording to %s failed, recording stopped: %s", path, exc)
             failed = True
-            ring.ctl[_FAILED] = 1
+            if conn is not None:
+                with contextlib.suppress(OSError):
+                    conn.send(("failed", str(exc)))
 
+    next_flush = time.monotonic() + flush_interval
     while True:
+        cmd: tuple[Any, ...] | None = None
         try:
             if conn is None:
                 raise EOFError
-            if not conn.poll(flush_interval):
-                drain()
-                continue
-            cmd = conn.recv()
+            if conn.poll(max(0.0, min(_READ_S, next_flush - time.monotonic()))):
+                cmd = conn.recv()
         except (EOFError, OSError):  # the service is gone: write what it left, then close
             cmd = ("close",)
             conn = None
-        if cmd[0] == "flush":
-            drain()
+        if cmd is None:
+            frames_in.read()
+            steps_in.read()
+            if time.monotonic() >= next_flush:
+                write_out()
+                next_flush = time.monotonic() + flush_interval
+        elif cmd[0] == "flush":
+            write_out()
             if conn is not None:
                 conn.send(("flushed",))
         elif cmd[0] == "json":
             if not failed:
                 w.write_json_columns(extra[cmd[1]], cmd[2], cmd[3])
         elif cmd[0] == "close":
-            drain()
+            write_out()
             reply: tuple[Any, ...] = ("closed",)
             if not failed:
                 try:
@@ -997,4 +993,4 @@ def read_recording(path: str | Path) -> Recording:
 
 
 if __name__ == "__main__":  # the recorder's writer process (Recorder starts it)
-    _writer_main(int(sys.argv[1]), int(sys.argv[2]))
+    _writer_main(int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))

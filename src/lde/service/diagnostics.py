@@ -122,6 +122,7 @@ class ServiceStatus:
         learn_state: 0 not learned, 1 learning, 2 learned, 3 the backend does not learn.
         deadline_misses: since start.
         missing: the input messages missing now (none for longer than their timeout).
+        sending: the outputs go on the bus (False: listen-only; the overlay is what would be asked).
     """
 
     steps: int
@@ -134,10 +135,12 @@ class ServiceStatus:
     learn_state: int
     deadline_misses: int
     missing: tuple[str, ...] = ()
+    sending: bool = True
 
     def line(self) -> str:
         """One line, e.g. ``valid 100 %, Fw 2105 N, Mw -312 Nm, bank -1.2 deg, overlay active
-        -2.85 Nm, learner learning, deadline misses 3``, then ``, missing: MDPS_Sensors`` if any."""
+        -2.85 Nm, learner learning, deadline misses 3``, then ``, missing: MDPS_Sensors`` if any and
+        ``, listen-only`` when nothing is sent."""
         valid = f"valid {100.0 * self.valid / self.steps:.0f} %" if self.steps else "no step"
         bank = f"bank {math.degrees(self.bank):.1f} deg" if math.isfinite(self.bank) else "bank n/a"
         state = (
@@ -150,6 +153,8 @@ class ServiceStatus:
         )
         if self.missing:
             text += f", missing: {', '.join(self.missing)}"
+        if not self.sending:
+            text += ", listen-only"
         return text
 
 

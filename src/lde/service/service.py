@@ -1,14 +1,28 @@
 """The live service: one step of the data path every 3.9 ms, right after the MDPS frame it consumes.
 
-Two grids (``Service(grid=...)``, ``lde run --grid``; ``docs/design/service.md``, "When a step runs"):
+Three grids (``Service(grid=...)``, ``lde run --grid``; ``docs/design/service.md``, "When a step
+runs"; :func:`grid_for` picks one for a profile):
 
-* ``mdps`` (``lde run``'s default): the MDPS-locked grid of :mod:`lde.engine.grid`
-(:func:`lde.engine.grid.new_lock`).
-  The loop blocks on the bus; each MDPS frame that comes 0.5 to 1.5 periods after the previous step's
-  reference time triggers a step at its receive time, so the outputs leave one step's compute time after
-  the input; when none comes by 1.5 periods, a step runs then and the phase is kept. The step
-  times are a function of the MDPS frames' receive times alone (:func:`lde.engine.grid.locked_step_times`).
-* ``fixed``: absolute deadlines ``t_k = t_0 + k * 3.9 ms`` on the service clock (sleep, then spin).
+* ``mdps`` (``lde run``'s default when the profile's MDPS message comes every 3.9 ms): the MDPS-locked
+  grid of :mod:`lde.engine.grid` (:func:`lde.engine.grid.new_lock`). The loop blocks on the bus; each
+  MDPS frame that comes 0.5 to 1.5 periods after the previous step's reference time triggers a step at
+  its receive time, so the outputs leave one step's compute time after the input; when none comes by
+  1.5 periods, a step runs then and the phase is kept. The step times are a function of the MDPS
+  frames' receive times alone (:func:`lde.engine.grid.locked_step_times`). It needs one MDPS frame
+  per step: with a slower MDPS message (12-20 ms) it would step at each frame and at the windows'
+  ends in between, irregularly, and the model (whose dt is 3.9 ms) would run off real time.
+* ``anchored`` (the default for a slower MDPS message): replay's grid on the clock,
+  ``t_k = t_a + k * 3.9 ms`` from the receive time ``t_a`` of the first accepted MDPS frame; no step
+  before it (as in replay, where a step before it would already move the filter on the ESC inputs).
+  Live and replay of the same frames then run the same steps.
+* ``fixed``: absolute deadlines ``t_k = t_0 + k * 3.9 ms`` on the service clock from its start (sleep,
+  then spin), whatever the bus carries.
+
+Transmission (``transmit``; ``lde run --listen-only`` / ``--transmit``): a listen-only service
+estimates, records and shows, and sends nothing. A transmitting one first listens for
+``id_check_s`` of bus time with its input filters widened to its own output ids: a frame of one of
+them is another sender on the bus, and the service stays listen-only (one logged error); else it
+starts sending.
 
 One step (:meth:`Service.step_once`) at step time ``t_k``:
 
@@ -24,8 +38,8 @@ One step (:meth:`Service.step_once`) at step time ``t_k``:
    adding DEADLINE_MISS to its status; later frames stay pending for the next step;
 3. send the engine's ``LDE_Estimate``, ``LDE_Overlay`` and ``LDE_Disturbance`` frames, then
    ``LDE_Diag`` with this step's timing;
-4. hand the received and sent frames, the step's row and its timing to the recorder (preallocated
-   rings in shared memory: the writing happens in the recorder's process);
+4. hand the received and sent frames, the step's row and its timing to the recorder (fixed-size
+   records through a pipe each: the writing happens in the recorder's process);
 5. with ``learned`` (``lde run --learned FILE``): every ``learned_period_s`` of step time hand a
    copy of the learned state to a writer thread (:class:`lde.estimator.learned.LearnedKeeper`);
    :meth:`Service.close` writes it once more.
@@ -77,29 +91,35 @@ from lde.engine.receiver import Receiver
 from lde.errors import ConfigError
 from lde.estimator.learned import LearnedKeeper, LearnedSnapshot
 from lde.estimator.outputs import O_BANK, O_LEARN
-from lde.io.recording import StepRing
+from lde.io.recording import Recorder
 from lde.params import Vehicle, load_vehicle
 from lde.service.busfaults import FLOOD_FOREIGN_HZ, BusFaults, E2EWindow, WindowCounts
 from lde.service.diagnostics import DEADLINE_MISS_NS, ServiceStatus, StepTiming, TimingStats, TimingSummary
 from lde.service.handoff import (
     I_DIAG_CTR,
-    I_DIAG_SLOT,
-    I_F_HEAD,
+    I_N_FRAMES,
     I_N_RX,
     I_N_SENT,
     I_NEWEST,
-    I_S_HEAD,
     I_T_K,
     I_T_SENT,
     I_T_START,
     N_INTS,
-    RING_LAY,
     after_send,
 )
 from lde.status import DEADLINE_MISS, VALID
 from lde.units import STEP_NS, STEP_S
 
-__all__ = ["Service", "StepResult", "STATUS_DEADLINE_MISS", "GRIDS", "open_bus", "set_input_filters"]
+__all__ = [
+    "Service",
+    "StepResult",
+    "STATUS_DEADLINE_MISS",
+    "GRIDS",
+    "ID_CHECK_S",
+    "grid_for",
+    "open_bus",
+    "set_input_filters",
+]
 
 log = logging.getLogger(__name__)
 
@@ -112,8 +132,13 @@ _SKIP_AFTER_NS = STEP_NS
 _RESTAMP_AFTER_NS = 1_000_000_000
 #: after a stop request, the overlay ramps out for at most this long before the service ends
 _MAX_RAMP_OUT_NS = 3_000_000_000
-#: the live grids: MDPS-locked (steps triggered by the MDPS frames) or fixed deadlines on the clock
-GRIDS = ("mdps", "fixed")
+#: the live grids: MDPS-locked (steps triggered by the MDPS frames), replay's grid anchored at the first
+#: accepted MDPS frame, fixed deadlines on the clock from the start (module docstring)
+GRIDS = ("mdps", "anchored", "fixed")
+#: the MDPS-locked grid needs an anchor message this close to the step period [ns]
+_LOCK_FIT_NS = STEP_NS // 4
+#: ``lde run`` listens this long for other senders of its output ids before its first send [s]
+ID_CHECK_S = 1.0
 #: pending-frame buffer: initial capacity (grows if ever needed, which means the loop stood still)
 _PENDING_CAP = 4096
 #: a young generation this large is collected in the idle time after a step (gc is off in the loop)
@@ -181,8 +206,16 @@ class Service:
         timebase_offset_ns: bus time minus clock time [ns]; None: measured at start (0 for a
             simulated clock).
         log_period_s: period of the timing summary log line [s]; 0 disables it.
-        grid: ``fixed`` (default: deadlines on the clock) or ``mdps`` (steps triggered by the MDPS
-            frames, :mod:`lde.engine.grid`'s locked grid) for :meth:`run`.
+        grid: ``fixed`` (default: deadlines on the clock from the start), ``anchored`` (replay's grid:
+            from the first accepted MDPS frame) or ``mdps`` (steps triggered by the MDPS frames,
+            :mod:`lde.engine.grid`'s locked grid; needs an MDPS message every 3.9 ms) for :meth:`run`
+            (module docstring; :func:`grid_for`).
+        transmit: send the outputs (``LDE_Estimate``, ``LDE_Overlay``, ``LDE_Disturbance``,
+            ``LDE_Diag``) once no other sender of their ids was seen for ``id_check_s`` of bus time;
+            False: listen-only (estimate, record and show; send nothing).
+        id_check_s: how long a transmitting service listens for its output ids on the bus before its
+            first send [s] (0, the default for a bus of the caller's own: no check, send from the
+            first step; ``lde run``: :data:`ID_CHECK_S`).
         input_filters: pass only the profile's input messages up from the bus
             (:func:`set_input_filters`).
         bus_name: what the log lines call the bus (:func:`lde.can.busio.bus_label`:
@@ -218,12 +251,16 @@ class Service:
         learned_period_s: float = 60.0,
         flood_hz: float = FLOOD_FOREIGN_HZ,
         prewarm: bool = True,
+        transmit: bool = True,
+        id_check_s: float = 0.0,
     ) -> None:
         if grid not in GRIDS:
-            raise ConfigError(f"unknown grid {grid!r}: {' or '.join(GRIDS)}")
+            raise ConfigError(f"unknown grid {grid!r}: {', '.join(GRIDS)}")
+        if not (id_check_s >= 0 and np.isfinite(id_check_s)):
+            raise ConfigError(f"id check {id_check_s} s: must be >= 0")
         self.bus = bus
-        self.grid = grid
         self.profile = load_profile(profile) if isinstance(profile, str) else profile
+        self.grid = grid_for(self.profile, grid)
         self.vehicle = vehicle if isinstance(vehicle, Vehicle) else load_vehicle(vehicle)
         self.clock = clock
         self.backend = backend
@@ -300,15 +337,20 @@ class Service:
             np.array([(tx.can_id, tx.dlc) for tx in (*self._tx, self._diag_tx)], np.int64),
             self._tx_t,
             self._block_mem,
-            np.zeros(0, np.uint8),  # the recorder's rings (recorder setter)
-            np.zeros((0, 3), np.int64),
-            np.zeros(len(RING_LAY), np.int64),
             np.zeros((_RX_CAP, 3), np.int64),  # the received frames to record: time, id, dlc
             np.zeros(_RX_CAP, np.uint64),  # and their data words
+            np.zeros((0, 3), np.int64),  # the recorder's records (recorder setter): the step row's columns
+            np.zeros((0, 1), np.uint8),  # the frame records
+            np.zeros(1, np.uint8),  # the step record
         ]
-        self._rx_mv = self._handoff_args[17].data.cast("B").cast("q")
-        self._rxw_mv = self._handoff_args[18].data
-        self._ring: StepRing | None = None
+        self._rx_mv = self._handoff_args[14].data.cast("B").cast("q")
+        self._rxw_mv = self._handoff_args[15].data
+        #: the recorder's records, filled by the compiled hand-off (recorder setter): its put(), the
+        #: frame records' bytes and size, the step record's bytes; None: no such recorder
+        self._put: Any = None
+        self._frames_mv = memoryview(b"")
+        self._frame_size = 0
+        self._step_mv = memoryview(b"")
         self._recorder: Any = None
         after_send(*self._handoff_args)  # loads (or compiles) it now; no recorder yet: stores nothing
         self._after_send = after_send
@@ -328,8 +370,32 @@ class Service:
         self._backlog: list[tuple[int, int, int, int]] = []
         self._lock: np.ndarray | None = None  # the MDPS-locked grid while run(grid="mdps") runs
         self._due: deque[int] = deque()  # step times the locked grid has made due, not run yet
+        #: the anchored grid's anchor: the first accepted MDPS frame's receive time [ns, bus]; until
+        #: it is known, a receiver of the anchor message alone says which frame it is (its E2E check
+        #: is per message: the engine's receiver accepts the same frame)
+        self.anchor_t: int | None = None
         self._input_ids = frozenset(m.frame_id for m in self.profile.messages.values())
-        self.filters = set_input_filters(bus, self.profile) if input_filters else "none"
+        self._anchor_rx: Receiver | None = None
+        if self.grid == "anchored":
+            self._anchor_rx = Receiver(self.profile)
+            # its compiled feed loaded (or compiled) now, not at the anchor frame: a frame of an id the
+            # profile does not have (ignored), then a fresh state
+            other = next(i for i in range(0x800) if i not in self._input_ids)
+            self._anchor_rx.feed(0, other, bytes(self.rx_width))
+            self._anchor_rx.reset()
+        self._on_anchor_grid = False  # the anchored grid's deadlines run from the anchor
+        #: the 11-bit ids the service sends
+        self.output_ids = frozenset(int(tx.can_id) for tx in (*self._tx, self._diag_tx))
+        #: the outputs go on the bus (False: listen-only, or before the end of the id check, or refused)
+        self.sending = bool(transmit) and id_check_s == 0
+        #: the output ids another sender put on the bus during the id check (then nothing is sent)
+        self.collisions: frozenset[int] = frozenset()
+        self._id_check_ns = int(id_check_s * 1e9) if transmit and not self.sending else 0
+        self._id_check_until: int | None = None  # the id check's end [ns, bus], set at its first step
+        self._seen_outputs: set[int] = set()  # output ids received during the id check
+        self._input_filters = input_filters
+        self.filters = "none"
+        self._set_filters()
         self.foreign = 0  # frames of other messages that reached the service (dropped)
         #: the bus's name in the log lines
         self.bus_name = where = bus_name if bus_name is not None else describe_bus(bus)
@@ -389,28 +455,35 @@ class Service:
     @property
     def recorder(self) -> Any:
         """The recorder (:class:`lde.io.recording.Recorder`, or any object with its ``frame`` and
-        ``step`` methods), or None. A Recorder's rings are written by the step's compiled hand-off
+        ``step`` methods), or None. A Recorder's records are filled by the step's compiled hand-off
         (:mod:`lde.service.handoff`); any other recorder is called per frame and per step."""
         return self._recorder
 
     @recorder.setter
     def recorder(self, rec: Any) -> None:
         self._recorder = rec
-        ring = getattr(rec, "ring", None)
         a = self._handoff_args
-        if isinstance(ring, StepRing) and ring.n_outputs == self._block.frames.shape[1]:
-            self._ring = ring
+        n_out = self._block.frames.shape[1]
+        if isinstance(rec, Recorder) and rec.n_outputs == n_out:
             b, mem = self._block, self._block_mem
+            step_fields = rec.step_dtype.fields
+            assert step_fields is not None
             tab = []
             for f in fields(StepBlock):
                 col = getattr(b, f.name)
-                tab.append((col.ctypes.data - mem.ctypes.data, ring.offsets[f.name], col.nbytes))
-            a[14] = ring.memory()
-            a[15] = np.array(tab, np.int64)
-            a[16] = np.array([ring.offsets[k] for k in RING_LAY[:-2]] + [ring.nf, ring.ns], np.int64)
+                tab.append((col.ctypes.data - mem.ctypes.data, step_fields[f.name][1], col.nbytes))
+            a[16] = np.array(tab, np.int64)
+            a[17] = frame_out = np.zeros((_RX_CAP + n_out + 1, rec.frame_dtype.itemsize), np.uint8)
+            a[18] = step_out = np.zeros(rec.step_dtype.itemsize, np.uint8)
+            self._put = rec.put
+            self._frames_mv = frame_out.reshape(-1).data
+            self._frame_size = rec.frame_dtype.itemsize
+            self._step_mv = step_out.data
         else:
-            self._ring = None
-            a[14] = np.zeros(0, np.uint8)
+            self._put = None
+            a[16] = np.zeros((0, 3), np.int64)
+            a[17] = np.zeros((0, 1), np.uint8)
+            a[18] = np.zeros(1, np.uint8)
 
     def _alloc_pending(self, cap: int) -> None:
         """(Re)allocate the pending columns with room for ``cap`` frames, keeping their contents."""
@@ -492,7 +565,7 @@ class Service:
         t_rx, can_id, ext, dlc, word = f
         self.received += 1
         if ext or can_id not in self._input_ids:
-            self._take_other(can_id, word)
+            self._take_other(can_id, word, ext)
             return
         if self._restamp is not False:  # None: the first frame decides; True: stamped on receipt
             if self._restamp is None:
@@ -530,10 +603,13 @@ class Service:
         self._backlog.append((t_rx, can_id, dlc, word))
         if anchor and self._lock is not None:
             self._on_anchor(t_rx)
+        elif anchor and self._anchor_rx is not None:
+            self._find_anchor(t_rx, can_id, dlc, word)
 
-    def _take_other(self, can_id: int, word: int) -> None:
+    def _take_other(self, can_id: int, word: int, ext: bool = False) -> None:
         """A frame that is not one of the profile's inputs: an error frame, a remote frame, another
-        message (dropped, counted; its id kept for the blind warning's list)."""
+        message (dropped, counted; its id kept for the blind warning's list; one of the service's own
+        output ids, during the id check: another sender of it)."""
         if can_id < 0:
             if can_id == ERROR_FRAME:
                 self.error_frames += 1
@@ -541,20 +617,66 @@ class Service:
             return
         self.foreign += 1
         self.watch.saw(can_id, 0)
+        if not ext and can_id in self.output_ids and self._id_check_ns:
+            self._seen_outputs.add(can_id)
+
+    def _find_anchor(self, t_rx: int, can_id: int, dlc: int, word: int) -> None:
+        """An MDPS frame before the anchored grid's anchor: the anchor when its values are accepted."""
+        assert self._anchor_rx is not None
+        w = self.rx_width
+        data = (word & ((1 << 8 * w) - 1)).to_bytes(w, "little")
+        if self._anchor_rx.feed(t_rx, can_id, data, dlc).accepted:
+            self.anchor_t = t_rx
+            self._anchor_rx = None
+
+    def _set_filters(self) -> None:
+        """The bus passes the input messages (and, during the id check, the output ids) up."""
+        if self._input_filters:
+            ids = self._input_ids | (self.output_ids if self._id_check_ns else frozenset())
+            self.filters = receive_only(self.bus, ids)
+
+    def _check_output_ids(self, t_k: int) -> None:
+        """The id check before the first send (``transmit``): started at the first step, it ends
+        ``id_check_s`` of bus time later; then the service sends, or, when another sender of one of
+        its output ids was seen, stays listen-only and says so."""
+        if self._id_check_until is None:
+            self._id_check_until = t_k + self._id_check_ns
+            log.info(
+                "listening %.1f s for other senders of the output ids %s on %s before sending",
+                self._id_check_ns / 1e9,
+                _ids_text(self.output_ids, self.profile),
+                self.bus_name,
+            )
+            return
+        if t_k < self._id_check_until:
+            return
+        self._id_check_ns = 0
+        self.collisions = frozenset(self._seen_outputs)
+        if self.collisions:
+            log.error(
+                "not transmitting: %s already on %s (another sender of lde's output ids); listen-only from"
+                " here: estimating and recording, sending nothing",
+                _ids_text(self.collisions, self.profile),
+                self.bus_name,
+            )
+        else:
+            self.sending = True
+            log.info("no other sender of the output ids on %s: transmitting", self.bus_name)
+        self._set_filters()
 
     def _settle_rx(self, handoff: bool = True) -> None:
         """The input frames taken since the last call into the input watch and the recorder (after a
         step's sends: off the path from the MDPS frame to the step). The recorder gets them in the
         order they were taken, before the step's sent frames, as when they were handed over in
         :meth:`_take`. ``handoff``: the compiled hand-off follows and writes them into a
-        :class:`lde.io.recording.Recorder`'s ring; else they are handed over from here."""
+        :class:`lde.io.recording.Recorder`'s frame records; else they are handed over from here."""
         bl = self._backlog
         if not bl:
             return
         saw = self.watch.saw
         rec = self._recorder
         # recorded by the compiled hand-off (classic frames: one word each)
-        if handoff and self._ring is not None and len(bl) <= _RX_CAP and self.rx_width == 8:
+        if handoff and self._put is not None and len(bl) <= _RX_CAP and self.rx_width == 8:
             rx, rxw = self._rx_mv, self._rxw_mv
             for k, (t_rx, can_id, dlc, word) in enumerate(bl):
                 saw(can_id, t_rx)
@@ -679,6 +801,8 @@ class Service:
         if t_start is None:
             t_start = self.now_ns()
         self._drain()
+        if self._id_check_ns:
+            self._check_output_ids(t_k)
         period_error = t_start - t_k
         miss = period_error > DEADLINE_MISS_NS
         enable = self.overlay_enabled and not self._stopping
@@ -688,9 +812,11 @@ class Service:
         b = self._block
         tx_t = self._tx_t
         send = self._send
-        for j, (dst, at, src) in enumerate(self._out_copy):
-            dst[at] = src
-            tx_t[j] = send(self._tx[j])
+        sending = self.sending
+        if sending:  # (listen-only: every tx_t stays -1, nothing is sent or recorded as sent)
+            for j, (dst, at, src) in enumerate(self._out_copy):
+                dst[at] = src
+                tx_t[j] = send(self._tx[j])
         t_sent = self.now_ns()
         diag = self._diag_tx
         t_diag = t_sent / 1e9  # LDE_Diag is stamped with the time its step time ends
@@ -703,10 +829,10 @@ class Service:
         tx_t[-1] = seconds_to_ns(t_diag)
         self._settle_rx()
         self._after_send(*self._handoff_args)
-        ring = self._ring
-        diag_sent = send(diag, t_diag, ring is None) >= 0
-        if ring is not None:
-            ring.published(ints[I_F_HEAD] + (diag_sent and ints[I_DIAG_SLOT] != 0), ints[I_S_HEAD])
+        put = self._put
+        diag_sent = sending and send(diag, t_diag, put is None) >= 0
+        if put is not None:  # LDE_Diag's record is the last: left out when the bus did not take it
+            put(self._frames_mv[: (ints[I_N_FRAMES] - (not diag_sent)) * self._frame_size], self._step_mv)
 
         step_time = t_sent - t_start
         latency = t_sent - newest if newest >= 0 else -1
@@ -736,15 +862,15 @@ class Service:
         )
         self.last = res
         rec = self._recorder
-        if rec is not None and ring is None:  # a recorder without rings: called
+        if rec is not None and put is None:  # a recorder without records from the hand-off: called
             row = (period_error, step_time, latency, int(miss), misses, self.stats.skipped)
             rec.step(b, 0, row)
         return res
 
     def _send(self, tx: TxFrame, t_s: float | None = None, record: bool = True) -> int:
         """Send ``tx`` stamped ``t_s`` [s] (None: now); returns its stamp [ns, microsecond-rounded as
-        recorded] or -1 when the bus did not take it. ``record``: hand it to a recorder without rings
-        (a recorder's rings get the sent frames from the compiled hand-off)."""
+        recorded] or -1 when the bus did not take it. ``record``: hand it to a recorder called per frame
+        (a :class:`lde.io.recording.Recorder` gets the sent frames from the compiled hand-off)."""
         if t_s is None:
             t_s = self.now_ns() / 1e9
         try:
@@ -758,7 +884,7 @@ class Service:
         self.sent += 1
         t_ns = seconds_to_ns(t_s)
         rec = self._recorder
-        if record and rec is not None and self._ring is None:
+        if record and rec is not None and self._put is None:
             rec.frame(t_ns, tx.can_id, tx.is_extended, tx.dlc, tx.word(), False)
         return t_ns
 
@@ -768,12 +894,14 @@ class Service:
         """Frames of the profile's input messages received so far (any E2E result)."""
         return sum(st.received + st.malformed for st in self.engine.stats().values())
 
-    def status(self) -> ServiceStatus:
+    def status(self, t_ns: int | None = None) -> ServiceStatus:
         """What the service does now (the last step's estimate, overlay and learner; the share of
-        valid steps since the previous call; the inputs missing now): ``lde run``'s status line."""
+        valid steps since the previous call; the inputs missing at bus time ``t_ns`` [ns], default
+        the last step's): ``lde run``'s status line."""
         steps, valid = self.steps - self._status_from[0], self.valid_steps - self._status_from[1]
         self._status_from = (self.steps, self.valid_steps)
         res, est = self.last, self._est_mv
+        t = t_ns if t_ns is not None else (res.t_ns if res is not None else None)
         return ServiceStatus(
             steps=steps,
             valid=valid,
@@ -782,9 +910,10 @@ class Service:
             bank=est[O_BANK],
             overlay_state=res.overlay_state if res else 0,
             t_overlay=res.t_overlay if res else 0.0,
-            learn_state=int(est[O_LEARN]),
+            learn_state=int(est[O_LEARN]) if res is not None else 0,  # (no step yet: NaN)
             deadline_misses=self.stats.deadline_misses,
-            missing=tuple(self.watch.late(res.t_ns)) if res else (),
+            missing=tuple(self.watch.late(t)) if t is not None else (),
+            sending=self.sending,
         )
 
     # ------------------------------------------------------------------ learned state
@@ -815,16 +944,21 @@ class Service:
         max_steps: int | None = None,
         on_step: Callable[[StepResult], None] | None = None,
         t0_ns: int | None = None,
+        on_tick: Callable[[int], None] | None = None,
     ) -> TimingSummary:
         """Step until stopped, on the service's grid (``fixed``: deadlines ``t_k = t_0 + k * STEP_NS``
-        on the clock; ``mdps``: the MDPS-locked grid, its first window around ``t_0``).
+        on the clock; ``mdps``: the MDPS-locked grid, its first window around ``t_0``; ``anchored``:
+        ``t_k = t_a + k * STEP_NS`` from the first accepted MDPS frame ``t_a``, and before it one
+        wait of a period at a time from ``t_0``, without a step).
 
         Stops after ``max_steps`` steps, or after ``stop_event`` is set (or :meth:`request_stop`
-        called) and the overlay has ramped to zero (at most 3 s). A step that would start more
-        than one whole period late is skipped (counted as a deadline miss) when a later one is due
-        too, instead of running a burst of stale steps.
+        called) and the overlay has ramped to zero (at most 3 s; at once before the anchored grid's
+        first step). A step that would start more than one whole period late is skipped (counted as
+        a deadline miss) when a later one is due too, instead of running a burst of stale steps.
 
         ``t0_ns`` (clock time base) is the first deadline; default one period from now.
+        ``on_step`` is called with each step's result, ``on_tick`` with the bus time [ns] after each
+        step and after each wait of the anchored grid for its anchor.
 
         Returns the timing summary over the run (the last 65536 steps).
         """
@@ -837,6 +971,7 @@ class Service:
         was_enabled = gc.isenabled()
         gc.disable()
         t0 = clock.now_ns() + STEP_NS if t0_ns is None else int(t0_ns)
+        next_step: Callable[[], tuple[int | None, int]]
         if self.grid == "mdps":
             self._lock = new_lock(t0 + self.offset_ns)
             self._due.clear()
@@ -844,7 +979,7 @@ class Service:
         else:
             self._k = 0
             self._t0 = t0
-            next_step = self._next_fixed
+            next_step = self._next_anchored if self.grid == "anchored" else self._next_fixed
         if self.steps == 0:
             self._leave_out_backlog(t0 + self.offset_ns)
         next_log = t0 + self.log_period_ns
@@ -852,9 +987,19 @@ class Service:
         try:
             while True:
                 t_k, now = next_step()
+                if t_k is None:  # the anchored grid waits for its anchor: no step
+                    self._settle_rx(handoff=False)
+                    self.check_inputs(now)
+                    if on_tick is not None:
+                        on_tick(now)
+                    if self._stopping or (stop_event is not None and stop_event.is_set()):
+                        break
+                    continue
                 res = self.step_once(t_k, now)
                 if on_step is not None:
                     on_step(res)
+                if on_tick is not None:
+                    on_tick(t_k)
                 self.check_inputs(t_k)
                 if self.log_period_ns > 0 and now - self.offset_ns >= next_log:
                     log.info("%s", self.stats.take_window().log_line())
@@ -914,7 +1059,7 @@ class Service:
         named, then puts them back."""
         if self._probe_until is not None and t_ns >= self._probe_until:
             self._probe_until = None
-            self.filters = set_input_filters(self.bus, self.profile)
+            self._set_filters()
             log.warning(
                 "ids on %s while the input filters were lifted for 1 s: %s",
                 self.watch.where,
@@ -992,6 +1137,46 @@ class Service:
             gc.collect(0)
             self.gc_collections += 1
 
+    def _next_anchored(self) -> tuple[int | None, int]:
+        """The anchored grid: until its anchor (the first accepted MDPS frame, :meth:`_find_anchor`)
+        has come, wait for it up to the next multiple of a period from the start and return
+        (None, now) when it did not come; the step at the anchor's time once it has; then the
+        deadlines ``t_a + k * STEP_NS`` (:meth:`_next_fixed`). Returns (t_k, start) in the bus time
+        base."""
+        if self._on_anchor_grid:
+            return self._next_fixed()
+        clock, off = self.clock, self.offset_ns
+        end = self._t0 + self._k * STEP_NS
+        self._k += 1
+        recv_until = getattr(clock, "recv_until", None)
+        # (the anchor may have come already: taken with the frames queued at the start)
+        while self.anchor_t is None and clock.now_ns() < end:
+            try:
+                if recv_until is not None:
+                    msg = recv_until(self.io, end)
+                else:  # a clock without it: poll, then sleep to the wait's end
+                    msg = self.io.recv(0.0)
+                    if msg is None:
+                        clock.sleep_until(end)
+            except (can.CanError, OSError) as exc:
+                self._recv_failed(exc)
+                clock.sleep_until(end)
+                break
+            if msg is not None:
+                self._take(msg)
+        now = clock.now_ns() + off
+        if self.anchor_t is None:
+            return None, now
+        self._t0 = self.anchor_t - off  # the deadlines from here: t_a + k * STEP_NS
+        self._k = 1
+        self._on_anchor_grid = True
+        log.info(
+            "grid anchored at the first accepted %s frame (t %.6f s)",
+            self.profile.anchor_message,
+            self.anchor_t / 1e9,
+        )
+        return self.anchor_t, now
+
     def _next_fixed(self) -> tuple[int, int]:
         """The fixed grid: sleep until deadline k; skip the grid points more than a period late.
         Returns (t_k, start) in the bus time base."""
@@ -1065,6 +1250,33 @@ class Service:
                 self.stats.record_skipped(1)
                 continue
             return t_k, now
+
+
+def grid_for(profile: Profile, grid: str = "auto") -> str:
+    """The live grid for ``profile``: ``grid`` itself (ConfigError: ``mdps`` for a profile whose MDPS
+    message does not come every 3.9 ms), or for ``auto`` the MDPS-locked grid when it fits the
+    profile's anchor message and the anchored grid otherwise (module docstring)."""
+    name = profile.anchor_message
+    period = profile.messages[name].period_ns
+    fits = abs(period - STEP_NS) <= _LOCK_FIT_NS
+    if grid == "auto":
+        return "mdps" if fits else "anchored"
+    if grid not in GRIDS:
+        raise ConfigError(f"unknown grid {grid!r}: auto, {', '.join(GRIDS)}")
+    if grid == "mdps" and not fits:
+        raise ConfigError(
+            f"grid mdps steps at each {name} frame and needs one every {STEP_NS / 1e6:g} ms; profile "
+            f"{profile.name!r} sends {name} "
+            + (f"every {period / 1e6:g} ms" if period else "at an unknown period")
+            + ": use grid anchored (its default)"
+        )
+    return grid
+
+
+def _ids_text(ids: frozenset[int] | set[int], profile: Profile) -> str:
+    """Output ids with their message names, e.g. ``0x3D1 (LDE_Estimate), 0x3D0 (LDE_Overlay)``."""
+    names = {spec.frame_id: name for name, spec in profile.outputs.items()}
+    return ", ".join(f"0x{i:X} ({names.get(i, '?')})" for i in sorted(ids))
 
 
 def set_input_filters(bus: can.BusABC, profile: Profile) -> str:
