@@ -96,8 +96,9 @@ N_SIG = 7
  L_TORSION, L_B_TAU, L_B_GATE, L_D_TAU, L_D_GATE_F, L_D_GATE_M, L_RATE,
  L_LEARNED_REL, L_MIN_SAMPLES, L_SIG_B, L_ENABLE, L_RELAX, L_EXC_SW, L_SLIDE, L_SLOW,
  L_QUIET, L_EXC_F, L_SIG_CTB, L_SIGMA0, L_WIND_MAX, L_WIND_REL, L_WIND_SIG,
- L_WIND_Q, L_EXC_SW3, L_R3_ACC, L_EXC_SW2, L_EXC_F2, L_WIND_MAX2, L_R2_UPQ) = range(45)  # fmt: skip
-N_LP = 45
+ L_WIND_Q, L_EXC_SW3, L_R3_ACC, L_EXC_SW2, L_EXC_F2, L_WIND_MAX2, L_R2_UPQ,
+ L_LEARNED_ST, L_LEARNED_SCR) = range(47)  # fmt: skip
+N_LP = 47
 
 # --- learner state (ls, float) -----------------------------------------------------------------------
 # svf: 3 * N_SIG (value, derivative, second derivative); then regression blocks
@@ -231,6 +232,10 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     # ((dK/K)^2 + (dt/t)^2) of the push: the samples on the old model are forgotten as fast as it
     # moves, and not at all once it has settled. 0: off (docs/estimator.md, "R2 after K and the trail")
     lp[L_R2_UPQ] = 3.0e3
+    # "learned" by the regressions' own uncertainty instead of a sample count: the posterior relative
+    # std of the trail (R1) and of Cr (R2) below these, R2 running; 0: by L_MIN_SAMPLES
+    lp[L_LEARNED_ST] = 0.0
+    lp[L_LEARNED_SCR] = 0.0
     return lp
 
 
@@ -450,7 +455,11 @@ def learner_step(
         xr = ws[0]
         ph = ws[1]
         sliding = abs(a_d) > lp[L_SLIDE]
-        slow = lp[L_SLOW] if ls[LS_STATE] == ST_LEARNED else 1.0
+        # once learned the regressions slow down (a learned car is not re-learned by the next drive's
+        # disturbances); where the state comes from the uncertainty, the slow-down waits for the
+        # sample count as before
+        settled = ls[LS_N] >= lp[L_MIN_SAMPLES] if lp[L_LEARNED_ST] > 0.0 else ls[LS_STATE] == ST_LEARNED
+        slow = lp[L_SLOW] if settled else 1.0
         slow *= 1.0 + (ls[LS_BP + 3] / lp[L_WIND_SIG]) ** 2
         if linear and force_exc and sliding:
             tfric = p[E.P_TFRIC]
@@ -605,6 +614,17 @@ def push(lp, ls, p):  # pragma: no cover - compiled
     # learned state of the tire group: by the excited samples seen (a learned value stays learned)
     if ls[LS_STATE] == ST_LEARNED:
         pass
+    elif lp[L_LEARNED_ST] > 0.0:
+        # by the posterior relative std of the trail (R1's L/t) and of Cr (R2's 2 Cr), once R2 runs
+        sd_t = math.sqrt(max(ls[LS_P1], 0.0)) / max(abs(ls[LS_T1]), 1e-9)
+        sd_cr = math.sqrt(max(ls[LS_P2], 0.0)) / max(abs(ls[LS_T2]), 1e-9)
+        r2_on = ls[LS_N + 2] > 0.15 * lp[L_MIN_SAMPLES]
+        if ls[LS_N] <= 0:
+            ls[LS_STATE] = ST_NOT
+        elif r2_on and sd_t < lp[L_LEARNED_ST] and sd_cr < lp[L_LEARNED_SCR]:
+            ls[LS_STATE] = ST_LEARNED
+        else:
+            ls[LS_STATE] = ST_LEARNING
     elif ls[LS_N] <= 0:
         ls[LS_STATE] = ST_NOT
     elif ls[LS_N] < lp[L_MIN_SAMPLES]:
