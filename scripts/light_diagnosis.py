@@ -92,7 +92,7 @@ def simulated(plant: str, scenario: str, profile: str, seed: int, mod: str = "")
     return data
 
 
-@njit(cache=True)
+@njit(cache=False)  # not cached: numba would not see a change of the lde kernels it inlines
 def run_grid(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
     """The lateral backend step over a grid: inp (n, 7), fresh (n,) bit masks; out (n, N_OUT)."""
     st = np.zeros(t_ns.shape[0], np.int64)

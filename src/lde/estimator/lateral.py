@@ -16,8 +16,13 @@ Measurements, each used only on a step at which its CAN signal brought a new sam
 is not new information; ``fresh`` flags from the receiver's sample ages)::
 
     r_meas - b_r                          = r                                                    (yaw rate)
-    N (T_col + T_ast) - N T_fric z - T_0  = 2K alpha_f                                          (eqs. 11-12)
+    N (k_c T_col + k_a T_ast) - N T_fric z - T_0 = 2K alpha_f                                   (eqs. 11-12)
     a_y,meas                              = (s (2 Cf alpha_f + 2 Cr alpha_r) + F_wind) / m (accelerometer)
+
+``k_c``, ``k_a`` are 1 when both torques are in Nm; a torque of unknown scale (raw counts) has its
+factor learned relative to the other (:mod:`lde.estimator.learner`, ``L_TSCALE``); with both unknown
+K, the friction and the twist are in the column signal's unit, and Fw, Mw stay in N and Nm (the
+torque enters only through ``T / 2K``).
 
 The accelerometer measures specific force: the tire and aerodynamic forces, never gravity. A bank,
 whose gravity component the tires balance, shows in a_y only through the tire forces; a gust shows
@@ -69,8 +74,9 @@ IX_BETA, IX_R, IX_FA, IX_MA, IX_FB = range(5)
  P_P0B, P_P0R, P_P0FA, P_P0MA, P_P0FB,
  P_VMIN, P_CONV,
  P_XCP, P_WCP,
- P_QLO, P_QD0, P_QTAU, P_QHI) = range(38)  # fmt: skip
-N_P = 38
+ P_QLO, P_QD0, P_QTAU, P_QHI,
+ P_KC, P_KA) = range(40)  # fmt: skip
+N_P = 40
 
 # --- aux state slots ---------------------------------------------------------------------------
 # float: last valid delta_f, last T_align_hat, last friction sign, the 10 Hz rate filter (y, y')
@@ -110,7 +116,10 @@ def params_vector(
     p[P_P0B], p[P_P0R], p[P_P0FA], p[P_P0MA], p[P_P0FB] = e.p0_beta, e.p0_yaw, e.p0_fw, e.p0_mw, e.p0_bank
     p[P_VMIN], p[P_CONV] = e.min_speed, e.converge_time
     p[P_XCP], p[P_WCP] = e.wind_cp, e.wind_cp_weight
-    p[P_QLO], p[P_QD0], p[P_QTAU], p[P_QHI] = 1.0, 1.0, 0.15, 1.0
+    p[P_QLO], p[P_QD0], p[P_QTAU], p[P_QHI] = 1.0, 0.05, 0.1, 20.0
+    # the torque signals' scales to the reference unit (1: both in Nm; a profile that declares a
+    # torque's scale unknown has it learned: lde.estimator.learner, L_TSCALE)
+    p[P_KC], p[P_KA] = 1.0, 1.0
     return p
 
 
@@ -296,7 +305,7 @@ def step_kernel(p, x, P, fs, ints, h, ph, t_ns, vx, angle, yaw, tcol, tast, ay,
             h[i] = 0.0
         h[IX_BETA] = -2.0 * k
         h[IX_R] = -2.0 * k * lf * iv
-        z = n * (tcol + tast) - n * p[P_TFRIC] * zf - p[P_T0]
+        z = n * (p[P_KC] * tcol + p[P_KA] * tast) - n * p[P_TFRIC] * zf - p[P_T0]
         fu = n * p[P_TFRIC] * (1.0 - zf * zf)  # sticking: the friction torque is anywhere in +-T_fric
         nu = _scalar_update(x, P, h, 2.0 * k * delta, z, p[P_RT] + fu * fu, ph)
         fs[F_ZT] += ad * (nu - fs[F_ZT])
