@@ -275,16 +275,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--channel", default=None, help="default: a multicast group of its own (udp_multicast)")
     ap.add_argument("--port", type=int, default=None, help="udp_multicast port (default: random)")
     ap.add_argument("--scenario", default="heavy_load")
-    ap.add_argument("--backend", choices=("fixed", "float", "paper-fixed", "paper"), default="fixed")
+    ap.add_argument("--backend", choices=("fixed", "float", "paper"), default="fixed")
     ap.add_argument("--grid", choices=("mdps", "fixed"), default="mdps")
     ap.add_argument("--record", default=None, help="also record to this MCAP file")
     ap.add_argument("--realtime", action="store_true", help="the service at SCHED_FIFO --priority, mlockall")
     ap.add_argument("--priority", type=int, default=80)
     ap.add_argument(
         "--cpu-latency-us", type=int, default=0, help="with --realtime: PM QoS bound as lde run (-1: none)"
-    )
-    ap.add_argument(
-        "--no-fast-io", action="store_true", help="python-can's recv/send (lde.service.busio generic path)"
     )
     ap.add_argument(
         "--no-prewarm",
@@ -301,7 +298,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--busy", type=int, nargs="?", const=1, default=0, help="busy loops on the other core(s)")
     ap.add_argument("--sim-rt-priority", type=int, default=90, help="the simulator's SCHED_FIFO (0: normal)")
     ap.add_argument(
-        "--phases", action="store_true", help="time each part of the step (lde.service.busio I/O too)"
+        "--phases", action="store_true", help="time each part of the step (lde.can.busio I/O too)"
     )
     ap.add_argument("--io-split", action="store_true", help="time python-can's send/recv inside the step")
     ap.add_argument(
@@ -375,8 +372,6 @@ def main(argv: list[str] | None = None) -> int:
     clock = MonotonicClock(spin_ns=int(args.spin_us * 1e3))
     rec = Recorder(args.record, metadata={"profile": "lde", "bench": "1"}) if args.record else None
     kw: dict[str, object] = {"grid": args.grid}
-    if args.no_fast_io:
-        kw["fast_io"] = False
     if args.no_prewarm:
         kw["prewarm"] = False
     try:

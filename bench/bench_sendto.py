@@ -1,5 +1,5 @@
-"""What one output frame's send costs: python-can's ``udp_multicast`` datagram on the multicast socket
-(as the live service sends it, :mod:`lde.service.busio`) against the same bytes on a plain unicast UDP socket.
+"""What one output frame's send costs: python-can's ``udp_multicast`` send (as the live service sends
+it, :mod:`lde.can.busio`) against python-can's datagram bytes on a plain unicast UDP socket.
 
 Two multicast buses: ``multicast`` with ``hop_limit`` 0 (the IPv4 TTL; what
 :func:`lde.testing.bus.private_multicast` and ``bench/bench_loop.py`` use: the datagram is delivered
@@ -13,8 +13,8 @@ Per round the four output datagrams of a step (``LDE_Estimate``, ``LDE_Overlay``
 sleep before each round (as live, once per 3.9 ms period), "hot": rounds back to back. The multicast
 group has two members besides the sender's loopback, as in ``bench/bench_loop.py``: the simulator's
 socket (here one in this process, drained between rounds) and the service's own, which the service's
-socket filter (:func:`lde.service.service.set_input_filters`) drops in the kernel; the unicast socket sends to
-one bound receiver on 127.0.0.1, drained the same way.
+socket filter (:func:`lde.can.busio.receive_only`) drops in the kernel; the unicast socket sends to one
+bound receiver on 127.0.0.1, drained the same way.
 
     python bench/bench_sendto.py [--rounds 3000] [--idle sleep|spin] [--json]
 
@@ -36,8 +36,8 @@ import time
 import can
 import numpy as np
 
+from lde.can.busio import bus_io, drain
 from lde.can.profiles import load_profile
-from lde.service.busio import bus_io
 from lde.service.service import set_input_filters
 from lde.testing.bus import private_multicast
 
@@ -52,6 +52,13 @@ def _drain(sock: socket.socket) -> None:
             return
 
 
+def _datagram(msg: can.Message) -> bytes:
+    """python-can's ``udp_multicast`` datagram of ``msg`` (what its ``send`` puts on the wire)."""
+    from can.interfaces.udp_multicast.utils import pack_message
+
+    return bytes(pack_message(msg))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--rounds", type=int, default=3000)
@@ -60,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     profile = load_profile("lde")
-    buses, ios, txs, msocks = [], {}, {}, []
+    buses, ios, txs, members = [], {}, {}, []
     for kind, hop in (("multicast", 0), ("multicast_ttl1", 1)):
         kw = {**private_multicast(), "hop_limit": hop}
         bus = can.Bus(**kw)
@@ -72,13 +79,8 @@ def main(argv: list[str] | None = None) -> int:
             io.tx(can.Message(arbitration_id=0x3A0 + j, is_extended_id=False, dlc=8, data=bytes(8)))
             for j in range(args.frames)
         ]
-        msocks.append(member._multicast._socket)  # type: ignore[attr-defined]
-    if any(tx.buf is None for tt in txs.values() for tx in tt):
-        print(
-            "bench_sendto: python-can's datagram layout is not the one lde.service.busio patches",
-            file=sys.stderr,
-        )
-        return 2
+        members.append(member)
+    datagrams = [_datagram(tx.msg) for tx in txs["multicast"]]
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     uni = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -91,8 +93,9 @@ def main(argv: list[str] | None = None) -> int:
     for r in range(n):
         for cold in (0, 1):
             for kind in kinds:
-                for m in msocks:
-                    _drain(m)
+                for m in members:
+                    for _ in drain(m):
+                        pass
                 _drain(rx)
                 out = t[kind, cold]
                 if cold and args.idle == "sleep":
@@ -102,9 +105,9 @@ def main(argv: list[str] | None = None) -> int:
                     while pc() < busy_until:
                         pass
                 if kind == "unicast":
-                    for j, tx in enumerate(txs["multicast"]):
+                    for j, d in enumerate(datagrams):
                         a = pc()
-                        uni.sendto(tx.buf, dest)  # type: ignore[arg-type]
+                        uni.sendto(d, dest)
                         out[r, j] = pc() - a
                     continue
                 io = ios[kind]
@@ -117,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         "load_avg": [round(x, 2) for x in (*load0, *os.getloadavg())],
         "rounds": n - skip,
         "frames": f,
-        "bytes": len(txs["multicast"][0].buf),  # type: ignore[arg-type]
+        "bytes": len(datagrams[0]),
         "idle": args.idle,
     }
     for (kind, cold), a in t.items():

@@ -148,7 +148,7 @@ def empty_call(n: int, backend: str) -> dict[str, object]:
     cols = tuple(np.zeros(0, dt) for dt in (np.int64, np.uint32, np.bool_, np.uint8, np.uint64, np.bool_))
     block, _ = StepBlock.packed(1)
     tk, en, ex = np.zeros(0, np.int64), np.zeros(0, np.bool_), np.zeros(0, np.uint8)
-    eng.run_arrays(*cols, block, step_times=tk, enable=en, extra_status=ex, final=True, pinned=True)
+    eng.run_arrays(*cols, block, step_times=tk, enable=en, extra_status=ex, final=True)
     args = eng.live_args(cols, block, tk, en, ex)
 
     def arrays(x: object) -> int:

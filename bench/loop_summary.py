@@ -1,7 +1,7 @@
 """A markdown table of ``bench/bench_loop.py --out FILE`` runs: per label, the median over its runs
 and the range (min-max) of each figure, with the 1-minute load average at the start of each run.
 
-    python bench/loop_summary.py bench/results_loop_2026-11-23-lean.jsonl
+    python bench/loop_summary.py bench/results/results_loop_2026-11-23-lean.jsonl
 """
 
 from __future__ import annotations

@@ -20,7 +20,7 @@ import sys
 #: (phase, markers): the first phase with a marker on the stack takes the sample
 PHASES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("engine: the compiled data-path loop", ("run_arrays",)),
-    # numba's array registry, which lde.lazyblas loads up front (its BLAS check without scipy.linalg)
+    # numba's array registry (its BLAS check imports scipy.linalg where scipy is installed)
     ("numba's array registry and its BLAS check", ("_check_blas", "arraymath.py")),
     ("numba: the other kernel and registry loads", ("load_overload", "compile (")),
     ("imports", ("_find_and_load",)),

@@ -123,14 +123,11 @@ def lde_cmd(*args: str) -> list[str]:
 
 # ----------------------------------------------------------------------------- anchors
 def bench_kalman(vehicle, grid, repeat: int) -> dict:
-    """Per step: lde's float and fixed steps over the hour's grid vs filterpy predict + update."""
+    """Per step: the paper's float step over the hour's grid vs filterpy predict + update."""
     n = len(grid)
     args = (grid.t_ns, grid.speed, grid.steering_angle, grid.yaw_rate, grid.column_torque, grid.assist_torque)
     ok = (grid.mdps_ok, grid.esc_ok)
-    from firmware_model import run_batch as fixed_run_batch
-
     flt = timed(lambda: float_run_batch(*args, *ok, vehicle), repeat)
-    fix = timed(lambda: fixed_run_batch(*args, *ok, vehicle, shadow=False), repeat)
     m = 5000
     d = model.discrete_matrices(vehicle, 27.8)
     x0 = np.zeros(4)
@@ -146,7 +143,6 @@ def bench_kalman(vehicle, grid, repeat: int) -> dict:
     fp = timed(filterpy_steps, max(2, repeat // 2))
     return {
         "float_us_per_step": _per(flt["cpu"], n, 1e6),
-        "fixed_us_per_step": _per(fix["cpu"], n, 1e6),
         "filterpy_us_per_step": _per(fp["cpu"], m, 1e6),
         "steps": n,
     }
@@ -394,17 +390,14 @@ def bench_replay_cli(paths: dict[str, Path], repeat: int, tmp: Path) -> dict:
     return {k: {m: stats([r[m] for r in rs]) for m in ("wall", "cpu", "rss_mib")} for k, rs in runs.items()}
 
 
-#: a warm start in phases (one child process): the imports of ``lde replay``, numba's first load of
-#: a cached kernel (numba's registries, their BLAS check answered from disk by lde.lazyblas as
-#: ``lde replay`` does), the rest of the command (the other kernels' loads, profile and vehicle, the
-#: replay of the sample log, the CSV)
+#: a warm start in phases (one child process): the imports of ``lde replay``, numba's first load
+#: of a cached kernel (numba's registries and their BLAS check), the rest of the command (the other
+#: kernels' loads, profile and vehicle, the replay of the sample log, the CSV)
 _PHASES = (
     "import json, sys, time\n"
     "t0 = time.perf_counter()\n"
     "import lde.cli, lde.cli.replay, lde.replay.fleet, lde.replay.replay\n"
     "t1 = time.perf_counter()\n"
-    "from lde.lazyblas import defer_blas_import\n"
-    "defer_blas_import()\n"
     "from lde.io.candump import parse_candump_bytes\n"
     "parse_candump_bytes(b'(1.000000) can0 2A0#0000000000000000\\n')\n"
     "t2 = time.perf_counter()\n"
@@ -566,7 +559,6 @@ def table(r: dict) -> str:
     if "kalman" in r:
         k = r["kalman"]
         row("float estimator step", k["float_us_per_step"], k["filterpy_us_per_step"], fp, "us/step")
-        row("fixed-point step", k["fixed_us_per_step"], k["filterpy_us_per_step"], fp, "us/step")
         if "lateral" in r:  # the default backend's steps, on the hour's real inputs
             la = r["lateral"]
             row(

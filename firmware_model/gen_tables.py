@@ -28,8 +28,9 @@ and evaluates the polynomials: exact scheduling, no interpolation error, no tabl
 constant gets its own Q format (the most fractional bits that hold it), each coefficient a result
 format that holds its range over the supported speeds.
 
-The steady-state gain table (the alternative algorithm, see ``docs/firmware.md``) is generated
-here as well, on 30-180 km/h every 5 km/h, and used by :mod:`firmware_model.float_ref`.
+The paper filter's sections (its normalisation, coefficients and steady-state gain table) are
+generated too; the lateral filter's section (:mod:`firmware_model.gen_lateral`) is the one the
+firmware model runs.
 """
 
 from __future__ import annotations

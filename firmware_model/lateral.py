@@ -26,6 +26,12 @@ rounded HALF_UP. The kernels are written so that they also run interpreted on Py
 disabled, object arrays): ``tests/test_firmware_lateral.py`` requires the same integers, which
 proves that no int64 intermediate wrapped.
 
+The arithmetic helpers (``shr``, ``sat32``, ``mac``, the reciprocal, tanh and asin, the update and
+the propagation) are inlined into the step (``inline="always"``): each takes the saturation counters
+(an array), and as calls they cost numba's reference counting of it on every call; one hour of the
+``fixed`` backend took 2.41 s of engine CPU with them as calls and 1.98 s inlined
+(``scripts/engine_cpu.py``, side by side), for a longer first compile.
+
 Array layouts (int64): ``tv`` the offline constants (``T_*``), ``ft`` the function tables (reciprocal
 seeds, tanh, asin), ``cs`` the coefficient set (``CS_*``), state ``x`` (5), ``P`` (25, row-major),
 ``aux`` (``A_*``), ``sat`` (``S_*``), ``ws`` scratch (4, 16), ``iout`` (``IO_*``).
@@ -39,7 +45,6 @@ import numpy as np
 from numba import njit
 
 from lde.estimator import lateral as E
-from lde.refcount import NO_REFCOUNT
 from lde.status import DEGRADED, ESC_FAULT, LOW_SPEED, MDPS_FAULT, NOT_CONVERGED, VALID
 
 from . import lat_coefs as LC
@@ -133,7 +138,7 @@ IN_ACCEL_SAT = 64  #: finite but outside its format: no update, counted
 # =============================================================================== arithmetic
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def shr(value, s):  # pragma: no cover - compiled
     """value * 2**-s rounded HALF_UP (s > 0); exact left shift for s <= 0."""
     if s > 0:
@@ -141,7 +146,7 @@ def shr(value, s):  # pragma: no cover - compiled
     return value << (-s)
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def sat32(sat, v, slot):  # pragma: no cover - compiled
     if v > INT32_MAX:
         sat[slot] += 1
@@ -152,7 +157,7 @@ def sat32(sat, v, slot):  # pragma: no cover - compiled
     return v
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def add64(sat, a, b):  # pragma: no cover - compiled
     if b > 0 and a > INT64_MAX - b:
         sat[S_ACC64] += 1
@@ -163,13 +168,13 @@ def add64(sat, a, b):  # pragma: no cover - compiled
     return a + b
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def mac(sat, acc, a, b):  # pragma: no cover - compiled
     """acc + a b (a, b int32 values: the product fits an int64) in a saturating int64."""
     return add64(sat, acc, a * b)
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def msb(a):  # pragma: no cover - compiled
     """floor(log2 a) of an integer a >= 1 (a count-leading-zeros instruction on an MCU)."""
     n = 0
@@ -193,7 +198,7 @@ def msb(a):  # pragma: no cover - compiled
     return n
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def recip(tv, ft, a):  # pragma: no cover - compiled
     """The normalised reciprocal of an integer 1 <= a < 2**62: (m, n) with 1/a = m 2**-(30 + n),
     m in Q1.30 (2**29 <= m <= 2**30). Normalise a to A in [1, 2) (Q1.30; rounded), a seed for A's
@@ -215,7 +220,7 @@ def recip(tv, ft, a):  # pragma: no cover - compiled
     return y, n
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def tanh_q(tv, ft, u):  # pragma: no cover - compiled
     """tanh of u (Q F_U) in Q F_Z: the table with linear interpolation, odd; 1 beyond its end."""
     fu = tv[T_F_U]
@@ -233,7 +238,7 @@ def tanh_q(tv, ft, u):  # pragma: no cover - compiled
     return -z if u < 0 else z
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def isqrt(v):  # pragma: no cover - compiled
     """floor(sqrt(v)) of an integer v >= 0 (Newton from above)."""
     if v <= 0:
@@ -246,7 +251,7 @@ def isqrt(v):  # pragma: no cover - compiled
         x = y
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def _asin_poly(tv, ft, a):  # pragma: no cover - compiled
     f = tv[T_F_Z]
     off = tv[T_OFF_ASIN]
@@ -258,7 +263,7 @@ def _asin_poly(tv, ft, a):  # pragma: no cover - compiled
     return a + shr(a * shr(a2 * acc, f), f)
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def asin_q(tv, ft, x):  # pragma: no cover - compiled
     """asin of x (Q F_Z, clamped to [-1, 1]) in Q F_Z rad: the series for |x| <= 1/2, else
     pi/2 - 2 asin(sqrt((1 - |x|)/2)); odd."""
@@ -416,7 +421,7 @@ def reset_kernel(cs, x, P, aux, sat):  # pragma: no cover - compiled
         sat[k] = 0
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def _coef(cs, sat, k, w, w2):  # pragma: no cover - compiled
     """Coefficient k at w (Q F_W) and w2 = w^2 (Q F_W), in its group's format."""
     o = CS_POLY + 6 * k
@@ -430,13 +435,13 @@ def _coef(cs, sat, k, w, w2):  # pragma: no cover - compiled
     return sat32(sat, acc, S_COEF)
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def _cmul(cs, slot, v, f_in, f_out):  # pragma: no cover - compiled
     """A slow-task constant (raw, frac) times v (Q f_in), in Q f_out (int64, not saturated)."""
     return shr(cs[slot] * v, cs[slot + 1] + f_in - f_out)
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def _update(tv, ft, x, P, sat, h, unit, z, d, r, ph, g):  # pragma: no cover - compiled
     """One scalar measurement update in normalised units: ph = Pn h (h in Q F_H, or the unit vector
     of r when ``unit``), s = h ph + r, innovation z - h X - d, gains ph/s by one reciprocal,
@@ -483,7 +488,7 @@ def _update(tv, ft, x, P, sat, h, unit, z, d, r, ph, g):  # pragma: no cover - c
             sat[S_P_FLOOR] += 1
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def _predict(tv, cs, x, P, sat, c, delta, t):  # pragma: no cover - compiled
     """X = Phi_n X + E_n delta, Pn = Phi_n Pn Phi_n' + Qd_n (rows and columns 0, 1 change)."""
     fp = tv[T_F_PHI]
@@ -522,7 +527,7 @@ def _predict(tv, cs, x, P, sat, c, delta, t):  # pragma: no cover - compiled
         P[6 * i] = sat32(sat, P[6 * i] + cs[CS_QD + i], S_COV)
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def _friction_sign(tv, ft, cs, aux, sat, pinion):  # pragma: no cover - compiled
     """z = tanh(pinion_rate / w_fric) in Q F_Z, the pinion rate (Q F_RATE) from the 10 Hz
     state-variable filter of the pinion angle (Q F_STEER; semi-implicit Euler, as the float step):
@@ -547,7 +552,7 @@ def _friction_sign(tv, ft, cs, aux, sat, pinion):  # pragma: no cover - compiled
     return tanh_q(tv, ft, u)
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def _sat_total(sat):  # pragma: no cover - compiled
     n = 0
     for k in range(sat.shape[0]):
@@ -555,7 +560,7 @@ def _sat_total(sat):  # pragma: no cover - compiled
     return n
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True, inline="always")
 def _outputs(tv, ft, cs, x, aux, sat, iout):  # pragma: no cover - compiled
     for i in range(5):
         iout[i] = x[i]
@@ -571,7 +576,7 @@ def _outputs(tv, ft, cs, x, aux, sat, iout):  # pragma: no cover - compiled
     iout[IO_Z] = aux[A_Z]
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True)
 def step_kernel(
     tv, ft, cs, x, P, aux, sat, ws, t_ns, v, steer, yaw, tcol, tas, ay, flags,
     fresh_r, fresh_t, fresh_a, mdps_ok, esc_ok, iout,
@@ -684,7 +689,7 @@ def step_kernel(
 # =============================================================================== the boundary
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True)
 def quantise(value, f):  # pragma: no cover - compiled
     """(raw, bad) of a float in the int32 format with ``f`` fractional bits (bad: not finite or
     saturated)."""

@@ -16,8 +16,8 @@ Policies used by the firmware model (one of each, named, never implicit):
   depend on a language's rule for negative division.
 
 All functions here are pure integer code. Python's ``>>`` on negative ints is an arithmetic shift
-(floor), like numba's int64 ``>>`` and like ``ASR`` on ARM; :mod:`firmware_model.fast` repeats the
-same functions for numba and a lockstep test keeps them bit-exact.
+(floor), like numba's int64 ``>>`` and like ``ASR`` on ARM; the compiled step
+(:mod:`firmware_model.lateral`) has its own kernels of the same rules, run on Python ints by its tests.
 
 Conversions between real values (float) and raw integers exist only for the boundary (the CAN
 signals in SI and the tables generator): :meth:`QFormat.to_raw` / :meth:`QFormat.to_real`.

@@ -4,7 +4,7 @@ vs float while the learners learn").
 Diagnosis only, not the evaluation. Simulates one zoo run as ``lde evaluate --zoo`` does (spec sheet
 only: the cold run), samples its inputs once through the data path (``lde.replay.replay``), then steps both
 lateral backends per step from Python on the same sampled inputs (``lateral_fixed_step``,
-``lateral_step``: the same rows as the replay, checked) and prints
+``lde.engine.backends.float.step``: the same rows as the replay, checked) and prints
 
 - the backends' largest Mw / Fw difference and the fixed backend's shadow maxima (its float step on
   the fixed learner's parameters: the integer step's own agreement);
@@ -12,7 +12,7 @@ lateral backends per step from Python on the same sampled inputs (``lateral_fixe
   ``L_WIND_Q``) and its difference, Cf, Cr, K as fixed/float - 1, the excited-sample counters;
 - the variants: ``L_WIND_Q`` 0 in both learners, and the float backend whose learner reads the fixed
   filter's wind estimate (F_wind, M_wind) instead of its own (by hand: ``lde.estimator.lateral.step_kernel``
-  then ``lde.estimator.learner.learner_step``, which reproduces ``lateral_step`` exactly when fed its own).
+  then ``lde.estimator.learner.learner_step``, which reproduces the float step exactly when fed its own).
 
     PYTHONPATH=src:. python scripts/backend_divergence.py --plant suv_slow --scenario heavy_load
 """
@@ -30,6 +30,8 @@ from lde.analysis.study.spec import SPEC_SHEET, RunSpec
 from lde.analysis.study.specsheet import spec_sheet_vehicle
 from lde.can.profiles import load_profile
 from lde.engine import backends as B
+from lde.engine.backends import fixed as fixed_backend
+from lde.engine.backends import float as float_backend
 from lde.engine.receiver import (
     I_ASSIST_TORQUE,
     I_COLUMN_TORQUE,
@@ -40,7 +42,7 @@ from lde.engine.receiver import (
 )
 from lde.estimator import lateral as E
 from lde.estimator import learner as Ln
-from lde.estimator.paper import N_OUT, O_FW, O_FW_WIND, O_MW, O_MW_WIND
+from lde.estimator.outputs import N_OUT, O_FW, O_FW_WIND, O_MW, O_MW_WIND
 from lde.params import Vehicle
 from lde.replay.replay import replay
 from lde.status import VALID
@@ -59,9 +61,9 @@ def step_backend(name: str, vehicle: Vehicle, block, fresh, torsion: bool, wind_
     """One backend per step; per step its outputs, p and learner state."""
     st = B.make_backend_state(name, vehicle, angle_above_torsion_bar=torsion)
     if wind_q is not None:
-        st.info["lp"][Ln.L_WIND_Q] = wind_q
-    fn = B.lateral_fixed_step if name == "fixed" else B.lateral_step
-    p, ls = st.info["p"], st.info["learner"]
+        st.params.lp[Ln.L_WIND_Q] = wind_q
+    fn = fixed_backend.step if name == "fixed" else float_backend.step
+    p, ls = st.state.p, st.state.ls
     n = len(block)
     out = np.empty(N_OUT)
     rec = {"out": np.empty((n, N_OUT)), "p": np.empty((n, p.size)), "ls": np.empty((n, ls.size))}
@@ -70,7 +72,7 @@ def step_backend(name: str, vehicle: Vehicle, block, fresh, torsion: bool, wind_
         okm, oke = bool(block.ok[k, 0]), bool(block.ok[k, 1])
         fn(st.params, st.state, int(block.t_ns[k]), block.inputs[k], int(fresh[k]), okm, oke, out)
         rec["out"][k], rec["p"][k], rec["ls"][k] = out, p, ls
-    rec["shadow"] = st.info.get("shadow")
+    rec["shadow"] = getattr(st.state, "shadow_counts", None)
     return rec
 
 

@@ -7,7 +7,7 @@ round so that they share the machine's load::
     python scripts/cold_first_run.py --trees /work/main,. --backends fixed,float --rounds 3
 
 Per run: wall seconds to the CSV (the command's exit), CPU seconds of the command and every process
-it waited for (the compile helper of :mod:`lde.coldstart` included), the 1-minute load average
+it waited for, the 1-minute load average
 before it, and whether the CSV equals the first tree's. Then medians and ranges per tree and backend.
 ``--second``: each run is followed by a second one on the cache it filled (what the user's next
 command gets: it must be warm). ``--demo SEC``: ``lde demo --duration SEC`` instead of the replay

@@ -59,30 +59,6 @@ class _Timer(event.Listener):
         self.done.append(Compile(name, args, dt, dt - inner, dc - inner_cpu, len(self.stack)))
 
 
-def _split_line() -> str:
-    """The cold run's helper process (lde.coldstart), if it had one: its CPU and when things ended."""
-    from lde.coldstart import last_split
-
-    got = last_split()
-    if got is None:
-        return ""
-    rep, proc = got
-    cpu = ""
-    if proc is not None:
-        proc.wait()
-        ru = resource.getrusage(resource.RUSAGE_CHILDREN)
-        cpu = f", its CPU {ru.ru_utime + ru.ru_stime:.1f} s"
-    main = ", ".join(f"{k} {v:.1f}" for k, v in rep.main_s.items())
-    helper = ", ".join(f"{k} {v:.1f}" for k, v in rep.helper_s.items())
-    hcpu = ", ".join(f"{k} {v:.1f}" for k, v in rep.helper_cpu.items())
-    return (
-        f"  split compile ({rep.backend}): helper pid {rep.helper_pid}{cpu}; this process ended {main} s; "
-        f"heard the helper's {helper} s; waited {rep.waited_s:.1f} s {rep.helper_failed}\n"
-        f"  CPU seconds: this process {rep.main_cpu_at_wait:.1f} when it began to wait; the helper's by "
-        f"its groups {hcpu}"
-    )
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--top", type=int, default=25, help="list this many compilations")
@@ -98,7 +74,6 @@ def main() -> int:
     rc = lde.cli.main(a.lde_args)
     wall = time.perf_counter() - t0
     ru = resource.getrusage(resource.RUSAGE_SELF)
-    split = _split_line()
     rows = sorted(timer.done, key=lambda c: -c.own_s)
     print(
         f"lde {' '.join(a.lde_args)}: rc {rc}, {wall:.1f} s wall, {ru.ru_utime + ru.ru_stime:.1f} s CPU "
@@ -106,8 +81,6 @@ def main() -> int:
         f"({sum(c.own_cpu for c in rows):.1f} s CPU)",
         file=sys.stderr,
     )
-    if split:
-        print(split, file=sys.stderr)
     for c in rows[: a.top]:
         extra = f" {c.args[-300:]}" if a.args else ""
         print(

@@ -4,7 +4,7 @@
     python scripts/engine_cpu.py LOG [BACKEND] [RUNS]
 
 Reads the whole log, then runs ``Engine(lde profile, reference vehicle, BACKEND,
-shadow_thread=False).feed(frames, final=True)`` RUNS + 1 times and prints the median, fastest and
+).feed(frames, final=True)`` RUNS + 1 times and prints the median, fastest and
 slowest CPU seconds (``time.process_time``) of the last RUNS (the first loads or compiles the
 kernels). Compare two trees in one session, alternating, each with its own ``NUMBA_CACHE_DIR``.
 """
@@ -35,7 +35,7 @@ def main(argv: list[str]) -> int:
     cpu = []
     steps = 0
     for k in range(runs + 1):
-        engine = Engine(profile, vehicle, backend, shadow_thread=False)
+        engine = Engine(profile, vehicle, backend)
         t0 = time.process_time()
         steps = len(engine.feed(frames, final=True))
         if k:

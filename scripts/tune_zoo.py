@@ -82,20 +82,20 @@ def run_engine(
     from lde.estimator.learner import init_state
 
     prof = load_profile(profile)
-    eng = Engine(prof, vehicle, "lateral", encode_outputs=False)
-    info = eng.est.info
+    eng = Engine(prof, vehicle, "float", encode_outputs=False)
+    p, lp, ls = eng.est.state.p, eng.est.params.lp, eng.est.state.ls
     if hook is not None:
-        hook(info["p"], info["lp"])
+        hook(p, lp)
         fr = vehicle.corrections.friction or vehicle.learning.friction_prior
-        info["learner"][:] = init_state(info["p"], info["lp"], friction_prior=fr)
+        ls[:] = init_state(p, lp, friction_prior=fr)
     if learned is not None:
         eng.load_learned(learned)
     if after_load is not None:  # e.g. the learner off in a warm run: the prior drive's values frozen
-        after_load(info["p"], info["lp"])
+        after_load(p, lp)
     block = eng.feed(frames.sort(), final=True)
     if save is not None:
         eng.save_learned(save, 1.0)
-    return block, info
+    return block, {"p": p, "learner": ls}
 
 
 def score(block: Any, truth: dict[str, np.ndarray], scenario: str) -> dict[str, float]:

@@ -52,11 +52,11 @@ def split(plant: str, profile: str, hook_spec: str, seed: int) -> dict[str, floa
     from lde.can.profiles import load_profile
     from lde.engine.engine import Engine
 
-    eng0 = Engine(load_profile(profile), vehicle, "lateral", encode_outputs=False)
+    eng0 = Engine(load_profile(profile), vehicle, "float", encode_outputs=False)
     if hook is not None:
-        hook(eng0.est.info["p"], eng0.est.info["lp"])
+        hook(eng0.est.state.p, eng0.est.params.lp)
     fr = vehicle.corrections.friction or vehicle.learning.friction_prior
-    ls0 = Ln.init_state(eng0.est.info["p"], eng0.est.info["lp"], friction_prior=fr)
+    ls0 = Ln.init_state(eng0.est.state.p, eng0.est.params.lp, friction_prior=fr)
     P0 = ls0[Ln.LS_P3 : Ln.LS_P3 + n3 * n3].reshape(n3, n3)
     info_m = np.linalg.inv(P) - np.linalg.inv(P0)
     i11, i44, i14 = info_m[1, 1], info_m[4, 4], info_m[1, 4]

@@ -5,6 +5,8 @@
   simulated clock. pytest loads it through lde's ``pytest11`` entry point, which is named after the
   module so that naming it here as well is harmless (an editable install made before the entry point
   existed lacks it).
+* The suite keeps numba's kernels where the ``lde`` command keeps them (:mod:`lde.cli.kernels`), so
+  that the ``lde`` processes it starts load what the tests compiled and the other way round.
 * Tests marked ``vcan`` need a real SocketCAN ``vcan0``. They run only where one exists (inside
   user-mode Linux: ``tests/test_uml.py`` drives them through ``tests/uml/run_in_uml.sh``);
   elsewhere they are skipped with the reason shown (``-ra`` is in the pytest options).
@@ -14,7 +16,12 @@ from __future__ import annotations
 
 import pytest
 
+from lde.cli.kernels import use_kernel_cache
 from lde.testing.socketcan import socketcan_unavailable
+
+# the suite's kernels in the directory where the `lde` commands it starts look for theirs (as the
+# `lde` command does it: before numba is imported), so that they are compiled once
+use_kernel_cache()
 
 pytest_plugins = ["lde.testing.plugin", "pytester"]
 

@@ -55,11 +55,15 @@ def truth_of(res: SimResult) -> Truth:
 def csv_accuracy(csv: Path, truth: Truth, t_shift_s: float = 0.0) -> Accuracy:
     """NRMSE of an ``lde replay --csv`` output against the truth (VALID steps after 2 s);
     ``t_shift_s`` is added to the CSV's ``t`` (a log rewritten to another time base)."""
-    import pandas as pd
+    d = read_replay_csv(csv)
+    valid = (d["status"] & 1).astype(bool) if "status" in d.dtype.names else None
+    return accuracy(d["t"] + t_shift_s, d["Fw"], d["Mw"], truth, valid=valid)
 
-    d = pd.read_csv(csv)
-    valid = (d["status"].to_numpy() & 1).astype(bool) if "status" in d else None
-    return accuracy(d["t"].to_numpy() + t_shift_s, d["Fw"].to_numpy(), d["Mw"].to_numpy(), truth, valid=valid)
+
+def read_replay_csv(csv: Path) -> np.ndarray:
+    """An ``lde replay --csv`` output as a structured array: one field per column, named by the
+    header, each typed as its values read (``status`` an integer, the rest floats)."""
+    return np.atleast_1d(np.genfromtxt(csv, delimiter=",", names=True, dtype=None, encoding="utf-8"))
 
 
 # ----------------------------------------------------------------------------- rewriting frames

@@ -16,6 +16,7 @@ import can
 import numpy as np
 import pytest
 
+from lde.can.profiles import load_profile
 from lde.clock import SimulatedClock
 from lde.estimator.overlay import OverlayTiming
 from lde.params import load_vehicle
@@ -290,3 +291,39 @@ def test_foreign_frames_reaching_the_service_are_dropped_and_a_flood_is_said(cap
     assert np.all(active[t >= FAULT_S])  # the inputs keep coming: nothing to ramp out
     flooded = _said(run, "warning", "foreign frames flood")
     assert len(flooded) == (1 if per_step * S / STEP_NS > run.svc.faults.flood_hz else 0), run.lines
+
+
+def test_another_sender_of_an_input_message_is_said_once(caplog) -> None:
+    """A second node sends MDPS_Sensors too (two simulators on one udp_multicast group and port, each
+    with its own counter): its frames interleave with the healthy stream and fail the E2E check. The
+    log says so once, naming the message and the counts, instead of only counting the rejections."""
+    second: list[InputFeeder] = []
+
+    def other(feed: can.BusABC, t_ns: int) -> None:
+        if not second:
+            second.append(
+                InputFeeder(
+                    feed,
+                    load_profile("lde"),
+                    {"MDPS_Sensors": T0 + int(FAULT_S * S) + 1_700_000, "ESC_Motion": T0 + 100 * S},
+                    speed=100 * KMH,
+                    column_torque=-0.3,
+                )
+            )
+        if t_ns < T0 + int(CLEAR_S * S):
+            second[0].send_until(t_ns)
+
+    run = _run(caplog, lambda *a: None, extra=other)
+    said = _said(run, "warning", "another sender on this bus", "MDPS_Sensors (0x2A0)")
+    assert len(said) == 1, run.lines
+    assert "fail the E2E check (wrong sequence" in said[0] and "frames in 0.25 s, 65 expected" in said[0]
+    assert "ESC_Motion" not in said[0]
+    # the burst is one warning: the E2E tracker's own start line is not said on top of it
+    assert not _said(run, "warning", "E2E MDPS_Sensors (0x2A0)"), run.lines
+    assert _said(run, "info", "another sender on this bus", "cleared")
+    assert run.svc is not None and run.svc.engine.stats()["MDPS_Sensors"].rejected > 0
+
+
+def test_a_restarted_counter_is_not_another_sender(caplog) -> None:
+    run = _run(caplog, lambda *a: None, restart_at_s=FAULT_S)
+    assert not _said(run, "warning", "another sender"), run.lines

@@ -12,14 +12,14 @@ from lde.can.codec import (
     EncodeError,
     MessageCodec,
     MessageEncoder,
+    MessageLayout,
     SignalCodec,
     decode_frame,
     encode_batch,
     encode_frames,
     si_to_dbc,
-    words_le,
 )
-from lde.can.e2e import check_frame, p01_check, read_counter
+from lde.can.e2e import INTEGRITY, IntegrityScheme, check_frame, p01_check, read_counter
 from lde.can.profiles import load_profile
 from lde.units import DEG, KMH
 
@@ -187,33 +187,71 @@ BO_ 291 Mixed: 8 A
 """
 
 
-def test_signal_codec_bit_layout_matches_cantools_intel_and_motorola():
-    db = cantools.database.load_string(MOTOROLA_DBC, database_format="dbc")
-    msg = db.get_message_by_name("Mixed")
+FD_DBC = """VERSION ""
+
+NS_ :
+
+BS_:
+
+BU_: A
+
+BO_ 1234 Wide: 64 A
+ SG_ LeLow : 0|12@1+ (1,0) [0|4095] "" A
+ SG_ LeAcross : 60|16@1- (0.1,0) [-3276.8|3276.7] "" A
+ SG_ LeHigh : 300|20@1+ (1,0) [0|1048575] "" A
+ SG_ LeLast : 504|8@1+ (1,0) [0|255] "" A
+ SG_ Le64 : 131|64@1+ (1,0) [0|0] "" A
+ SG_ BeHigh : 207|16@0- (0.01,0) [-327.68|327.67] "" A
+ SG_ BeCross : 389|14@0+ (1,0) [0|16383] "" A
+ SG_ BeLast : 503|8@0+ (1,0) [0|255] "" A
+"""
+
+
+def _raws(codecs, n, rng):
+    """Random raw values over each signal's full bit range."""
+    out = {}
+    for name, c in codecs.items():
+        if c.length == 64:
+            out[name] = rng.integers(0, np.iinfo(np.uint64).max, n, dtype=np.uint64, endpoint=True)
+        else:
+            out[name] = rng.integers(c.raw_min, c.raw_max + 1, n)
+    return out
+
+
+@pytest.mark.parametrize(("dbc", "name", "length"), [(MOTOROLA_DBC, "Mixed", 8), (FD_DBC, "Wide", 64)])
+def test_signal_codec_bit_layout_matches_cantools_intel_and_motorola(dbc, name, length):
+    """Raw values packed by cantools (the oracle) are unpacked by lde's codec and the other way
+    round, Intel and Motorola, in a classic frame and in a 64-byte CAN FD frame (signals past byte 8,
+    across byte boundaries, a 64-bit field off a byte boundary)."""
+    db = cantools.database.load_string(dbc, database_format="dbc")
+    msg = db.get_message_by_name(name)
     codecs = {s.name: SignalCodec.from_cantools(s) for s in msg.signals}
     rng = np.random.default_rng(11)
     n = 200
-    raws = {
-        name: rng.integers(c.raw_min, c.raw_max + 1, n)
-        for name, c in codecs.items()  # raw values over the full bit range
-    }
-    w_le = np.zeros(n, np.uint64)
-    w_be = np.zeros(n, np.uint64)
-    for name, c in codecs.items():
-        if c.little_endian:
-            w_le |= c.place_batch(raws[name])
-        else:
-            w_be |= c.place_batch(raws[name])
-    w = w_le | w_be.byteswap()
-    data = w.view(np.uint8).reshape(n, 8)
+    raws = _raws(codecs, n, rng)
+    data = np.zeros((n, length), np.uint8)
     for i in range(n):
-        ref = msg.decode(data[i].tobytes(), scaling=False)
-        for name in codecs:
-            assert ref[name] == raws[name][i], name
-    ww = words_le(data)
-    for name, c in codecs.items():
-        assert np.array_equal(c.raw_batch(ww), raws[name])
-        assert np.allclose(c.decode_batch(ww), raws[name] * c.scale + c.offset)
+        row = {k: int(v[i]) for k, v in raws.items()}
+        data[i] = np.frombuffer(msg.encode(row, scaling=False, strict=False), np.uint8)
+    for k, c in codecs.items():
+        got = c.raw_batch(data)
+        assert np.array_equal(got.view(np.uint64) if c.length == 64 else got, raws[k]), k
+        assert np.allclose(c.decode_batch(data), raws[k] * c.scale + c.offset)
+    # lde's packer -> cantools
+    codec_list = list(codecs.values())
+    lay = MessageLayout.of(
+        msg.frame_id, length, IntegrityScheme.of(INTEGRITY["none"], (), ()), codec_list, frozenset()
+    )
+    for i in range(20):
+        # float64 holds raw values up to 2**53 exactly: a 64-bit field's are cut to that here
+        want = {
+            c.name: int(raws[c.name][i]) % (1 << 52) if c.length == 64 else int(raws[c.name][i])
+            for c in codec_list
+        }
+        phys = np.array([want[c.name] * c.scale + c.offset for c in codec_list])
+        ref = msg.decode(lay.encode(phys, 0), scaling=False)
+        for c in codec_list:
+            assert ref[c.name] == want[c.name], c.name
 
 
 @settings(derandomize=True, max_examples=200, deadline=None)

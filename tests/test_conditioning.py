@@ -111,19 +111,13 @@ def _random_inputs(n=3000, seed=5):
     return t, speed, angle, rate, yaw, col, ast, mdps, esc
 
 
-@pytest.mark.parametrize("backend", ["float", "fixed"])
-def test_live_steps_equal_the_batch_with_corrections(backend):
+def test_live_steps_equal_the_batch_with_corrections():
     v = _vehicle(
         steering_friction_Nm=0.4, steering_angle_offset_deg=0.5, yaw_rate_bias_deg_s=0.1, align_offset_Nm=2.0
     )
     t, speed, angle, rate, yaw, col, ast, mdps, esc = _random_inputs()
-    if backend == "float":
-        live = Estimator(v)
-        batch = run_batch(t, speed, angle, yaw, col, ast, mdps, esc, v, steering_rate=rate)
-    else:
-        fast = pytest.importorskip("firmware_model.fast")
-        live = fast.FixedEstimator(v)
-        batch = fast.run_batch(t, speed, angle, yaw, col, ast, mdps, esc, v, steering_rate=rate)
+    live = Estimator(v)
+    batch = run_batch(t, speed, angle, yaw, col, ast, mdps, esc, v, steering_rate=rate)
     fw = np.empty(t.size)
     mw = np.empty(t.size)
     st = np.empty(t.size, dtype=np.uint8)
@@ -141,18 +135,6 @@ def test_live_steps_equal_the_batch_with_corrections(backend):
     # and the corrections did change the result
     plain = run_batch(t, speed, angle, yaw, col, ast, mdps, esc, load_vehicle("reference"))
     assert np.max(np.abs(plain.fw - batch.fw)) > 10.0
-
-
-def test_fixed_backend_follows_the_float_filter_with_corrections():
-    fast = pytest.importorskip("firmware_model.fast")
-    v = _vehicle(steering_friction_Nm=0.4, steering_angle_offset_deg=0.5)
-    t, speed, angle, rate, yaw, col, ast, mdps, esc = _random_inputs(seed=9)
-    flt = run_batch(t, speed, angle, yaw, col, ast, mdps, esc, v, steering_rate=rate)
-    st = fast.FastState.initial(fast.tables_vector(fast.tables_for(v)))
-    fix = fast.run_batch(t, speed, angle, yaw, col, ast, mdps, esc, v, steering_rate=rate, state=st)
-    assert st.shadow_count == 0  # the shadow saw the same conditioned inputs
-    assert np.max(np.abs(fix.fw - flt.fw)) < 5.0
-    assert np.max(np.abs(fix.mw - flt.mw)) < 2.0
 
 
 def _lane_change(sim_options, est_options, seed=0):

@@ -8,7 +8,6 @@ from pathlib import Path
 import cantools
 import pytest
 
-from lde.can.e2e import IntegrityKind
 from lde.can.profiles import ESC_INPUTS, INPUT_NAMES, MDPS_INPUTS, OUTPUT_MESSAGES, dbc_dir, load_profile
 from lde.errors import ConfigError
 from lde.units import DEG, KMH
@@ -46,7 +45,7 @@ def test_dbc_loads_strictly_and_outputs_are_profile1(name):
         m = db.get_message_by_name(out)
         assert (_sig(db, out, "CRC").start, _sig(db, out, "CRC").length) == (0, 8)
         assert (_sig(db, out, "Counter").start, _sig(db, out, "Counter").length) == (8, 4)
-        assert p.outputs[out].scheme.kind is IntegrityKind.P01
+        assert p.outputs[out].scheme.name == "autosar_e2e_p01"
         assert m.length == 8
 
 
@@ -157,36 +156,35 @@ def test_hyundai_profile_integrity_and_signal_map():
     p = load_profile("hyundai")
     assert p.inputs["column_torque"].signals == ("CR_Mdps_StrTq",)
     assert p.inputs["assist_torque"].signals == ("CR_Mdps_OutTq",)
-    assert len(p.inputs["speed"].signals) == 4
-    assert p.messages["WHL_SPD11"].scheme.kind is IntegrityKind.HYUNDAI_WHL_SPD
+    assert len(p.inputs["speed"].signals) == 4 and p.inputs["speed"].combine == "mean"
+    assert p.messages["WHL_SPD11"].scheme.name == "hyundai_whl_spd11"
     for m in ("MDPS12", "SAS11", "ESP12"):
-        assert p.messages[m].scheme.kind is IntegrityKind.COUNTER  # checksum not verified
+        assert p.messages[m].scheme.name == "counter"  # checksum not verified
         assert not p.messages[m].scheme.verifies_checksum
     assert p.messages["MDPS12"].scheme.modulus == 256
     assert p.messages["SAS11"].scheme.modulus == 16
-    assert p.messages["WHL_SPD11"].scheme.counter_fields == ((14, 2), (30, 2))
+    assert p.messages["WHL_SPD11"].scheme.counter_fields == ((14, 2, True), (30, 2, True))
     assert p.messages["ESP12"].timeout_ns == 60_000_000
     assert p.group_messages("mdps") == ("MDPS12", "SAS11")
     assert p.group_messages("esc") == ("ESP12", "WHL_SPD11")
+    assert p.angle_above_torsion_bar and not p.steering_rate_signed
 
 
-def test_load_profile_errors_are_config_errors(tmp_path):
-    with pytest.raises(ConfigError, match="unknown CAN profile"):
+def test_unknown_profile_and_a_dbc_given_as_profile_are_config_errors(tmp_path):
+    with pytest.raises(ConfigError, match="unknown CAN profile 'volvo'.*shipped name"):
         load_profile("volvo")
-    bad = tmp_path / "bad.dbc"
-    bad.write_text("this is not a dbc\n")
-    with pytest.raises(ConfigError):
-        load_profile(bad)
-    other = tmp_path / "other.dbc"
-    other.write_text(
-        'VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: A\n\nBO_ 100 Foo: 8 A\n SG_ X : 0|8@1+ (1,0) [0|255] "" A\n'
-    )
-    with pytest.raises(ConfigError, match="do not contain the inputs"):
-        load_profile(other)
-
-
-def test_load_profile_from_a_dbc_path(tmp_path):
     copy = tmp_path / "mycar.dbc"
     shutil.copy(REPO / "dbc" / "lde.dbc", copy)
-    p = load_profile(copy)
-    assert p.name == "mycar" and p.messages["MDPS_Sensors"].frame_id == 0x2A0
+    with pytest.raises(
+        ConfigError, match=r"a DBC is not a profile: write a profile file .*docs/guide/profiles\.md"
+    ):
+        load_profile(copy)
+
+
+@pytest.mark.parametrize("name", ["lde", "hyundai", "toyota_rav4_2017"])
+def test_shipped_profiles_are_files_beside_their_dbcs_and_the_package_copies_are_equal(name):
+    p = load_profile(name)
+    assert p.path == REPO / "dbc" / f"{name}.toml" and p.shipped
+    assert p.dbc_path.parent == REPO / "dbc"
+    for f in (p.path, p.dbc_path):
+        assert (REPO / "src" / "lde" / "data" / f.name).read_bytes() == f.read_bytes(), f.name

@@ -1,5 +1,5 @@
-"""The parsed-profile cache (lde.can.profiles.load_profile): keyed by the DBC's bytes, never serving a
-changed DBC; a corrupt, foreign or unwritable cache falls back to parsing the DBC."""
+"""The parsed-profile cache (lde.can.profiles.load_profile): keyed by the profile file's and the DBC's
+bytes, never serving a changed file; a corrupt, foreign or unwritable cache falls back to parsing."""
 
 from __future__ import annotations
 
@@ -62,11 +62,18 @@ def test_cached_profile_equals_parsed(cache, monkeypatch, name):
 
 
 def _variant(tmp_path: Path, scale_from: str, scale_to: str) -> Path:
+    """A copy of lde.dbc with one change, and a copy of lde.toml that reads it (the DBC's path)."""
     text = (dbc_dir() / "lde.dbc").read_text(encoding="cp1252")
     assert scale_from in text
     p = tmp_path / "car.dbc"
     p.write_text(text.replace(scale_from, scale_to, 1), encoding="cp1252")
+    toml = (dbc_dir() / "lde.toml").read_text().replace('dbc = "lde.dbc"', 'dbc = "car.dbc"')
+    (tmp_path / "car.toml").write_text(toml.replace('name = "lde"', 'name = "car"'))
     return p
+
+
+def _profile_of(dbc: Path) -> Path:
+    return dbc.with_suffix(".toml")
 
 
 def test_changed_dbc_is_never_served_from_the_cache(cache, tmp_path):
@@ -77,11 +84,11 @@ def test_changed_dbc_is_never_served_from_the_cache(cache, tmp_path):
     other = scale[:-1] + ("2" if scale[-1] != "2" else "3")  # same length: same file size
     p = _variant(tmp_path, line, line.replace(f"({scale},", f"({other},"))
     st = p.stat()
-    a = load_profile(p)
+    a = load_profile(_profile_of(p))
     p.write_text(src, encoding="cp1252")  # back to the shipped scale
     os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns))
     assert p.stat().st_size == st.st_size
-    b = load_profile(p)
+    b = load_profile(_profile_of(p))
     assert b._db is not None  # a miss: parsed
     sa = {s.name: s for s in a.signals["MDPS_Sensors"]}["ColumnTorque"]
     sb = {s.name: s for s in b.signals["MDPS_Sensors"]}["ColumnTorque"]
@@ -91,8 +98,8 @@ def test_changed_dbc_is_never_served_from_the_cache(cache, tmp_path):
 
 def test_db_of_a_dbc_changed_after_loading_is_an_error(cache, tmp_path):
     p = _variant(tmp_path, "LDE", "LDE")
-    load_profile(p)
-    prof = load_profile(p)  # from the cache: no database yet
+    load_profile(_profile_of(p))
+    prof = load_profile(_profile_of(p))  # from the cache: no database yet
     p.write_text(p.read_text(encoding="cp1252") + "\n", encoding="cp1252")
     with pytest.raises(ConfigError, match="changed since"):
         prof.db  # noqa: B018
@@ -177,3 +184,17 @@ def test_replay_with_a_warm_cache_imports_neither_cantools_nor_python_can(tmp_pa
     assert outs[0][0] == "0" and outs[0][1] == "True"  # a miss parses with cantools
     assert outs[1] == ["0", "False", "False"]  # a hit needs neither
     assert (tmp_path / "0.csv").read_bytes() == (tmp_path / "1.csv").read_bytes()
+
+
+def test_changed_profile_file_is_never_served_from_the_cache(cache, tmp_path):
+    """The DBC unchanged, the profile file changed: read again (the sign it says is the new one)."""
+    p = _variant(tmp_path, "LDE", "LDE")
+    toml = _profile_of(p)
+    a = load_profile(toml)
+    text = toml.read_text()
+    toml.write_text(
+        text.replace('signal = "YawRate"\nscale = "deg/s"', 'signal = "YawRate"\nscale = "deg/s"\nsign = -1')
+    )
+    b = load_profile(toml)
+    assert b._db is not None  # a miss: parsed
+    assert a.inputs["yaw_rate"].sign == 1.0 and b.inputs["yaw_rate"].sign == -1.0

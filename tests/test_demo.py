@@ -16,25 +16,7 @@ from lde.service.service import STATUS_DEADLINE_MISS
 from lde.units import STEP_S
 
 
-def _fixed_available() -> bool:
-    try:
-        import firmware_model
-
-        return hasattr(firmware_model, "run_batch")
-    except ImportError:
-        return False
-
-
-@pytest.mark.parametrize(
-    "backend",
-    [
-        "float",
-        pytest.param(
-            "fixed",
-            marks=pytest.mark.skipif(not _fixed_available(), reason="firmware_model.run_batch not there yet"),
-        ),
-    ],
-)
+@pytest.mark.parametrize("backend", ["float", "fixed"])
 def test_replay_of_the_recording_reproduces_the_live_outputs_exactly(tmp_path: Path, backend: str) -> None:
     path = tmp_path / "live.mcap"
     live = run_closed_loop("light_load", duration=8.0, seed=3, backend=backend, record=path)
@@ -89,12 +71,12 @@ def test_overlay_relieves_the_driver_and_estimate_tracks_truth(tmp_path: Path) -
     assert "driver torque" in text and "lateral drift" in text
 
 
-@pytest.mark.parametrize("backend", ["paper-fixed", "fixed"])
+@pytest.mark.parametrize("backend", ["paper", "fixed"])
 def test_closed_loop_estimate_tracks_truth_on_light_load(backend: str) -> None:
     """Closed loop (the simulator's driver + the overlay applied by the simulated MDPS): no limit
     cycle. Before the law's band limit (docs/overlay.md, "Closed loop") the lateral filter (`fixed`)
     sat at the overlay's rate limit on 88 % of the steps, 1.9 Hz, Fw NRMSE 40 %; measured after it
-    (seed 2, 14 s): `fixed` 6.9 % with no rate-limited step, `paper-fixed` 4.4 %."""
+    (seed 2, 14 s): `fixed` 6.9 % with no rate-limited step; the paper's filter (`paper`) beside it."""
     summary, on, _ = run_demo("light_load", seed=2, duration=14.0, backend=backend, mcap=None, png=None)
     assert summary.accuracy.nrmse_fw < 0.15
     s = on.series

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from lde.can.e2e import (
+    INTEGRITY,
     P01_SCHEME,
     E2EStatus,
-    IntegrityKind,
     IntegrityScheme,
     P01Receiver,
     P01Sender,
@@ -23,6 +23,7 @@ from lde.can.e2e import (
     read_counter,
     read_counter_batch,
     receive_batch,
+    toyota_checksum,
     whl_spd11_checksum,
     whl_spd11_checksum_batch,
 )
@@ -273,12 +274,10 @@ def test_lockstep_scalar_receiver_equals_jitted_batch_loop():
 
 # ----------------------------------------------------------------------------------- hyundai
 
-WHL = IntegrityScheme(
-    IntegrityKind.HYUNDAI_WHL_SPD,
-    counter_fields=((14, 2), (30, 2)),
-    checksum_fields=((46, 2), (62, 2)),
-    modulus=16,
-    invalid_counter=-1,
+WHL = IntegrityScheme.of(
+    INTEGRITY["hyundai_whl_spd11"],
+    counter_fields=((14, 2, True), (30, 2, True)),
+    checksum_fields=((46, 2, True), (62, 2, True)),
 )
 
 
@@ -316,8 +315,64 @@ def test_whl_spd11_protect_and_check_split_fields():
 
 
 def test_counter_only_scheme_wraps_at_its_width():
-    sch = IntegrityScheme(IntegrityKind.COUNTER, counter_fields=((16, 8),), modulus=256, invalid_counter=-1)
+    sch = IntegrityScheme.of(INTEGRITY["counter"], counter_fields=((16, 8, True),), checksum_fields=())
+    assert (sch.modulus, sch.invalid_counter) == (256, -1)
     rx = P01Receiver(ReceiverConfig.for_scheme(sch, timeout_ns=30 * MS), scheme=sch)
     st = feed_counters(rx, [253, 254, 255, 0, 1, 3])
     assert st[3] is E2EStatus.OK and st[5] is E2EStatus.OKSOMELOST
     assert check_frame(sch, 593, bytes(8))  # checksum not verified: always passes
+
+
+# ----------------------------------------------------------------------------------- toyota
+
+
+def toyota_reference(can_id: int, data: bytes) -> int:
+    """The README's formula: (id & 0xFF) + (id >> 8) + DLC + sum(bytes 0..len-2), mod 256."""
+    return ((can_id & 0xFF) + (can_id >> 8) + len(data) + sum(data[:-1])) & 0xFF
+
+
+TOYOTA = IntegrityScheme.of(
+    INTEGRITY["toyota_checksum"], counter_fields=(), checksum_fields=((63, 8, False),)
+)
+
+
+def test_toyota_checksum_matches_the_formula_and_protect_check_round_trip():
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        can_id = int(rng.integers(0, 0x800))
+        data = bytes(rng.integers(0, 256, 8, dtype=np.uint8))
+        assert toyota_checksum(can_id, data) == toyota_reference(can_id, data)
+        buf = bytearray(data)
+        protect_frame(TOYOTA, can_id, buf, counter=0)
+        assert buf[:7] == data[:7] and buf[7] == toyota_reference(can_id, data)
+        assert check_frame(TOYOTA, can_id, buf)
+        bad = bytearray(buf)
+        bad[int(rng.integers(0, 7))] ^= 1 << int(rng.integers(0, 8))
+        assert not check_frame(TOYOTA, can_id, bad)
+
+
+def test_a_message_without_counter_is_trusted_after_its_sync_frames_and_never_out_of_sequence():
+    rx = P01Receiver(ReceiverConfig.for_scheme(TOYOTA, timeout_ns=60 * MS), data_id=0x260, scheme=TOYOTA)
+    statuses = []
+    for k in range(6):
+        buf = bytearray(8)
+        buf[0] = k  # any content; no counter
+        protect_frame(TOYOTA, 0x260, buf, counter=0)
+        statuses.append(rx.receive_frame(k * 20 * MS, buf))
+    assert statuses[0] is E2EStatus.INITIAL and all(s is E2EStatus.OK for s in statuses[1:])
+    assert rx.trusted and rx.stats.used == 4 and rx.stats.lost == 0
+    buf = bytearray(8)
+    protect_frame(TOYOTA, 0x260, buf, counter=0)
+    buf[7] ^= 0xFF
+    assert rx.receive_frame(6 * 20 * MS, buf) is E2EStatus.WRONGCRC and not rx.trusted
+
+
+def test_integrity_registry_names_what_each_check_needs():
+    assert set(INTEGRITY) == {"none", "counter", "autosar_e2e_p01", "toyota_checksum", "hyundai_whl_spd11"}
+    assert INTEGRITY["autosar_e2e_p01"].counter == "required"
+    assert (
+        INTEGRITY["toyota_checksum"].checksum == "required"
+        and INTEGRITY["toyota_checksum"].counter == "optional"
+    )
+    assert not INTEGRITY["counter"].verifies_checksum and INTEGRITY["hyundai_whl_spd11"].verifies_checksum
+    assert len({i.code for i in INTEGRITY.values()}) == len(INTEGRITY)

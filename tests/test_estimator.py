@@ -18,7 +18,7 @@ import pytest
 from scipy.linalg import expm
 
 from lde.estimator import lateral as E
-from lde.estimator.paper import N_OUT, O_BANK, O_BETA, O_FW, O_FW_WIND, O_MW, O_MW_WIND, O_T_ALIGN, O_YAW
+from lde.estimator.outputs import N_OUT, O_BANK, O_BETA, O_FW, O_FW_WIND, O_MW, O_MW_WIND, O_T_ALIGN, O_YAW
 from lde.params import load_vehicle
 from lde.status import VALID
 from lde.units import DEG, STEP_NS, STEP_S, G

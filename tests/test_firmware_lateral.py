@@ -32,7 +32,9 @@ from firmware_model import lateral as FX
 from firmware_model.shadow import FW_BOUND_N, MW_BOUND_NM
 from firmware_model.synthetic import make_drive
 from firmware_model.tables import lateral_tables_for
-from lde.engine.backends import FRESH_A, FRESH_R, FRESH_T, lateral_fixed_step, make_backend_state
+from lde.engine.backends import make_backend_state
+from lde.engine.backends.fixed import step as lateral_fixed_step
+from lde.engine.backends.float import FRESH_A, FRESH_R, FRESH_T
 from lde.engine.receiver import (
     I_ASSIST_TORQUE,
     I_COLUMN_TORQUE,
@@ -44,7 +46,7 @@ from lde.engine.receiver import (
 )
 from lde.estimator import lateral as E
 from lde.estimator import learner as Ln
-from lde.estimator.paper import N_OUT, O_FW, O_GAIN, O_MW
+from lde.estimator.outputs import N_OUT, O_FW, O_GAIN, O_MW
 from lde.params import load_vehicle
 from lde.status import DEGRADED, SHADOW_DEVIATION, VALID
 from lde.units import KMH
@@ -346,23 +348,23 @@ def test_learning_requantises_the_coefficient_set(vehicle):
     the end equals a fresh quantisation of the final p), the shadow stays within bound throughout,
     and the overlay gain follows the learned parameters."""
     st = make_backend_state("fixed", vehicle)
-    lp = st.info["lp"]
+    lp = st.params.lp
     lp[Ln.L_MIN_SAMPLES] = 200.0  # learn from a short drive
-    cs0 = st.info["coef_set"].copy()
-    p = st.info["p"]
+    cs0 = st.state.cs.copy()
+    p = st.state.p
     p0 = p.copy()
     inputs = lateral_drive(vehicle, "steer", duration_s=30.0)
     fw, mw, status, gain = _run_backend(st, inputs)
-    sh = st.info["shadow"]
+    sh = st.state.shadow_counts
     assert sh[0] == 0 and sh[1] <= FW_BOUND_N and sh[2] <= MW_BOUND_NM, sh
     assert not np.any(status & SHADOW_DEVIATION)
     assert not np.any(status & DEGRADED)
     assert np.any(status & VALID)
     assert not np.array_equal(p, p0), "the learner pushed nothing: the test drive is too short"
-    cs = st.info["coef_set"]
+    cs = st.state.cs
     assert not np.array_equal(cs, cs0)
     fresh = np.zeros(FX.N_CS, np.int64)
-    FX.coef_set_kernel(p, st.params[1], fresh)
+    FX.coef_set_kernel(p, st.params.tv, fresh)
     np.testing.assert_array_equal(cs, fresh)
     want = p[E.P_K] / (p[E.P_N] * p[E.P_CF] * (p[E.P_LF] + p[E.P_LR]))
     assert gain[-1] == pytest.approx(want, rel=1e-12)
@@ -373,18 +375,18 @@ def test_parameters_changed_from_outside_requantise(vehicle):
     coefficient set (the engine calls it after loading), and the fixed step follows the float
     shadow on the new tires within bound."""
     st = make_backend_state("fixed", vehicle)
-    p = st.info["p"]
-    cs0 = st.info["coef_set"].copy()
+    p = st.state.p
+    cs0 = st.state.cs.copy()
     p[E.P_CF] *= 1.6
     p[E.P_CR] *= 0.7
     p[E.P_K] *= 1.3
     p[E.P_S] = 1.2
     st.params_changed()
-    cs = st.info["coef_set"]
+    cs = st.state.cs
     assert not np.array_equal(cs, cs0) and cs[FX.CS_NSAT] == 0
-    st.info["lp"][Ln.L_ENABLE] = 0.0  # keep the new tires: the learner does not push
+    st.params.lp[Ln.L_ENABLE] = 0.0  # keep the new tires: the learner does not push
     fw, mw, status, gain = _run_backend(st, lateral_drive(vehicle, "gusts", duration_s=8.0))
-    sh = st.info["shadow"]
+    sh = st.state.shadow_counts
     assert sh[0] == 0 and sh[1] <= FW_BOUND_N and sh[2] <= MW_BOUND_NM, sh
     assert gain[-1] == pytest.approx(p[E.P_K] / (p[E.P_N] * p[E.P_CF] * (p[E.P_LF] + p[E.P_LR])))
 

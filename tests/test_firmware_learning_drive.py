@@ -24,7 +24,7 @@ from lde.analysis.study.execute import load_sim_vehicle, simulate_run
 from lde.analysis.study.spec import SPEC_SHEET, RunSpec
 from lde.analysis.study.specsheet import spec_sheet_vehicle
 from lde.can.profiles import load_profile
-from lde.engine.backends import SH_COUNT, SH_MAX_DFW, SH_MAX_DMW
+from lde.engine.backends.fixed import SH_COUNT, SH_MAX_DFW, SH_MAX_DMW
 from lde.engine.engine import Engine
 from lde.estimator import lateral as E
 from lde.estimator import learner as Ln
@@ -42,13 +42,13 @@ def drive():
 def _run(drive, backend, wind_q=None, r2_upq=None):
     vehicle, frames = drive
     eng = Engine(load_profile("lde"), vehicle, backend, encode_outputs=False)
-    info = eng.est.info
+    lp = eng.est.params.lp
     if wind_q is not None:
-        info["lp"][Ln.L_WIND_Q] = wind_q
+        lp[Ln.L_WIND_Q] = wind_q
     if r2_upq is not None:
-        info["lp"][Ln.L_R2_UPQ] = r2_upq
+        lp[Ln.L_R2_UPQ] = r2_upq
     block = eng.feed(frames, final=True)
-    return block, info
+    return block, eng.est
 
 
 @pytest.fixture(scope="module")
@@ -59,9 +59,9 @@ def runs(drive):
 def test_the_drive_learns_in_a_varying_wind(runs):
     """What makes the drive the one that shows it: the learner learns (cold, 522 excited samples), in
     a wind of kN."""
-    block, info = runs["float"]
-    assert info["learner"][Ln.LS_STATE] != Ln.ST_NOT
-    assert info["learner"][Ln.LS_N] > 300
+    block, est = runs["float"]
+    assert est.state.ls[Ln.LS_STATE] != Ln.ST_NOT
+    assert est.state.ls[Ln.LS_N] > 300
     assert np.nanmax(np.abs(block.fw_wind)) > 2000.0
 
 
@@ -69,8 +69,8 @@ def test_the_integer_step_tracks_its_shadow_tightly(runs):
     """On the same parameters (the shadow) the integer step stays at its design agreement while the
     learner re-quantises the coefficient set every 0.5 s: 0.095 N / 0.011 Nm measured (26 reference
     scenarios: 0.030 N / 0.013 Nm), bound 0.2 N / 0.05 Nm (the product check is 5 N / 2 Nm)."""
-    _, info = runs["fixed"]
-    sh = info["shadow"]
+    _, est = runs["fixed"]
+    sh = est.state.shadow_counts
     assert sh[SH_COUNT] == 0
     assert sh[SH_MAX_DFW] <= 0.2
     assert sh[SH_MAX_DMW] <= 0.05
@@ -81,12 +81,12 @@ def test_the_learners_take_the_same_branches(runs):
     every step) and their parameters differ by less than 1e-4 relative (2.5e-5 measured): a gate
     decided differently or a push at another step moves a tire by up to 2 % (the push rate limit)."""
     (bx, ix), (bf, jf) = runs["fixed"], runs["float"]
-    lx, lf = ix["learner"], jf["learner"]
+    lx, lf = ix.state.ls, jf.state.ls
     for slot in (Ln.LS_N, Ln.LS_N + 1, Ln.LS_N + 2, Ln.LS_STATE):
         assert lx[slot] == lf[slot], slot
     np.testing.assert_array_equal(bx.learn_state, bf.learn_state)
     for slot in (E.P_CF, E.P_CR, E.P_K, E.P_S):
-        assert ix["p"][slot] == pytest.approx(jf["p"][slot], rel=1e-4), slot
+        assert ix.state.p[slot] == pytest.approx(jf.state.p[slot], rel=1e-4), slot
 
 
 def test_the_backends_mw_difference_is_set_by_the_wind_onset_noise(drive, runs):

@@ -1,8 +1,7 @@
-"""The acceptance check of issue 5 (and issue 11 item 2 for the lateral filter) on every simulator
-scenario: the replay pipeline with ``backend="fixed"`` and ``backend="float"`` (what ``lde replay
---backend fixed|float`` runs: the lateral filter in fixed point and in float, each with its learner)
-and with ``"paper-fixed"`` and ``"paper"`` agree within 5 N (Fw) and 2 Nm (Mw) at every step, with the
-same status bits and no shadow deviation."""
+"""The firmware model's acceptance on every simulator scenario: the replay pipeline with
+``backend="fixed"`` and ``backend="float"`` (what ``lde replay --backend fixed|float`` runs: the
+lateral filter in fixed point and in float, each with its learner) agree within 5 N (Fw) and 2 Nm
+(Mw) at every step, with the same status bits and no shadow deviation."""
 
 from __future__ import annotations
 
@@ -33,7 +32,7 @@ def setup():
     return load_vehicle("reference"), load_profile("lde")
 
 
-@pytest.mark.parametrize("pair", [("fixed", "float"), ("paper-fixed", "paper")])
+@pytest.mark.parametrize("pair", [("fixed", "float")])
 @pytest.mark.parametrize("name", NAMES)
 def test_fixed_and_float_replays_agree_on_scenario(setup, name, pair):
     vehicle, profile = setup
@@ -52,18 +51,12 @@ def test_fixed_and_float_replays_agree_on_scenario(setup, name, pair):
 
 
 def test_default_backend_is_fixed():
-    from lde.engine.backends import DEFAULT_BACKEND, run_lateral_fixed
+    from lde.engine.backends import DEFAULT_BACKEND, get_backend
+    from lde.engine.backends import fixed as fixed_backend
     from lde.replay.replay import resolve_backend
 
-    name, _, _ = resolve_backend(None)
-    assert name == DEFAULT_BACKEND == "fixed"
-    from lde.engine.backends import get_backend
-
-    assert get_backend(name).run is run_lateral_fixed
-    import firmware_model
-
-    name, fn, _ = resolve_backend("paper-fixed")
-    assert fn is firmware_model.run_batch
+    assert resolve_backend(None) == DEFAULT_BACKEND == "fixed"
+    assert get_backend("fixed").state_class is fixed_backend.State
 
 
 def test_cli_replay_fixed_and_float_agree(tmp_path):

@@ -229,26 +229,6 @@ def test_coefficient_polynomials_equal_the_float_model(vehicle, kmh):
     assert val["d1"] == pytest.approx(d.D[1] / (N * sT), rel=1e-12)
 
 
-def test_integer_schedule_matches_the_polynomials(vehicle):
-    """The integer evaluation of every coefficient is within a few LSB of its real value."""
-    from firmware_model.step import FixedState, schedule
-
-    tb = tables_for(vehicle)
-    polys = gen.coefficient_polys(vehicle, list(tb.sigma_exp), tb.sigma_t_exp, tb.dt_ns * 1e-9)
-    st = FixedState.initial(tb)
-    fr = {"phi": tb.f_phi, "e": tb.f_e, "h": tb.f_h, "d": tb.f_d}
-    for kmh in np.linspace(30, 250, 23):
-        v_raw = round(kmh * KMH * 2**tb.f_speed)
-        v = v_raw / 2**tb.f_speed
-        c = schedule(tb, st, v_raw)
-        for k, name in enumerate(gen.COEF_NAMES):
-            p = polys[name]
-            real = p[0] + p[1] / v + p[2] / v**2
-            f = fr[gen.COEF_GROUP[name]]
-            assert abs(c[k] - real * 2**f) <= 4, (name, kmh)
-    assert sum(st.sat) == 0
-
-
 def test_formats_hold_their_ranges(vehicle):
     tb = tables_for(vehicle)
     q = q32(tb.f_cov)

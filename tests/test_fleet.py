@@ -133,7 +133,7 @@ def test_learned_with_jobs_or_scheduler_is_one_line(logs, tmp_path, opt):
     learned = tmp_path / "car.learned"
     out = tmp_path / "csv"
     proc = subprocess.run(
-        [sys.executable, "-m", "lde", "replay", *map(str, logs), "--backend", "lateral"]
+        [sys.executable, "-m", "lde", "replay", *map(str, logs), "--backend", "float"]
         + ["--learned", str(learned), "--csv", str(out), *opt],
         capture_output=True,
         text=True,

@@ -151,3 +151,81 @@ def test_steady_state_gain_matches_scipy_dare(veh):
     np.testing.assert_allclose(Kg, K_ref, rtol=1e-6, atol=1e-9 * np.max(np.abs(K_ref)))
     tau = kalman.closed_loop_time_constants(d.Phi, d.H, Kg, 0.0039)
     assert np.all(tau > 0) and tau[0] >= tau[-1]
+
+
+def _spd(rng, m: int, cond: float, scale: float = 1e4) -> np.ndarray:
+    """A random symmetric positive definite (m, m) matrix with condition number ``cond``, its rows
+    and columns scaled over 1/scale..scale (as an innovation covariance mixing rad/s and Nm is)."""
+    q, _ = np.linalg.qr(rng.normal(size=(m, m)))
+    a = (q * np.logspace(0, -np.log10(cond), m)) @ q.T
+    s = scale ** rng.uniform(-1, 1, m)
+    return s[:, None] * (0.5 * (a + a.T)) * s[None, :]
+
+
+def _inverse(a: np.ndarray) -> np.ndarray:
+    m = a.shape[0]
+    ws = np.full((2, kalman.NX, kalman.NX), np.nan)
+    ws[0, :m, :m] = a
+    kalman.invert_small(ws, 0, 1, m)
+    assert np.isnan(ws[1, m:, :]).all() and np.isnan(ws[1, :, m:]).all()  # stays in its block
+    return ws[1, :m, :m].copy()
+
+
+@pytest.mark.parametrize("m", [1, 2, 3, 4])
+@pytest.mark.parametrize("cond", [1.0, 1e4, 1e8, 1e12])
+def test_small_inverse_matches_numpy_on_spd_and_near_singular_matrices(m, cond):
+    """The inverse without LAPACK against numpy's (LAPACK's LU) on SPD matrices up to near-singular
+    ones: the two differ by no more than their rounding, c * cond * eps relative to the inverse
+    (each side's error is of that order; near-singular the entries are ~1e12 and still agree)."""
+    rng = np.random.default_rng(1000 * m + int(np.log10(cond)))
+    eps = np.finfo(float).eps
+    for _ in range(200):
+        a = _spd(rng, m, cond)
+        ref = np.linalg.inv(a)
+        # relative to the inverse of the unscaled matrix: D^-1 (D A D)^-1 D^-1 entry by entry
+        d = np.sqrt(np.diag(a))
+        err = np.abs(_inverse(a) - ref) * d[:, None] * d[None, :]
+        assert np.max(err) <= 20 * m * np.linalg.cond(a / d[:, None] / d[None, :]) * eps * np.max(
+            np.abs(ref * d[:, None] * d[None, :])
+        )
+
+
+@pytest.mark.parametrize("m", [3, 4])
+def test_small_inverse_pivots_on_matrices_that_need_it(m):
+    """A zero or tiny leading entry (no SPD innovation covariance has one, a general S could): the
+    row exchange keeps the result exact where elimination in order would divide by ~0."""
+    rng = np.random.default_rng(m)
+    for _ in range(200):
+        a = rng.normal(size=(m, m))
+        a[0, 0] = 0.0 if rng.random() < 0.5 else 1e-17
+        a[1, 1] *= 1e-3
+        ref = np.linalg.inv(a)
+        np.testing.assert_allclose(
+            _inverse(a), ref, rtol=0, atol=1e4 * np.linalg.cond(a) * 2.3e-16 * np.abs(ref).max()
+        )
+
+
+@pytest.mark.parametrize("rows", [(True, True, True), (True, True, True, True), (True, False, True, True)])
+def test_update_with_three_and_four_rows_matches_the_textbook_form(rows):
+    """update_inplace with 3-4 used rows (the Gauss-Jordan branch; the estimator step uses two)
+    against y = z - Hx - Du, K = P H^T S^-1, Joseph form, NIS = y^T S^-1 y, in numpy."""
+    m = len(rows)
+    use = np.array(rows)
+    rng = np.random.default_rng(m + int(use.sum()))
+    for _ in range(50):
+        x = rng.normal(size=4) * [0.01, 0.01, 500.0, 200.0]
+        P = _spd(rng, 4, 1e3, scale=10.0)
+        H = rng.normal(size=(m, 4))
+        R = _spd(rng, m, 1e2, scale=10.0)
+        z, du = rng.normal(size=m), rng.normal(size=m)
+        xn, Pn = x.copy(), P.copy()
+        nis = kalman.update_inplace(xn, Pn, z, H, du, R, use, np.empty((kalman.UPDATE_WS, 4, 4)))
+        Hu, Ru = H[use], R[np.ix_(use, use)]
+        y = (z - H @ x - du)[use]
+        S = Hu @ P @ Hu.T + Ru
+        K = P @ Hu.T @ np.linalg.inv(S)
+        IKH = np.eye(4) - K @ Hu
+        P_ref = IKH @ P @ IKH.T + K @ Ru @ K.T
+        np.testing.assert_allclose(xn, x + K @ y, rtol=1e-8, atol=1e-8 * np.abs(x).max())
+        np.testing.assert_allclose(Pn, 0.5 * (P_ref + P_ref.T), rtol=1e-6, atol=1e-8 * np.abs(P).max())
+        assert nis == pytest.approx(float(y @ np.linalg.solve(S, y)), rel=1e-8)

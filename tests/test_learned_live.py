@@ -34,7 +34,7 @@ def _wait_for(path: Path, timeout_s: float = 30.0) -> dict:
 def test_live_writes_every_60_s_and_at_the_end_and_equals_replay(tmp_path, lde_bench: Bench) -> None:
     learned, rec = tmp_path / "car.learned", tmp_path / "run.mcap"
     lde_bench.simulator("prior_drive")
-    svc = lde_bench.service(backend="lateral", learned=learned, record=rec)
+    svc = lde_bench.service(backend="float", learned=learned, record=rec)
     lde_bench.run(59.0)
     time.sleep(0.2)
     assert not learned.exists()  # nothing due before 60 s of step time
@@ -50,7 +50,7 @@ def test_live_writes_every_60_s_and_at_the_end_and_equals_replay(tmp_path, lde_b
 
     # the recording replayed with a fresh learned file learns the same, bit for bit
     again = tmp_path / "replayed.learned"
-    replay_log(rec, None, load_vehicle("reference"), backend="lateral", learned=again)
+    replay_log(rec, None, load_vehicle("reference"), backend="float", learned=again)
     got = json.loads(again.read_text())
     assert got["params"] == final["params"]
     assert got["learner"] == final["learner"]
@@ -60,7 +60,7 @@ def test_live_writes_every_60_s_and_at_the_end_and_equals_replay(tmp_path, lde_b
 def test_live_starts_from_the_file_and_counts_the_drive(tmp_path, lde_bench: Bench) -> None:
     learned = tmp_path / "car.learned"
     lde_bench.simulator("lane_change", duration=8.0)
-    first = lde_bench.service(backend="lateral", learned=learned)
+    first = lde_bench.service(backend="float", learned=learned)
     lde_bench.run()
     first.close()
     doc = json.loads(learned.read_text())
@@ -71,10 +71,10 @@ def test_live_starts_from_the_file_and_counts_the_drive(tmp_path, lde_bench: Ben
     rec = tmp_path / "warm.mcap"
     with Bench() as bench:
         bench.simulator("lane_change", duration=4.0)
-        svc = bench.service(backend="lateral", learned=learned, record=rec)
+        svc = bench.service(backend="float", learned=learned, record=rec)
         from lde.estimator import lateral as E
 
-        assert svc.service.engine.est.info["p"][E.P_CF] == 61234.0
+        assert svc.service.engine.est.state.p[E.P_CF] == 61234.0
         assert svc.service.engine.learned_from is not None
         bench.run()
         svc.close()
@@ -84,7 +84,7 @@ def test_live_starts_from_the_file_and_counts_the_drive(tmp_path, lde_bench: Ben
 
     # the recording keeps the learned start: replayed without --learned it gives the live estimates
     vehicle = load_vehicle("reference")
-    _, res = replay_log(rec, None, vehicle, backend="lateral")
+    _, res = replay_log(rec, None, vehicle, backend="float")
     np.testing.assert_array_equal(res.fw, svc.series("fw"))
     np.testing.assert_array_equal(res.mw, svc.series("mw"))
     # ... which a replay from the vehicle file does not (the check above can fail)
@@ -92,7 +92,7 @@ def test_live_starts_from_the_file_and_counts_the_drive(tmp_path, lde_bench: Ben
     assert li.learned_start is not None and json.loads(li.learned_start)["params"]["cf_N_per_rad"] == 61234.0
     with li.stream as stream:  # the log's frames, piece by piece in time order
         frames = FrameBatch.concat(list(stream), sort=False)
-    cold = replay(frames, li.profile, vehicle, "lateral", step_times_ns=li.step_times_ns)
+    cold = replay(frames, li.profile, vehicle, "float", step_times_ns=li.step_times_ns)
     assert not np.array_equal(cold.fw, res.fw)
 
 
@@ -101,11 +101,11 @@ def test_learned_needs_a_learning_backend_and_the_same_car(tmp_path, lde_bench: 
     with pytest.raises(ConfigError, match="does not learn"):
         lde_bench.service(backend="paper", learned=learned)
     lde_bench.simulator("straight", duration=2.0)
-    svc = lde_bench.service(backend="lateral", learned=learned)
+    svc = lde_bench.service(backend="float", learned=learned)
     lde_bench.run()
     svc.close()
     with pytest.raises(ConfigError, match="learned for another vehicle"):
-        lde_bench.service(backend="lateral", learned=learned, vehicle="est2")
+        lde_bench.service(backend="float", learned=learned, vehicle="est2")
 
 
 def _snap(seconds: float) -> LearnedSnapshot:
@@ -148,23 +148,23 @@ def test_overlay_law_uses_the_learned_tires(tmp_path) -> None:
     follows -g (lr Fw + Mw) with that gain, not with the vehicle file's."""
     from lde.can.profiles import load_profile
     from lde.estimator import lateral as E
+    from lde.estimator.outputs import O_GAIN
     from lde.estimator.overlay import OverlayState, feedforward_gain
-    from lde.estimator.paper import O_GAIN
     from vcan_sim.run import simulate
 
     vehicle = load_vehicle("reference")
     frames = simulate("light_load", seed=3, duration=12.0).frames  # below the torque limit
     profile = load_profile("lde")
     base = tmp_path / "base.learned"
-    replay(frames, profile, vehicle, "lateral", learned=base)  # writes a file with the car's values
+    replay(frames, profile, vehicle, "float", learned=base)  # writes a file with the car's values
     doc = json.loads(base.read_text())
     cf0 = doc["params"]["cf_N_per_rad"]
     doc["params"]["cf_N_per_rad"] = 2.0 * cf0
     stiff = tmp_path / "stiff.learned"
     stiff.write_text(json.dumps(doc))
 
-    cold = replay(frames, profile, vehicle, "lateral")
-    warm = replay(frames, profile, vehicle, "lateral", learned=stiff)
+    cold = replay(frames, profile, vehicle, "float")
+    warm = replay(frames, profile, vehicle, "float", learned=stiff)
     g_cold, g_warm = cold.block.est[:, O_GAIN], warm.block.est[:, O_GAIN]
     p = E.params_vector(vehicle)
     assert g_cold[0] == pytest.approx(p[E.P_K] / (p[E.P_N] * p[E.P_CF] * (p[E.P_LF] + p[E.P_LR])), rel=1e-12)

@@ -18,7 +18,7 @@ from scipy.linalg import expm
 
 from lde.estimator import lateral as E
 from lde.estimator import learner as Ln
-from lde.estimator.paper import N_OUT
+from lde.estimator.outputs import N_OUT
 from lde.params import load_vehicle
 from lde.status import VALID
 from lde.units import DEG, STEP_NS, STEP_S

@@ -25,7 +25,7 @@ from test_learner import VX, _sense
 
 from lde.estimator import lateral as E
 from lde.estimator import learner as Ln
-from lde.estimator.paper import N_OUT, O_BANK, O_FW, O_FW_WIND, O_MW
+from lde.estimator.outputs import N_OUT, O_BANK, O_FW, O_FW_WIND, O_MW
 from lde.params import load_vehicle
 from lde.status import VALID
 from lde.units import DEG, STEP_NS, STEP_S

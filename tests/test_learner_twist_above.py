@@ -106,11 +106,10 @@ def _zoo_prior_drive(plant: str, r3_acc: float | None):
     )
     frames = simulate_run(spec, "prior_drive", 500).frames.sort()
     eng = Engine(load_profile("hyundai"), vehicle, "float", encode_outputs=False)
-    info = eng.est.info
+    lp, p = eng.est.params.lp, eng.est.state.p
     if r3_acc is not None:
-        info["lp"][Ln.L_R3_ACC] = r3_acc
+        lp[Ln.L_R3_ACC] = r3_acc
     eng.feed(frames, final=True)
-    p = info["p"]
     return p[E.P_K] / float(tv["k"]) - 1.0, math.degrees(p[E.P_CTB]), float(tv["torsion_deg_per_Nm"])
 
 

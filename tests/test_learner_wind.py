@@ -34,18 +34,18 @@ def _frames(scenario: str, seed: int):
 
 
 def _run(vehicle, frames, learned_in, learned_out, wind_q, low_tier=True):
-    eng = Engine(load_profile("lde"), vehicle, "lateral", encode_outputs=False)
-    info = eng.est.info
+    eng = Engine(load_profile("lde"), vehicle, "float", encode_outputs=False)
+    lp, p = eng.est.params.lp, eng.est.state.p
     if not low_tier:  # the steering gate without its low-rate tier (L_EXC_SW2), as before issue 11's fix
-        info["lp"][Ln.L_EXC_SW2] = -1.0
+        lp[Ln.L_EXC_SW2] = -1.0
     if learned_in is not None:
         eng.load_learned(learned_in)
-    info["lp"][Ln.L_WIND_Q] = wind_q
-    p_start = info["p"].copy()
+    lp[Ln.L_WIND_Q] = wind_q
+    p_start = p.copy()
     eng.feed(frames, final=True)
     if learned_out is not None:
         eng.save_learned(learned_out, 1.0)
-    return p_start, info["p"].copy()
+    return p_start, p.copy()
 
 
 @pytest.fixture(scope="module")

@@ -77,9 +77,16 @@ def test_candump_line_kinds_and_exact_timestamps():
     assert f.is_extended.tolist() == [False, True, False, False]
     assert f.dlc.tolist() == [8, 2, 12, 1]
     assert f.is_rx.tolist() == [True, False, True, True]
-    assert f.data[0].tolist() == [0x00, 0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77]
-    assert f.data[2].tolist() == [0x00, 0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77]  # first 8 FD bytes
-    assert f.data[3].tolist() == [1, 0, 0, 0, 0, 0, 0, 0]
+    assert f.width == 12  # the longest frame's bytes (CAN FD)
+    assert f.data[0].tolist() == [0x00, 0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77, 0, 0, 0, 0]
+    assert f.data[2].tolist() == [0x00, 0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77, 0x88, 0x99, 0x00, 0x11]
+    assert f.data[3].tolist() == [1] + [0] * 11
+    assert f.channels == ("vcan0", "can1") and f.channel_names().tolist() == [
+        "vcan0",
+        "can1",
+        "vcan0",
+        "vcan0",
+    ]
     assert (p.error_frames, p.remote_frames, p.malformed_lines, p.truncated_last_line) == (1, 2, 1, 0)
     assert p.first_malformed_line == 8
 

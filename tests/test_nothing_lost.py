@@ -309,7 +309,8 @@ def test_lde_run_sigint_closes_its_recording(tmp_path: Path) -> None:
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert rc == 0, proc.stderr.read().decode() if proc.stderr else ""
+    err = proc.stderr.read().decode() if proc.stderr else ""
+    assert rc == 3 and "no input ever arrived" in err, err  # a silent bus: nothing usable, said
     rec = read_recording(path)
     assert rec.complete and len(rec.step_times_ns) > 10
 
@@ -344,8 +345,6 @@ def test_a_killed_live_sim_leaves_its_files_readable_up_to_about_the_kill(tmp_pa
     each reads (the MCAP without footer, which a replay says, the CSV up to its last whole line) and
     ends near the kill. The bound here is generous (a loaded machine); bench_sigkill.py --target sim
     holds the 1 s promise. The loss is measured against the frames heard on the bus."""
-    pytest.importorskip("msgpack")
-
     from lde.testing.bus import private_multicast
     from vcan_sim.truth import read_truth_csv
 

@@ -130,7 +130,7 @@ def _lateral_filter_on_constant_inputs(v, vx: float, t_col: float, seconds: floa
     """The lateral filter (lde.estimator.lateral, float) on a straight drive whose only non-zero input is
     the column torque: (Fw, Mw) at the end."""
     from lde.estimator import lateral as E
-    from lde.estimator.paper import N_OUT, O_FW, O_MW
+    from lde.estimator.outputs import N_OUT, O_FW, O_MW
 
     p = E.params_vector(v)
     x, P = np.zeros(E.NX), np.zeros((E.NX, E.NX))

@@ -389,23 +389,29 @@ def test_recording_replays_under_the_profile_it_names(tmp_path: Path, capsys):
     assert status.size > 0 and not np.any(status.astype(int) & 1)
 
 
-def test_recorded_profile_of_a_dbc_file(tmp_path: Path, profile, sample_replay):
-    """A profile from a user's DBC is recorded with its path; a recording naming a DBC that is not
-    there is a ConfigError asking for --profile; logs without metadata name none."""
+def test_recorded_profile_of_a_profile_file(tmp_path: Path, profile, sample_replay):
+    """A profile from a user's file is recorded with its path; a recording naming a file that is not
+    there, or a DBC (which older versions took as a profile), is a ConfigError asking for --profile;
+    logs without metadata name none."""
     from lde.errors import ConfigError
     from lde.replay.replay import profile_metadata, recorded_profile
 
-    dbc = tmp_path / "mine.dbc"
-    dbc.write_bytes(Path(profile.dbc_path).read_bytes())
-    mine = load_profile(dbc)
+    (tmp_path / "lde.dbc").write_bytes(Path(profile.dbc_path).read_bytes())
+    mine_file = tmp_path / "mine.toml"
+    mine_file.write_bytes(profile.path.read_bytes())
+    mine = load_profile(mine_file)
     log, res = sample_replay
     rec = tmp_path / "r.mcap"
     write_recording(rec, log.frames, res, mine, metadata=profile_metadata(mine))
-    assert recorded_profile(read_log(rec)) == str(dbc.resolve())
+    assert recorded_profile(read_log(rec)) == str(mine_file.resolve())
     assert recorded_profile(read_log(SAMPLE)) is None
-    dbc.unlink()
+    mine_file.unlink()
     with pytest.raises(ConfigError, match="give --profile"):
         recorded_profile(read_log(rec))
+    old = tmp_path / "old.mcap"
+    write_recording(old, log.frames, res, profile, metadata={"profile": "mine", "profile_dbc": "/x/mine.dbc"})
+    with pytest.raises(ConfigError, match=r"DBC /x/mine\.dbc: write a profile file for it.*give --profile"):
+        recorded_profile(read_log(old))
 
 
 def test_cli_replays_a_gzip_compressed_log(tmp_path: Path):
@@ -479,26 +485,6 @@ def test_cli_start_up_imports_only_the_named_subcommand(command: str):
     from lde.cli import SUBCOMMANDS
 
     assert proc.returncode == 0 and all(f"    {name} " in proc.stdout for name in SUBCOMMANDS), proc.stdout
-
-
-def test_a_cold_kernel_cache_is_announced_at_once(tmp_path: Path, capsys, monkeypatch):
-    """Without cached kernels (an empty NUMBA_CACHE_DIR), ``lde replay`` says first that it compiles
-    and where it caches; with them it says nothing of the kind."""
-    from lde.jitcache import cache_dirs, is_warm
-
-    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
-    assert not is_warm()
-    args = ["replay", str(SAMPLE), "--backend", "float", "--csv", str(tmp_path / "o.csv")]
-    assert main(args) == 0
-    err = capsys.readouterr().err
-    assert err.startswith("lde: compiling the numba kernels") and str(cache_dirs()[0]) in err.splitlines()[0]
-    d = cache_dirs()[0]
-    d.mkdir(parents=True)
-    tag = f"py{sys.version_info[0]}{sys.version_info[1]}"
-    (d / f"loop.run_paper-173.{tag}.nbi").write_bytes(b"")
-    assert is_warm()
-    assert main(args) == 0
-    assert "compiling" not in capsys.readouterr().err
 
 
 def test_several_logs_go_on_past_a_bad_one_and_exit_non_zero(tmp_path, capsys) -> None:

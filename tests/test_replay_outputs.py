@@ -1,5 +1,5 @@
 """`lde replay`'s outputs explain themselves: the CSV decodes its status bits into 0/1 columns
-(the estimate columns keep their names and order), `--help` and docs/csv.md list every column, the
+(the estimate columns keep their names and order), `--help` and docs/guide/csv.md list every column, the
 summary names every file it wrote, and a replay without --csv / --mcap says that nothing was
 written and how to write it."""
 
@@ -68,12 +68,12 @@ def test_help_and_docs_list_every_column_with_its_unit(capsys):
     with pytest.raises(SystemExit):
         main(["replay", "--help"])
     text = capsys.readouterr().out
-    doc = (ROOT / "docs" / "csv.md").read_text()
+    doc = (ROOT / "docs" / "guide" / "csv.md").read_text()
     assert "ISO 8855" in text and "ISO 8855" in doc
     for name, _, meaning in csv_columns(smooth=True):
         unit = meaning.split(",")[0]
         assert re.search(rf"^\s+{re.escape(name)}\s+{re.escape(unit)}", text, re.M), name
-        assert re.search(rf"^\| `{re.escape(name)}` \|", doc, re.M), f"{name} missing in docs/csv.md"
+        assert re.search(rf"^\| `{re.escape(name)}` \|", doc, re.M), f"{name} missing in docs/guide/csv.md"
     for flag in Status:  # the doc gives each decoded column its bit
         assert re.search(rf"^\| `{str(flag.name).lower()}` \| {flag.bit_length() - 1} \|", doc, re.M)
 

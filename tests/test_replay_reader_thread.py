@@ -1,15 +1,9 @@
 """``lde replay`` of an MCAP file reads its chunks in the reader thread (issue 12 item 5): a chunk
 that fails to decompress there ends the replay with one ``lde: error:`` line, the thread stopped and
-the CSV removed; through the API the pieces before it reach the engine and the error is the reader's.
-And numba's BLAS check answered from disk (:mod:`lde.lazyblas`) keeps kernels that call BLAS and
-LAPACK working, cached or compiled."""
+the CSV removed; through the API the pieces before it reach the engine and the error is the reader's."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-import textwrap
 import threading
 from pathlib import Path
 
@@ -25,7 +19,6 @@ from lde.params import load_vehicle
 from lde.replay.replay import read_inputs, run_replay
 
 DATA = Path(__file__).parent / "data"
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _damaged_mcap(tmp_path: Path) -> tuple[Path, int]:
@@ -77,56 +70,3 @@ def test_the_pieces_before_the_failing_chunk_reach_the_engine_then_its_error(tmp
         run_replay(stream, li.profile, load_vehicle("reference"), "float", sinks=(count,))
     assert 0 < fed[0] <= before
     assert _reader_threads() == []
-
-
-_KERNELS = """
-import numba
-import numpy as np
-
-
-@numba.njit(cache=True)
-def inv(a):
-    return np.linalg.inv(a)
-
-
-@numba.njit(cache=True)
-def dot(a, b):
-    return np.dot(a, b)
-"""
-
-_CHECK = """
-import sys
-import numpy as np
-from lde.lazyblas import defer_blas_import
-
-answered = defer_blas_import()
-import numba.np.arraymath as am
-import numba.np.linalg as nl
-import kernels_under_test as k
-
-a = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]])
-before = "scipy.linalg" in sys.modules
-ok = np.allclose(k.inv(a) @ a, np.eye(3)) and np.isclose(k.dot(a[0], a[1]), a[0] @ a[1])
-print(answered, am._HAVE_BLAS, am.ensure_blas is nl.ensure_blas, before, ok, "scipy.linalg" in sys.modules)
-"""
-
-
-def test_kernels_calling_blas_and_lapack_work_after_the_check_answered_from_disk(tmp_path):
-    """First run compiles the two kernels into an empty cache, second loads them from it: both
-    with the check answered from disk; scipy.linalg is imported only once a kernel needs it."""
-    (tmp_path / "kernels_under_test.py").write_text(textwrap.dedent(_KERNELS))
-    env = {
-        **os.environ,
-        "NUMBA_CACHE_DIR": str(tmp_path / "cache"),
-        "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT / "src"), str(ROOT)]),
-    }
-    runs = [
-        subprocess.run([sys.executable, "-c", _CHECK], env=env, capture_output=True, text=True, check=True)
-        for _ in range(2)
-    ]
-    compiled, cached = (r.stdout.split() for r in runs)
-    # answered from disk, BLAS found, numba's ensure_blas put back, scipy.linalg not loaded by the
-    # check, right results, scipy.linalg loaded by the LAPACK call (compile or first cached call)
-    assert compiled == ["True", "True", "True", "False", "True", "True"]
-    assert cached == ["True", "True", "True", "False", "True", "True"]
-    assert list((tmp_path / "cache").rglob("*.nbi"))  # the second run had a cache to load

@@ -261,7 +261,7 @@ def test_sigterm_ends_lde_run_cleanly(tmp_path) -> None:
         "--channel",
         "term",
         "--backend",
-        "lateral",
+        "float",
         "--record",
         str(path),
         "--learned",
@@ -282,7 +282,9 @@ def test_sigterm_ends_lde_run_cleanly(tmp_path) -> None:
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert rc == 0, proc.stderr.read().decode() if proc.stderr else ""
+    err = proc.stderr.read().decode() if proc.stderr else ""
+    assert rc == 3, err  # a silent bus: nothing usable, as lde replay
+    assert "no input ever arrived on virtual:term with profile lde" in err
     rec = read_recording(path)
     assert rec.complete  # summary and footer written: the recorder was closed
     assert len(rec.step_times_ns) > 10
@@ -454,42 +456,12 @@ def test_input_filters_pass_only_the_input_messages() -> None:
             )
         svc._drain()
         assert sorted(svc._pid[: svc._np].tolist()) == [0x2A0, 0x2A8]
-        assert svc.filters == "in the service" and svc.foreign == 2  # see set_input_filters
+        # python-can's virtual bus has no descriptor to tell a filtered frame from an empty queue: no
+        # filters there, the service drops the other ids itself (lde.can.busio.receive_only)
+        assert svc.filters.startswith("none") and svc.foreign == 2
     finally:
         feed_bus.shutdown()
         svc_bus.shutdown()
-
-
-def test_udp_multicast_socket_filter_drops_foreign_frames_in_the_kernel() -> None:
-    """The BPF program on python-can's udp_multicast socket: only the input ids get through (the
-    service's own outputs, which the multicast loopback delivers, never reach Python)."""
-    pytest.importorskip("msgpack")
-    import time
-
-    from lde.service.service import set_input_filters
-    from lde.testing.bus import private_multicast
-
-    kw = private_multicast()
-    try:
-        rx = can.Bus(**kw)
-        tx = can.Bus(**kw)
-    except (can.CanError, OSError) as exc:  # pragma: no cover - no multicast on this host
-        pytest.skip(f"udp_multicast not available: {exc}")
-    try:
-        how = set_input_filters(rx, load_profile("lde"))
-        assert "socket filter" in how
-        for fid in (0x7F, 0x2A0, 0x3D0, 0x3D1, 0x2A8, 0x7FF):
-            tx.send(can.Message(arbitration_id=fid, data=bytes(8), is_extended_id=False))
-        time.sleep(0.1)
-        sock = rx._multicast._socket
-        got = []
-        while (r := rx._multicast.recv(0.0)) is not None:  # below python-can's software filter
-            got.append(r)
-        assert len(got) == 2, got
-        assert sock is rx._multicast._socket
-    finally:
-        rx.shutdown()
-        tx.shutdown()
 
 
 def test_run_states_the_defaults_a_vehicle_file_leaves_out(tmp_path, caplog) -> None:
@@ -512,7 +484,7 @@ def test_run_states_the_defaults_a_vehicle_file_leaves_out(tmp_path, caplog) -> 
             ["run", "-i", "virtual", "-c", "lde-defaults", "--vehicle", str(car), "--duration", "0.2"]
             + ["--backend", "float", "--record", str(path)]
         )
-    assert rc == 0
+    assert rc == 3  # no input on this bus
     note = [r.getMessage() for r in caplog.records if "defaults used for" in r.getMessage()]
     assert note and "[estimator]" in note[0], caplog.text
     assert "[estimator]" in read_recording(path).metadata["vehicle_defaults"]
@@ -754,12 +726,14 @@ def test_the_engine_prewarm_before_the_mdps_frame_changes_nothing(lost) -> None:
         out = [(m.arbitration_id, bytes(m.data)) for m in _outputs(tap) if m.arbitration_id in ours]
         tap.shutdown()
         rows = [(r.t_ns, r.fw, r.mw, r.status, r.t_overlay, r.frames_used) for r in seen]
-        info = svc.engine.est.info  # the filter's, its shadow's and the learner's state, the limiter's
+        st = svc.engine.est.state  # the filter's, its shadow's and the learner's state, the limiter's
         kept = [
-            *info["state"],
-            *info["shadow_state"],
-            info["learner"],
-            info["p"],
+            st.x,
+            st.P,
+            st.aux,
+            *st.shadow[:4],
+            st.ls,
+            st.p,
             svc.engine.lsf,
             svc.engine.lsi,
         ]

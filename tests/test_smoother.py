@@ -302,7 +302,6 @@ def test_cli_smooth_with_the_fixed_backend_says_what_is_smoothed(tmp_path, capsy
     ("args", "message"),
     [
         (["--backend", "paper", "--csv", "X"], "--smooth smooths the lateral filter"),
-        (["--backend", "paper-fixed", "--csv", "X"], "--smooth smooths the lateral filter"),
         ([], "--smooth writes its columns to --csv and/or --mcap"),
     ],
 )

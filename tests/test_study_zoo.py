@@ -17,9 +17,7 @@ from lde.cli import main
 from lde.cli import replay_in_process as cli_engine
 from lde.errors import ConfigError
 from lde.params import load_vehicle
-
-vcan_zoo = pytest.importorskip("vcan_sim.zoo")
-
+from vcan_sim import zoo as vcan_zoo
 
 # --- spec sheets ------------------------------------------------------------------------------------
 
@@ -154,7 +152,7 @@ def test_cli_engine_reports_lde_errors_as_a_failed_run(tmp_path):
 
 def test_warm_mode_learns_on_the_prior_drive_then_replays_with_it(tmp_path, monkeypatch):
     """Warm: `lde replay PRIOR --learned S` (no CSV) writes S, then `lde replay LOG --learned S --csv
-    OUT` starts from it. Both real CLI runs, the lateral backend."""
+    OUT` starts from it. Both real CLI runs, the float backend."""
     calls = []
     real = cli_engine.run_cli
 
@@ -164,7 +162,7 @@ def test_warm_mode_learns_on_the_prior_drive_then_replays_with_it(tmp_path, monk
 
     monkeypatch.setattr(cli_engine, "run_cli", spy)
     (spec,) = zoo.zoo_specs(
-        ["indep_twin"], scenarios=("wind_step",), profiles=("lde",), backends=("lateral",), mode=zoo.Mode.WARM
+        ["indep_twin"], scenarios=("wind_step",), profiles=("lde",), backends=("float",), mode=zoo.Mode.WARM
     )
     assert spec.est_options.learned_prior == zoo.PRIOR_SCENARIO
     from lde.analysis.study.execute import run_one
@@ -172,7 +170,7 @@ def test_warm_mode_learns_on_the_prior_drive_then_replays_with_it(tmp_path, monk
     res = run_one(RunSpec(**{**spec.__dict__, "duration": 8.0, "work_dir": str(tmp_path)}), cli_engine.engine)
     assert res.ok, res.error
     prior, run = calls
-    d = tmp_path / "indep_twin" / "lde-lateral" / "wind_step-s0-warm"
+    d = tmp_path / "indep_twin" / "lde-float" / "wind_step-s0-warm"
     assert prior[:2] == ["replay", str(d / "prior.log")] and "--csv" not in prior
     assert prior[prior.index("--learned") + 1] == str(d / "learned")
     assert run[:2] == ["replay", str(d / "drive.log")]

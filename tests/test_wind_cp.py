@@ -8,7 +8,7 @@ import pytest
 
 from lde.errors import ConfigError
 from lde.estimator import lateral as E
-from lde.estimator.paper import N_OUT, O_FW_WIND, O_MW, O_MW_WIND
+from lde.estimator.outputs import N_OUT, O_FW_WIND, O_MW, O_MW_WIND
 from lde.params import load_vehicle
 
 

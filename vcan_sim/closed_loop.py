@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import can
 
+from lde.can.busio import drain
 from lde.can.codec import MessageCodec
 from lde.can.e2e import E2EStatus, P01Receiver
 from lde.can.profiles import Profile
@@ -37,6 +38,7 @@ class OverlayReceiver:
     def __init__(self, profile: Profile, ramp_rate: float = 5.0) -> None:
         self.spec = profile.spec("LDE_Overlay")
         self.codec = MessageCodec(profile, "LDE_Overlay")
+        assert self.spec.receiver is not None  # lde's outputs always have their timeout
         self.e2e = P01Receiver(self.spec.receiver, data_id=self.spec.frame_id, scheme=self.spec.scheme)
         self.ramp_rate = float(ramp_rate)
         self.stats = OverlayStats()
@@ -112,7 +114,7 @@ def run_lockstep(
             st.sent += 1
         service_step(t_start + latency_ns)
         st.steps += 1
-        while (back := bus.recv(0.0)) is not None:
+        for back in drain(bus):
             t_rx = int(round(back.timestamp * 1e9)) if back.timestamp else t_start + latency_ns
             if receiver.on_message(back, t_rx) is not None:
                 st.overlay_frames += 1

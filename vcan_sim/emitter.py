@@ -20,8 +20,9 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
+from lde.can.busio import drain
 from lde.can.codec import MessageCodec, MessageEncoder, encode_frames, si_to_dbc
-from lde.can.frames import FrameBatch, ns_to_seconds
+from lde.can.frames import FrameBatch, data_width, ns_to_seconds
 from lde.can.profiles import Profile
 from lde.clock import MonotonicClock
 from lde.units import STEP_NS
@@ -56,7 +57,7 @@ class MessageStream:
     sent: int = 0
     encoder: MessageEncoder | None = None  # scalar path for the few frames of one live step
     fault_hits: list[tuple[Fault, np.ndarray]] = field(default_factory=list)
-    checksum_fields: tuple[tuple[int, int], ...] = ()
+    checksum_fields: tuple[tuple[int, int, bool], ...] = ()
     last_data: np.ndarray | None = None  # data of the last frame sent (REPEAT faults)
 
 
@@ -175,7 +176,7 @@ def _encode_scalar(stream: MessageStream, cols: dict, t_abs: np.ndarray, first: 
     enc = stream.encoder
     assert enc is not None  # emit_range only calls this with an encoder
     n = t_abs.shape[0]
-    data = np.zeros((n, 8), np.uint8)
+    data = np.zeros((n, data_width(enc.codec.length)), np.uint8)
     for i in range(n):
         enc.counter = _counter(first + i, stream.modulus)
         raw = enc.encode({k: float(np.asarray(v).reshape(-1)[i]) for k, v in cols.items()})
@@ -209,6 +210,8 @@ class PumpStats:
         steps: simulation steps (3.9 ms each); stale_overlay_steps: closed-loop steps that found no new
             overlay frame since the previous step and ran on the last request (the receiver ramps it
             out after the message timeout).
+        rx_full_steps: closed-loop steps that took in :data:`MAX_RX_PER_STEP` frames and left the
+            rest queued for the next step (a bus busier than the loop's traffic).
         max_late_s, late_frames: the largest lateness [s] of a frame against its schedule, and the
             frames sent more than :data:`LATE_S` after their time.
         slips, slipped_s: how often the schedule was moved later because the simulator fell more than
@@ -223,6 +226,7 @@ class PumpStats:
     send_errors: int = 0
     steps: int = 0
     stale_overlay_steps: int = 0
+    rx_full_steps: int = 0
     max_late_s: float = 0.0
     late_frames: int = 0
     slips: int = 0
@@ -238,7 +242,8 @@ LATE_S = 1e-3
 #: behind schedule by more than this, the simulator moves its schedule instead of sending a burst to
 #: catch up [s]: three MDPS periods, the receiver's input timeout, past which the frames are stale anyway
 MAX_LAG_S = 3 * STEP_NS * 1e-9
-#: closed loop: at most this many received frames are taken in per step (the rest wait for the next)
+#: closed loop: at most this many received frames are taken in per step, so that a flood cannot hold
+#: up the simulator's own sends; the rest stay queued for the next step (counted: ``rx_full_steps``)
 MAX_RX_PER_STEP = 64
 
 
@@ -251,6 +256,7 @@ def to_messages(frames: FrameBatch, channel: str | None = None) -> list[can.Mess
             is_extended_id=bool(frames.is_extended[i]),
             dlc=int(frames.dlc[i]),
             data=bytes(frames.data[i, : frames.dlc[i]]),
+            is_fd=int(frames.dlc[i]) > 8,
             channel=channel,
         )
         for i in range(len(frames))
@@ -311,11 +317,12 @@ def pump(
 
     def take_arrived() -> None:
         n = 0
-        while n < MAX_RX_PER_STEP and (msg := bus.recv(timeout=0.0)) is not None:
+        for msg in drain(bus, MAX_RX_PER_STEP):
             n += 1
-            st.received += 1
             if receiver.on_message(msg, sim.t_ns) is not None:
                 st.overlay_used += 1
+        st.received += n
+        st.rx_full_steps += n == MAX_RX_PER_STEP
 
     while not sim.done:
         if stop is not None and stop():

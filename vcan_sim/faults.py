@@ -21,6 +21,7 @@ from enum import Enum
 
 import numpy as np
 
+from lde.can.bitfield import field_pos, get_bits, put_bits
 from lde.can.frames import FrameBatch
 from lde.can.profiles import GROUPS, Profile
 from lde.errors import ConfigError
@@ -89,7 +90,7 @@ def apply_faults(
     frames: FrameBatch,
     hits: list[tuple[Fault, np.ndarray]],
     first: int,
-    checksum_fields: tuple[tuple[int, int], ...],
+    checksum_fields: tuple[tuple[int, int, bool], ...],
     prev: np.ndarray | None,
 ) -> tuple[FrameBatch, np.ndarray | None]:
     """Apply the faults of one message to its frames ``first, first + 1, ...`` of the run.
@@ -111,13 +112,23 @@ def apply_faults(
                 continue
             if f.kind in (FaultKind.DROP, FaultKind.SILENCE):
                 keep[i] = False
-            elif f.kind is FaultKind.CORRUPT:
-                for start, length in checksum_fields or ((0, 8),):
-                    for b in range(start, start + length):
-                        data[i, b // 8] ^= np.uint8(1 << (b % 8))
+            elif f.kind is FaultKind.CORRUPT:  # every bit of the checksum (else of byte 0) flipped
+                for start, length, little_endian in checksum_fields or ((0, 8, True),):
+                    pos = field_pos(start, length, little_endian)
+                    v = int(get_bits(data[i], pos, length, little_endian))
+                    put_bits(data[i], pos, length, little_endian, ~v & ((1 << length) - 1))
             elif f.kind is FaultKind.REPEAT and prev is not None:
                 data[i] = prev
         if keep[i]:
             prev = data[i].copy()
-    out = FrameBatch(frames.t_ns, frames.can_id, frames.is_extended, frames.dlc, data, frames.is_rx)
+    out = FrameBatch(
+        frames.t_ns,
+        frames.can_id,
+        frames.is_extended,
+        frames.dlc,
+        data,
+        frames.is_rx,
+        frames.channel,
+        frames.channels,
+    )
     return out.select(keep), prev

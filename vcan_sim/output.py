@@ -23,6 +23,7 @@ from typing import IO
 import numpy as np
 
 from lde.can.frames import FrameBatch
+from lde.can.profiles import Profile
 from lde.errors import OutputError
 from lde.io import McapWriter
 from lde.io.candump import candump_decimals, format_candump_bytes
@@ -40,12 +41,13 @@ STREAM_CHUNK_SIZE = 64 * 1024
 _DEFAULT_CHUNK = 4 << 20
 
 
-def sim_metadata(scenario: str, seed: int, profile: str, t0_ns: int) -> dict[str, str]:
-    """The MCAP ``lde`` metadata record of a simulated run."""
+def sim_metadata(scenario: str, seed: int, profile: str | Profile, t0_ns: int) -> dict[str, str]:
+    """The MCAP ``lde`` metadata record of a simulated run (a profile file of the user's: its path too,
+    :meth:`lde.can.profiles.Profile.metadata`)."""
     return {
         "scenario": scenario,
         "seed": str(seed),
-        "profile": profile,
+        **(profile.metadata() if isinstance(profile, Profile) else {"profile": profile}),
         "source": "vcan_sim",
         "t0_ns": str(t0_ns),
     }
@@ -263,7 +265,7 @@ def open_outputs(
         truth,
         mcap,
         profile=sim.profile.name,
-        metadata=sim_metadata(sim.scenario.name, sim.seed, sim.profile.name, sim.t0_ns),
+        metadata=sim_metadata(sim.scenario.name, sim.seed, sim.profile, sim.t0_ns),
         channel=channel,
         chunk_size=chunk_size,
     )

@@ -6,10 +6,6 @@ frames -> signals (decode by profile, E2E receiver) -> inputs in SI on the 3.9 m
 """
 
 from lde.errors import BusError, ConfigError, LdeError, LogFormatError
-from lde.jitcache import drop_stale
-
-# before any kernel loads from numba's cache: numba would keep a kernel whose callee changed
-drop_stale()
 
 __version__ = "0.1.0"
 __all__ = ["LdeError", "ConfigError", "LogFormatError", "BusError", "__version__"]

@@ -51,7 +51,7 @@ _T = TypeVar("_T")
 
 class Receiver(Protocol, Generic[_F]):
     """What :meth:`MonotonicClock.recv_until` reads from: a ``can.BusABC``, or the service's frame I/O
-    (:mod:`lde.service.busio`), whose ``recv(timeout)`` returns a frame or None."""
+    (:mod:`lde.can.busio`), whose ``recv(timeout)`` returns a frame or None."""
 
     def recv(self, timeout: float | None = ...) -> _F | None: ...
 

@@ -35,6 +35,7 @@ import numpy as np
 
 from lde.analysis.metrics import Truth, accuracy
 from lde.analysis.plots import plot_demo
+from lde.can.busio import drain
 from lde.can.profiles import load_profile
 from lde.clock import SimulatedClock
 from lde.errors import ConfigError
@@ -117,7 +118,7 @@ class SimDriver:
         rx = self.receiver
         if rx is not None:
             t = self.sim.t_ns
-            while (msg := self.bus.recv(0.0)) is not None:
+            for msg in drain(self.bus):
                 rx.on_message(msg, t)
         req = rx.request(self.sim.t_ns) if rx is not None else None
         frames = self.sim.step(req)
@@ -130,7 +131,8 @@ class SimDriver:
                     timestamp=(int(t_s[i]) // 1000) / 1e6,
                     arbitration_id=int(frames.can_id[i]),
                     is_extended_id=bool(frames.is_extended[i]),
-                    data=frames.data[i, : min(d, 8)].tobytes(),
+                    data=frames.data[i, :d].tobytes(),
+                    is_fd=d > 8,
                 )
             )
         self.sent += n
@@ -264,7 +266,7 @@ def run_closed_loop(
             recorder = Recorder(
                 record,
                 metadata={
-                    "profile": prof.name,
+                    **prof.metadata(),
                     "vehicle": veh.name,
                     "backend": backend,
                     "step_ns": str(STEP_NS),
@@ -371,7 +373,12 @@ def _truth_series(
 
 
 def run_without_overlay_fast(
-    scenario: str = DEFAULT_SCENARIO, *, seed: int = 1, duration: float | None = None, vehicle: Any = None
+    scenario: str = DEFAULT_SCENARIO,
+    *,
+    seed: int = 1,
+    duration: float | None = None,
+    vehicle: Any = None,
+    profile: str = "lde",
 ) -> DemoRun:
     """The run without overlay through the simulator's fast path (whole run in a few jitted calls).
 
@@ -383,7 +390,7 @@ def run_without_overlay_fast(
     """
 
     wall0 = time.perf_counter()
-    res = simulate(scenario, vehicle, "lde", seed=seed, duration=duration)
+    res = simulate(scenario, vehicle, profile, seed=seed, duration=duration)
     wall = time.perf_counter() - wall0
     t_ns = np.asarray(res.truth_t_ns, np.int64)
     nan = np.full(t_ns.size, np.nan)
@@ -476,6 +483,7 @@ def run_demo(
     duration: float | None = None,
     vehicle: Any = None,
     backend: str = "fixed",
+    profile: str = "lde",
     mcap: str | Path | None = "lde_demo.mcap",
     png: str | Path | None = "lde_demo.png",
     full_off_run: bool = False,
@@ -493,7 +501,7 @@ def run_demo(
     if scenario not in SCENARIOS:
         raise ConfigError(f"unknown scenario {scenario!r} (known: {', '.join(SCENARIOS)})")
     check_output_paths({"MCAP recording": mcap, "plot": png})
-    kw: dict[str, Any] = {"seed": seed, "duration": duration, "vehicle": vehicle}
+    kw: dict[str, Any] = {"seed": seed, "duration": duration, "vehicle": vehicle, "profile": profile}
     on = run_closed_loop(scenario, overlay=True, backend=backend, record=mcap, **kw)
     if full_off_run:
         off = run_closed_loop(scenario, overlay=False, backend=backend, **kw)

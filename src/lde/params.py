@@ -18,18 +18,13 @@ Sign conventions: ISO 8855 everywhere (x forward, y left, z up, left turns posit
 from __future__ import annotations
 
 import math
-import sys
+import tomllib
 from dataclasses import MISSING, Field, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
 from lde.errors import ConfigError
 from lde.units import DEG, KMH, G
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - exercised on 3.10 only
-    import tomli as tomllib
 
 VEHICLE_DIR = Path(__file__).with_name("vehicles")
 DEFAULT_VEHICLE = "reference"

@@ -1,15 +1,13 @@
 """Compile every numba kernel ahead of time (``lde warmup``): the first real run then starts warm.
 
 Each part runs a tiny workload through its kernels, so numba compiles them and writes its on-disk
-cache (:mod:`lde.jitcache`); parts can run in parallel processes (one core each):
+cache; parts can run in parallel processes (one core each):
 
 ===========  ======================================================================================
-``fixed``    the data path with the default backend (the lateral filter in fixed point, its float
-             shadow and the learner), and the live service's own kernels (``lde run``, ``lde demo``:
-             the MDPS-locked grid, the step's compiled hand-off :mod:`lde.service.handoff`)
-``float``    the data path with the lateral filter in float
-``paper-fixed``  the paper's filter in fixed point with its shadow
-``paper``    the paper's filter in float
+a backend    the data path with that backend (one part per registered backend,
+             :data:`lde.engine.backends.BACKENDS`); the default backend's part also builds a live
+             service (``lde run``, ``lde demo``: the MDPS-locked grid, the step's compiled hand-off
+             :mod:`lde.service.handoff`)
 ``logio``    candump parser and writer, MCAP writer and reader, CSV / JSON row formatting
 ``sim``      the vehicle simulator (``lde demo``, ``lde sim``) and the batch decoder and grid
 ``smooth``   ``lde replay --smooth``: the traced float lateral step and the RTS backward pass
@@ -31,6 +29,7 @@ import numpy as np
 from lde.can.frames import FrameBatch
 from lde.can.profiles import load_profile
 from lde.clock import SimulatedClock
+from lde.engine.backends import BACKENDS, DEFAULT_BACKEND
 from lde.engine.engine import Engine
 from lde.engine.grid import build_grid
 from lde.engine.receiver import decode_batch
@@ -44,7 +43,7 @@ from vcan_sim.run import simulate
 
 __all__ = ["PARTS", "warm_up"]
 
-PARTS = ("fixed", "float", "paper-fixed", "paper", "logio", "sim", "smooth")
+PARTS = (*BACKENDS, "logio", "sim", "smooth")
 
 
 def _frames() -> FrameBatch:
@@ -56,7 +55,7 @@ def _engine(backend: str) -> None:
     profile, vehicle = load_profile("lde"), load_vehicle("reference")
     frames = _frames()
     for explicit in (False, True):
-        e = Engine(profile, vehicle, backend, explicit=explicit, shadow_thread=False)
+        e = Engine(profile, vehicle, backend, explicit=explicit)
         steps = frames.t_ns[::3] if explicit else None
         e.feed(frames, step_times=steps, final=True)
 
@@ -65,7 +64,9 @@ def _service() -> None:
     """A service on a virtual bus: building it loads (or compiles) every kernel its step calls."""
     bus = can.Bus(interface="virtual", channel="lde-warmup")
     try:
-        Service(bus, "lde", "reference", SimulatedClock(0), backend="fixed", input_filters=False).close()
+        Service(
+            bus, "lde", "reference", SimulatedClock(0), backend=DEFAULT_BACKEND, input_filters=False
+        ).close()
     finally:
         bus.shutdown()
 
@@ -103,16 +104,17 @@ def _smooth() -> None:
         track.read_all()
 
 
-def _fixed() -> None:
-    _engine("fixed")
-    _service()
+def _backend(name: str) -> Callable[[], None]:
+    def part() -> None:
+        _engine(name)
+        if name == DEFAULT_BACKEND:
+            _service()
+
+    return part
 
 
 _RUN: dict[str, Callable[[], None]] = {
-    "fixed": _fixed,
-    "float": lambda: _engine("float"),
-    "paper-fixed": lambda: _engine("paper-fixed"),
-    "paper": lambda: _engine("paper"),
+    **{name: _backend(name) for name in BACKENDS},
     "logio": _logio,
     "sim": _sim,
     "smooth": _smooth,

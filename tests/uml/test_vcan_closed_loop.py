@@ -10,6 +10,8 @@ the ``LDE_Overlay`` it receives), then open loop (it ignores it). Checked:
 
 * ``candump``: both output messages (``LDE_Estimate``, ``LDE_Overlay``) and ``LDE_Diag`` arrive once
   per service step, every frame with a valid Profile 1 CRC and the counter +1 mod 15 without gaps;
+* the simulator used the overlay frames that reached it, whatever the guest's pace: each passed its
+  E2E check and was used, or re-synchronised the receiver after a stall (the simulator's counters);
 * the closed loop works: the driver's holding torque in the simulator's truth is much smaller with
   the overlay than without -- judged whenever the simulator's inputs kept their pace (no gap longer
   than the message timeout in candump over the judged stretch), else a skip states the gaps;
@@ -416,9 +418,22 @@ def test_closed_loop_relieves_the_driver(run: Run) -> None:
     third of the stretch; otherwise the test skips with the measured gaps.
     """
     run.skip_if_incomplete("closed loop not judged")
-    m_used = re.search(r"overlay frames used (\d+)", run.closed.out)
+    m_used = re.search(
+        r"overlay frames used (\d+) of (\d+) received \(re-synchronising (\d+) after \d+ \(re\)starts,"
+        r" E2E rejected (\d+), malformed (\d+)\)",
+        run.closed.out,
+    )
     assert m_used, f"no summary from lde sim:\n{run.closed.out[-2000:]}"
-    used = int(m_used.group(1))
+    used, received, resync, rejected, malformed = (int(g) for g in m_used.groups())
+    # judged by counters, whatever the guest's pace: every overlay frame that reached the simulator
+    # passed its E2E check (its drain read them all, in order) and was used, or re-synchronised the
+    # receiver after a gap (the first frames after a stall of the guest, by design)
+    assert rejected == 0 and malformed == 0 and used + resync == received, run.closed.out[-2000:]
+    if received == 0:
+        fid = load_profile("lde").output_id("LDE_Overlay")
+        on_bus = sum(1 for m in can.CanutilsLogReader(str(run.dump)) if m.arbitration_id == fid)
+        assert on_bus == 0, f"{on_bus} LDE_Overlay frames on the bus, none reached the simulator"
+        pytest.skip(f"the service sent no LDE_Overlay frame: {run.service_out[-300:]}{run.speed}")
     cpu = re.search(r"in ([\d.]+) s wall \(real time, CPU ([\d.]+) s\)", run.closed.out)
     cpu_share = float(cpu.group(2)) / float(cpu.group(1)) if cpu else float("nan")
     pacing = re.search(r"steps on the last overlay request.*", run.closed.out)

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import csv
 import re
-import sys
+import tomllib
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -35,11 +35,6 @@ from ..identify import identify, static_stiffness
 from ..payload import combined, loaded_body, payload_by_name
 from ..run import simulate
 from ..sensors import angle_below_torsion_bar
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - exercised on 3.10 only
-    import tomli as tomllib
 
 ZOO_DIR = Path(__file__).resolve().parent
 TRUE_VALUES_CSV = ZOO_DIR / "true_values.csv"

@@ -1,19 +1,28 @@
-"""The one bit-field packer: reading and writing bit fields of a CAN frame's 8 bytes.
+"""The one bit-field packer: reading and writing the bit fields of a CAN frame's data bytes (classic
+frames of up to 8 bytes and CAN FD frames of up to 64).
 
-A frame's 8 bytes are one little-endian 64-bit word ``w_le`` (bit ``k`` of the frame is bit
-``k % 8`` of byte ``k // 8``), the layout of Intel (``@1``) DBC signals. Motorola (``@0``) signals are
-contiguous in the big-endian word ``w_be = byteswap(w_le)``; their LSB position there is
-``(7 - start // 8) * 8 + start % 8 - length + 1`` for a DBC start bit ``start`` (the MSB)::
+A field is given by its DBC layout (``start|length@1`` Intel, ``start|length@0`` Motorola, at most 64
+bits) and stored as a *position* that makes both byte orders one loop over the bytes it covers:
 
-    field value = (w >> shift) & (2**length - 1)
-    w'          = (w & ~(mask << shift)) | ((value & mask) << shift)
+* Intel (little-endian): bit ``k`` of the frame is bit ``k % 8`` of byte ``k // 8``; the field's
+  position is its LSB, the DBC start bit: ``pos = start``. Its bytes run upwards from ``pos // 8``::
 
-Multi-part fields (an alive counter split into two 2-bit halves, hyundai WHL_SPD11) are an array
-of ``(shift, length)`` rows, least significant part first.
+      raw = (sum of data[pos // 8 + j] << 8 j) >> (pos % 8)   masked to length bits
 
-Everything here is compiled (numba) and used by the decoder and encoder kernels
-(:mod:`lde.can.codec`), the E2E counters and checksums (:mod:`lde.can.e2e`) and the receiver
-(:mod:`lde.engine.receiver`); :func:`frame_word` / :func:`word_bytes` convert at the Python boundary.
+* Motorola (big-endian): the DBC start bit is the MSB; numbered MSB first (bit 7 of byte 0 is 0),
+  the MSB sits at ``m = 8 (start // 8) + 7 - start % 8`` and the LSB at ``pos = m + length - 1``.
+  Its bytes run downwards from ``pos // 8``::
+
+      raw = (sum of data[pos // 8 - j] << 8 j) >> (7 - pos % 8)   masked to length bits
+
+A field of 64 bits that does not start on a byte boundary covers 9 bytes: the ninth is shifted in
+separately. Multi-part fields (an alive counter split into two 2-bit halves, hyundai WHL_SPD11) are an
+int64 array of ``(pos, length, little_endian)`` rows, least significant part first; rows of length 0
+are unused.
+
+Everything here is compiled (numba) and used by the encoder and decoder kernels
+(:mod:`lde.can.codec`), the integrity checks (:mod:`lde.can.e2e`) and the receiver
+(:mod:`lde.engine.receiver`). :func:`field_pos` converts a DBC layout at the Python boundary.
 """
 
 from __future__ import annotations
@@ -22,105 +31,123 @@ import numpy as np
 from numba import njit
 
 __all__ = [
-    "motorola_shift",
-    "get_field",
-    "put_field",
+    "field_pos",
+    "field_bytes",
+    "get_bits",
+    "put_bits",
     "get_parts",
     "put_parts",
-    "bytes_to_word",
-    "word_to_bytes",
-    "byteswap64",
-    "frame_word",
-    "word_bytes",
+    "parts_array",
 ]
 
-_MASK64 = (1 << 64) - 1
+
+def field_pos(start: int, length: int, little_endian: bool) -> int:
+    """The packer's position of a DBC field (module doc): the start bit for Intel, the MSB-first
+    index of the LSB for Motorola."""
+    if little_endian:
+        return int(start)
+    return (int(start) // 8) * 8 + 7 - int(start) % 8 + int(length) - 1
 
 
-def motorola_shift(start: int, length: int) -> int:
-    """LSB position in ``w_be`` of a Motorola signal with DBC start bit ``start`` (its MSB)."""
-    return (7 - start // 8) * 8 + start % 8 - length + 1
+def field_bytes(start: int, length: int, little_endian: bool) -> tuple[int, int]:
+    """(first byte, last byte) a DBC field covers (to check it fits in a message's length)."""
+    pos = field_pos(start, length, little_endian)
+    if little_endian:
+        return pos // 8, (pos + length - 1) // 8
+    return (pos - length + 1) // 8, pos // 8
 
 
 @njit(cache=True, inline="always")
-def byteswap64(w):  # pragma: no cover - compiled
-    """The 64-bit word with its bytes reversed (``w_le`` <-> ``w_be``)."""
-    w = np.uint64(w)
-    out = np.uint64(0)
-    for k in range(8):
-        out = (out << np.uint64(8)) | ((w >> np.uint64(8 * k)) & np.uint64(0xFF))
-    return out
-
-
-@njit(cache=True, inline="always")
-def get_field(w, shift, length):  # pragma: no cover - compiled
-    """Unsigned value of the ``length``-bit field at ``shift`` of the uint64 word ``w``."""
-    w = np.uint64(w)
+def _mask(length):  # pragma: no cover - compiled
     if length >= 64:
-        return w >> np.uint64(shift)
-    return (w >> np.uint64(shift)) & ((np.uint64(1) << np.uint64(length)) - np.uint64(1))
+        return np.uint64(0xFFFFFFFFFFFFFFFF)
+    return (np.uint64(1) << np.uint64(length)) - np.uint64(1)
 
 
 @njit(cache=True, inline="always")
-def put_field(w, shift, length, value):  # pragma: no cover - compiled
-    """``w`` with the field at ``shift`` set to the low ``length`` bits of ``value`` (uint64)."""
-    w = np.uint64(w)
-    mask = ((np.uint64(1) << np.uint64(length)) - np.uint64(1)) << np.uint64(shift)
-    return (w & ~mask) | ((np.uint64(value) << np.uint64(shift)) & mask)
+def get_bits(data, pos, length, little_endian):  # pragma: no cover - compiled
+    """Unsigned value (uint64) of the ``length``-bit field at ``pos`` (module doc) of the frame bytes
+    ``data`` (uint8 row); the bytes it covers must lie within ``data``."""
+    if length <= 0:
+        return np.uint64(0)
+    if little_endian:
+        b = pos >> 3
+        sh = pos & 7
+        step = 1
+    else:
+        b = pos >> 3
+        sh = 7 - (pos & 7)
+        step = -1
+    nb = (sh + length + 7) >> 3
+    acc = np.uint64(0)
+    for j in range(min(nb, 8)):
+        acc |= np.uint64(data[b + step * j]) << np.uint64(8 * j)
+    v = acc >> np.uint64(sh)
+    if nb > 8:  # a 64-bit field off a byte boundary: the ninth byte
+        v |= np.uint64(data[b + step * 8]) << np.uint64(64 - sh)
+    return v & _mask(length)
 
 
 @njit(cache=True, inline="always")
-def get_parts(w, parts):  # pragma: no cover - compiled
-    """Value of a multi-part field: ``parts`` int64 [k, 2] of (shift, length), LSB part first;
-    rows with length 0 are unused."""
-    w = np.uint64(w)
+def put_bits(data, pos, length, little_endian, value):  # pragma: no cover - compiled
+    """Write the low ``length`` bits of ``value`` into the field at ``pos`` of ``data`` (in place;
+    the other bits are kept)."""
+    if length <= 0:
+        return
+    v = np.uint64(value) & _mask(length)
+    if little_endian:
+        b = pos >> 3
+        sh = pos & 7
+        step = 1
+    else:
+        b = pos >> 3
+        sh = 7 - (pos & 7)
+        step = -1
+    nb = (sh + length + 7) >> 3
+    # the field's bits as they sit in the bytes b, b + step, ...: bit i of the field at bit sh + i
+    for j in range(nb):
+        lo = 8 * j - sh  # the field's bit at this byte's bit 0 (negative: the byte starts before it)
+        if lo < 0:
+            part = (v << np.uint64(-lo)) & np.uint64(0xFF)
+            m = (_mask(length) << np.uint64(-lo)) & np.uint64(0xFF)
+        else:
+            part = (v >> np.uint64(lo)) & np.uint64(0xFF) if lo < 64 else np.uint64(0)
+            m = (_mask(length) >> np.uint64(lo)) & np.uint64(0xFF) if lo < 64 else np.uint64(0)
+        k = b + step * j
+        data[k] = np.uint8((np.uint64(data[k]) & ~m & np.uint64(0xFF)) | part)
+
+
+@njit(cache=True, inline="always")
+def get_parts(data, parts):  # pragma: no cover - compiled
+    """Value of a multi-part field: ``parts`` int64 [k, 3] of (pos, length, little_endian), LSB
+    part first; rows with length 0 are unused."""
     out = np.uint64(0)
-    pos = 0
+    at = 0
     for k in range(parts.shape[0]):
         n = parts[k, 1]
         if n > 0:
-            out |= get_field(w, parts[k, 0], n) << np.uint64(pos)
-            pos += n
+            out |= get_bits(data, parts[k, 0], n, parts[k, 2] != 0) << np.uint64(at)
+            at += n
     return out
 
 
 @njit(cache=True, inline="always")
-def put_parts(w, parts, value):  # pragma: no cover - compiled
-    """``w`` with the multi-part field ``parts`` (see :func:`get_parts`) set to ``value``."""
-    w = np.uint64(w)
+def put_parts(data, parts, value):  # pragma: no cover - compiled
+    """Write ``value`` into the multi-part field ``parts`` (see :func:`get_parts`) of ``data``."""
     v = np.uint64(value)
     for k in range(parts.shape[0]):
         n = parts[k, 1]
         if n > 0:
-            w = put_field(w, parts[k, 0], n, v)
+            put_bits(data, parts[k, 0], n, parts[k, 2] != 0, v)
             v = v >> np.uint64(n)
-    return w
 
 
-@njit(cache=True, inline="always")
-def bytes_to_word(data, length):  # pragma: no cover - compiled
-    """``w_le`` of the first ``min(length, 8)`` bytes of ``data`` (uint8 array); the rest is zero."""
-    w = np.uint64(0)
-    n = min(length, 8, data.shape[0])
-    for k in range(n):
-        w |= np.uint64(data[k]) << np.uint64(8 * k)
-    return w
-
-
-@njit(cache=True, inline="always")
-def word_to_bytes(w, out):  # pragma: no cover - compiled
-    """Write ``w_le`` into the 8 bytes of ``out`` (uint8 [8])."""
-    w = np.uint64(w)
-    for k in range(8):
-        out[k] = np.uint8((w >> np.uint64(8 * k)) & np.uint64(0xFF))
-
-
-def frame_word(data: bytes | bytearray, length: int | None = None) -> int:
-    """``w_le`` of a frame's bytes as a Python int (bytes past ``length`` and past 8 count as 0)."""
-    raw = bytes(data)[: 8 if length is None else min(8, int(length))]
-    return int.from_bytes(raw.ljust(8, b"\x00"), "little")
-
-
-def word_bytes(w: int, length: int = 8) -> bytes:
-    """The first ``length`` bytes of ``w_le``."""
-    return (int(w) & _MASK64).to_bytes(8, "little")[: int(length)]
+def parts_array(fields: tuple[tuple[int, int, bool], ...], rows: int = 2) -> np.ndarray:
+    """DBC fields ``(start, length, little_endian)`` (LSB part first) as the int64 [rows, 3] parts
+    array of :func:`get_parts` (unused rows 0)."""
+    if len(fields) > rows:
+        raise ValueError(f"at most {rows} parts per field, got {fields}")
+    a = np.zeros((rows, 3), dtype=np.int64)
+    for k, (start, length, le) in enumerate(fields):
+        a[k] = (field_pos(start, length, le), length, int(bool(le)))
+    return a

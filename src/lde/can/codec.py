@@ -1,18 +1,16 @@
 """Raw <-> physical conversion of DBC signals (the one place it lives) and frame encoding with
 automatic counters and CRCs (the "packer" of opendbc).
 
-Bit layout (:mod:`lde.can.bitfield`, the one packer). A frame's 8 bytes are one little-endian 64-bit
-word ``w_le`` for Intel signals and the big-endian word ``w_be`` for Motorola signals (whose DBC
-start bit is the MSB)::
+Bit layout (:mod:`lde.can.bitfield`, the one packer): a signal is a field of the frame's bytes (up
+to 64 for CAN FD) at its packer position ``pos`` (Intel: the DBC start bit; Motorola: the MSB-first
+index of its LSB)::
 
-    Intel:    raw = (w_le >> start) & (2**length - 1)
-    Motorola: raw = (w_be >> (msb_pos - length + 1)) & (2**length - 1),
-              msb_pos = (7 - start // 8) * 8 + start % 8
+    raw       = bits of the field (bitfield.get_bits)
     signed:   raw -= 2**length if raw >= 2**(length - 1)
-    physical = raw * scale + offset
+    physical  = raw * scale + offset
 
 Encoding (:class:`MessageEncoder`, :func:`encode_batch`, and the engine's output frames, all through
-the compiled :func:`encode_word`): values in DBC physical units; a value outside the signal's DBC
+the compiled :func:`encode_row`): values in DBC physical units; a value outside the signal's DBC
 range ``[minimum, maximum]`` is **saturated** at the range (then at what the bits can hold),
 rounding is to nearest (half to even); NaN raises :class:`EncodeError` (the compiled kernels are
 only given finite values). A signal not given takes physical 0 (saturated into its range). Counter
@@ -30,17 +28,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numba import njit
 
-from lde.can.bitfield import (
-    bytes_to_word,
-    byteswap64,
-    get_field,
-    motorola_shift,
-    put_field,
-    word_bytes,
-    word_to_bytes,
-)
-from lde.can.e2e import IntegrityScheme, protect_word
-from lde.can.frames import FrameBatch, ns_to_seconds
+from lde.can.bitfield import field_pos, get_bits, put_bits
+from lde.can.e2e import IntegrityScheme, protect_row
+from lde.can.frames import FrameBatch, data_width, ns_to_seconds
 from lde.can.profiles import Profile, SignalDef
 from lde.errors import LdeError
 
@@ -56,10 +46,10 @@ __all__ = [
     "MessageEncoder",
     "encode_batch",
     "encode_frames",
+    "encode_row",
     "encode_word",
     "decode_frame",
     "si_to_dbc",
-    "words_le",
 ]
 
 
@@ -71,10 +61,9 @@ class EncodeError(LdeError, ValueError):
 
 
 @njit(cache=True, inline="always")
-def raw_value(w_le, w_be, shift, nbits, little_endian, signed):  # pragma: no cover - compiled
-    """Raw integer value of one signal (sign-extended) from the frame's two words."""
-    w = w_le if little_endian else w_be
-    raw = np.int64(get_field(w, shift, nbits))
+def raw_value(data, pos, nbits, little_endian, signed):  # pragma: no cover - compiled
+    """Raw integer value of one signal (sign-extended) of the frame bytes ``data``."""
+    raw = np.int64(get_bits(data, pos, nbits, little_endian))
     if signed and nbits < 64 and (raw >> (nbits - 1)) & 1:
         raw -= np.int64(1) << nbits
     return raw
@@ -101,9 +90,42 @@ def phys_to_raw(x, lo, hi, scale, offset, nbits, signed):  # pragma: no cover - 
 
 
 @njit(cache=True, inline="always")
+def encode_row(
+    values,
+    pos,
+    nbits,
+    little_endian,
+    signed,
+    scale,
+    offset,
+    lo,
+    hi,
+    is_value,
+    length,
+    kind,
+    frame_id,
+    ctr_parts,
+    chk_parts,
+    counter,
+    out,
+):  # pragma: no cover
+    """The frame bytes of one message into ``out`` (uint8 row, zeroed first): every value signal
+    from ``values`` (physical, finite; one entry per signal of the layout, integrity signals
+    ignored), then the counter and CRC / checksum (:func:`lde.can.e2e.protect_row`)."""
+    for k in range(out.shape[0]):
+        out[k] = 0
+    for k in range(pos.shape[0]):
+        if not is_value[k]:
+            continue
+        raw = phys_to_raw(values[k], lo[k], hi[k], scale[k], offset[k], nbits[k], signed[k])
+        put_bits(out, pos[k], nbits[k], little_endian[k], np.uint64(raw))
+    protect_row(kind, frame_id, out, length, ctr_parts, chk_parts, counter)
+
+
+@njit(cache=True, inline="always")
 def encode_word(
     values,
-    shift,
+    pos,
     nbits,
     little_endian,
     signed,
@@ -119,29 +141,22 @@ def encode_word(
     chk_parts,
     counter,
 ):  # pragma: no cover
-    """The frame word of one message: every value signal from ``values`` (physical, finite; one
-    entry per signal of the layout, integrity signals ignored), bytes past ``length`` zero, then the
-    counter and CRC / checksum (:func:`lde.can.e2e.protect_word`)."""
-    w_le = np.uint64(0)
-    w_be = np.uint64(0)
-    for k in range(shift.shape[0]):
-        if not is_value[k]:
-            continue
-        raw = phys_to_raw(values[k], lo[k], hi[k], scale[k], offset[k], nbits[k], signed[k])
-        if little_endian[k]:
-            w_le = put_field(w_le, shift[k], nbits[k], np.uint64(raw))
-        else:
-            w_be = put_field(w_be, shift[k], nbits[k], np.uint64(raw))
-    w = w_le | byteswap64(w_be)
-    if length < 8:
-        w &= (np.uint64(1) << np.uint64(8 * length)) - np.uint64(1)
-    return protect_word(kind, frame_id, w, length, ctr_parts, chk_parts, counter)
+    """:func:`encode_row` of a message of at most 8 bytes, as its little-endian 64-bit word."""
+    row = np.zeros(8, np.uint8)
+    encode_row(
+        values, pos, nbits, little_endian, signed, scale, offset, lo, hi, is_value, length, kind,
+        frame_id, ctr_parts, chk_parts, counter, row,
+    )  # fmt: skip
+    w = np.uint64(0)
+    for k in range(8):
+        w |= np.uint64(row[k]) << np.uint64(8 * k)
+    return w
 
 
 @njit(cache=True)
 def _encode_rows(
     values,
-    shift,
+    pos,
     nbits,
     little_endian,
     signed,
@@ -158,60 +173,26 @@ def _encode_rows(
     counter,
     modulus,
     invalid,
+    has_counter,
     out,
 ):  # pragma: no cover
     c = counter
     for i in range(values.shape[0]):
-        w = encode_word(
-            values[i],
-            shift,
-            nbits,
-            little_endian,
-            signed,
-            scale,
-            offset,
-            lo,
-            hi,
-            is_value,
-            length,
-            kind,
-            frame_id,
-            ctr_parts,
-            chk_parts,
-            c,
-        )
-        word_to_bytes(w, out[i])
-        c = (c + 1) % modulus
-        if c == invalid:
+        encode_row(
+            values[i], pos, nbits, little_endian, signed, scale, offset, lo, hi, is_value, length,
+            kind, frame_id, ctr_parts, chk_parts, c, out[i],
+        )  # fmt: skip
+        if has_counter:
             c = (c + 1) % modulus
+            if c == invalid:
+                c = (c + 1) % modulus
     return c
 
 
 @njit(cache=True)
-def _raw_rows(words, shift, nbits, little_endian, signed, out):  # pragma: no cover - compiled
-    for i in range(words.shape[0]):
-        w = words[i]
-        out[i] = raw_value(w, byteswap64(w), shift, nbits, little_endian, signed)
-
-
-@njit(cache=True)
-def _place_rows(raw, shift, nbits, out):  # pragma: no cover - compiled
-    for i in range(raw.shape[0]):
-        out[i] = put_field(np.uint64(0), shift, nbits, np.uint64(raw[i]))
-
-
-@njit(cache=True)
-def _words_of(data, out):  # pragma: no cover - compiled
+def _raw_rows(data, pos, nbits, little_endian, signed, out):  # pragma: no cover - compiled
     for i in range(data.shape[0]):
-        out[i] = bytes_to_word(data[i], 8)
-
-
-def words_le(data: np.ndarray) -> np.ndarray:
-    """uint8 [n, 8] frames -> uint64 [n] little-endian words."""
-    d = np.ascontiguousarray(data, dtype=np.uint8).reshape(-1, 8)
-    out = np.empty(d.shape[0], dtype=np.uint64)
-    _words_of(d, out)
-    return out
+        out[i] = raw_value(data[i], pos, nbits, little_endian, signed)
 
 
 # ------------------------------------------------------------------------------- signals
@@ -220,7 +201,7 @@ def words_le(data: np.ndarray) -> np.ndarray:
 @dataclass(frozen=True)
 class SignalCodec(SignalDef):
     """Bit position and scaling of one DBC signal (the profile's :class:`lde.can.profiles.SignalDef`,
-    integer signals only) with the word shifts and masks the compiled codec uses."""
+    integer signals only) with the packer position the compiled codec uses."""
 
     @classmethod
     def of(cls, sig: SignalDef) -> SignalCodec:
@@ -233,9 +214,9 @@ class SignalCodec(SignalDef):
         return cls.of(SignalDef.from_cantools(sig))
 
     @property
-    def shift(self) -> int:
-        """LSB position in ``w_le`` (Intel) or ``w_be`` (Motorola)."""
-        return self.start if self.little_endian else motorola_shift(self.start, self.length)
+    def pos(self) -> int:
+        """The packer's position (:func:`lde.can.bitfield.field_pos`)."""
+        return field_pos(self.start, self.length, self.little_endian)
 
     @property
     def mask(self) -> int:
@@ -257,16 +238,19 @@ class SignalCodec(SignalDef):
         return self.minimum, self.maximum
 
     # ---------------------------------------------------------------- decode
-    def raw_batch(self, w_le: np.ndarray, w_be: np.ndarray | None = None) -> np.ndarray:
-        """Raw integer values (sign-extended) of ``w_le`` words -> int64 [n] (``w_be`` is derived)."""
-        w = np.ascontiguousarray(w_le, dtype=np.uint64)
-        out = np.empty(w.shape[0], dtype=np.int64)
-        _raw_rows(w, self.shift, self.length, self.little_endian, self.signed, out)
+    def raw_batch(self, data: np.ndarray) -> np.ndarray:
+        """Raw integer values (sign-extended) of frames ``data`` (uint8 [n, width]) -> int64 [n]."""
+        d = np.ascontiguousarray(data, dtype=np.uint8)
+        out = np.empty(d.shape[0], dtype=np.int64)
+        _raw_rows(d, self.pos, self.length, self.little_endian, self.signed, out)
         return out
 
-    def decode_batch(self, w_le: np.ndarray, w_be: np.ndarray | None = None) -> np.ndarray:
-        """Physical values (DBC units) -> float64 [n]."""
-        return self.raw_batch(w_le) * self.scale + self.offset
+    def decode_batch(self, data: np.ndarray) -> np.ndarray:
+        """Physical values (DBC units) of frames ``data`` -> float64 [n]."""
+        raw = self.raw_batch(data)
+        if not self.signed and self.length == 64:  # past 2**63: the unsigned value, not its int64
+            return raw.view(np.uint64) * self.scale + self.offset
+        return raw * self.scale + self.offset
 
     # ---------------------------------------------------------------- encode
     def to_raw(self, phys: float) -> int:
@@ -288,17 +272,6 @@ class SignalCodec(SignalDef):
             dtype=np.int64,
         ).reshape(x.shape)
 
-    def place(self, raw: int) -> int:
-        """Raw value -> its bits in ``w_le`` (Intel) or ``w_be`` (Motorola)."""
-        return (int(raw) & self.mask) << self.shift
-
-    def place_batch(self, raw: np.ndarray) -> np.ndarray:
-        """Vectorised :meth:`place` -> uint64 [n]."""
-        r = np.ascontiguousarray(raw, dtype=np.int64).reshape(-1)
-        out = np.empty(r.shape[0], dtype=np.uint64)
-        _place_rows(r.astype(np.uint64), self.shift, self.length, out)
-        return out
-
 
 # ------------------------------------------------------------------------------- messages
 
@@ -310,7 +283,7 @@ class MessageLayout:
     frame_id: int
     length: int
     scheme: IntegrityScheme
-    shift: np.ndarray  # int64
+    pos: np.ndarray  # int64, the packer positions (lde.can.bitfield)
     nbits: np.ndarray  # int64
     little_endian: np.ndarray  # bool
     signed: np.ndarray  # bool
@@ -334,7 +307,7 @@ class MessageLayout:
             frame_id=int(frame_id),
             length=int(length),
             scheme=scheme,
-            shift=np.array([c.shift for c in codecs], np.int64),
+            pos=np.array([c.pos for c in codecs], np.int64),
             nbits=np.array([c.length for c in codecs], np.int64),
             little_endian=np.array([c.little_endian for c in codecs], np.bool_),
             signed=np.array([c.signed for c in codecs], np.bool_),
@@ -346,10 +319,10 @@ class MessageLayout:
         )
 
     def kernel_args(self) -> tuple:
-        """The encoder's layout arguments, in :func:`encode_word`'s order after ``values``."""
+        """The encoder's layout arguments, in :func:`encode_row`'s order after ``values``."""
         s = self.scheme
         return (
-            self.shift,
+            self.pos,
             self.nbits,
             self.little_endian,
             self.signed,
@@ -367,8 +340,9 @@ class MessageLayout:
 
     def encode(self, values: np.ndarray, counter: int) -> bytes:
         """Frame bytes (``length``) of one row of physical values (one per signal, finite)."""
-        w = encode_word(np.ascontiguousarray(values, np.float64), *self.kernel_args(), int(counter))  # type: ignore[call-arg]
-        return word_bytes(int(w), self.length)
+        out = np.zeros(data_width(self.length), np.uint8)
+        encode_row(np.ascontiguousarray(values, np.float64), *self.kernel_args(), int(counter), out)  # type: ignore[call-arg]
+        return out[: self.length].tobytes()
 
 
 class MessageCodec:
@@ -383,7 +357,7 @@ class MessageCodec:
         self.signals: dict[str, SignalCodec] = {s.name: SignalCodec.of(s) for s in profile.signals[name]}
         integrity_fields = set(self.scheme.counter_fields) | set(self.scheme.checksum_fields)
         self.integrity: frozenset[str] = frozenset(
-            n for n, s in self.signals.items() if s.little_endian and (s.start, s.length) in integrity_fields
+            n for n, s in self.signals.items() if (s.start, s.length, s.little_endian) in integrity_fields
         )
         self.values: tuple[str, ...] = tuple(n for n in self.signals if n not in self.integrity)
         self.order: tuple[str, ...] = tuple(self.signals)  # the layout's row order
@@ -413,8 +387,9 @@ class MessageCodec:
 
     def decode(self, data: bytes | bytearray) -> dict[str, float]:
         """All signals of one frame in DBC physical units (integrity signals as raw numbers)."""
-        w = words_le(np.frombuffer(bytes(data)[:8].ljust(8, b"\x00"), dtype=np.uint8).reshape(1, 8))
-        return {n: float(s.decode_batch(w)[0]) for n, s in self.signals.items()}
+        raw = bytes(data)[: data_width(self.length)]
+        row = np.frombuffer(raw.ljust(data_width(self.length), b"\x00"), dtype=np.uint8).reshape(1, -1)
+        return {n: float(s.decode_batch(row)[0]) for n, s in self.signals.items()}
 
 
 class MessageEncoder:
@@ -451,6 +426,7 @@ class MessageEncoder:
             arbitration_id=self.codec.frame_id,
             is_extended_id=False,
             data=self.encode(values),
+            is_fd=self.codec.length > 8,
             channel=channel,
         )
 
@@ -458,7 +434,8 @@ class MessageEncoder:
 def encode_batch(
     profile: Profile, name: str, columns: Mapping[str, np.ndarray], counter_start: int = 0
 ) -> np.ndarray:
-    """Encoding of ``n`` frames of message ``name`` -> uint8 [n, 8] (zero padded past its length).
+    """Encoding of ``n`` frames of message ``name`` -> uint8 [n, width] (zero padded past its length;
+    width 8, or the message's length for a CAN FD message).
 
     ``columns`` maps signal names to arrays of ``n`` physical values (scalars broadcast). Counters run
     ``counter_start, counter_start + 1, ...`` modulo the scheme's period (so the next batch continues at
@@ -469,8 +446,9 @@ def encode_batch(
     n = 0
     for v in columns.values():
         n = max(n, np.size(v))
+    width = data_width(c.length)
     if n == 0:
-        return np.zeros((0, 8), dtype=np.uint8)
+        return np.zeros((0, width), dtype=np.uint8)
     sch = c.scheme
     if not 0 <= counter_start < sch.modulus or counter_start == sch.invalid_counter:
         raise EncodeError(f"{name}: counter_start {counter_start} outside 0..{sch.modulus - 1}")
@@ -480,8 +458,16 @@ def encode_batch(
         if np.isnan(v).any():
             raise EncodeError(f"signal {sname}: NaN cannot be encoded")
         values[:, c.index[sname]] = v
-    out = np.zeros((n, 8), np.uint8)
-    _encode_rows(values, *c.layout.kernel_args(), int(counter_start), sch.modulus, sch.invalid_counter, out)  # type: ignore[call-arg]
+    out = np.zeros((n, width), np.uint8)
+    _encode_rows(
+        values,
+        *c.layout.kernel_args(),
+        int(counter_start),
+        sch.modulus,
+        sch.invalid_counter,
+        sch.has_counter,
+        out,
+    )  # type: ignore[call-arg]
     return out
 
 
@@ -498,8 +484,8 @@ def encode_frames(
     cols = {k: np.broadcast_to(np.asarray(v, dtype=np.float64), (n,)) for k, v in columns.items()}
     if not cols:  # all signals at their default (physical 0)
         cols = {MessageCodec(profile, name).values[0]: np.zeros(n)}
-    data = encode_batch(profile, name, cols, counter_start) if n else np.zeros((0, 8), dtype=np.uint8)
     spec = profile.spec(name)
+    data = encode_batch(profile, name, cols, counter_start) if n else np.zeros((0, 8), dtype=np.uint8)
     return FrameBatch(
         t_ns=t,
         can_id=np.full(n, spec.frame_id, dtype=np.uint32),
@@ -521,17 +507,32 @@ def si_to_dbc(
     """Estimator inputs in SI -> the signals of input message ``message`` in DBC units.
 
     ``si`` maps input names (``column_torque``, ``speed``, ...) fed by ``message`` to SI values or arrays;
-    an input derived from several signals (the mean of four wheel speeds) gives each of them the value.
-    Inputs of other messages raise :class:`EncodeError`. Use with :func:`encode_batch` /
-    :class:`MessageEncoder` so unit conversions live only in the profile.
+    an input that is the mean of several signals (four wheel speeds) gives each of them the value; one
+    that is their sum (a coarse angle plus its fraction) gives each signal but the last the value
+    rounded to its resolution and saturated at its range, the last what remains. Inputs of other
+    messages raise :class:`EncodeError`. Use with :func:`encode_batch` / :class:`MessageEncoder` so
+    unit conversions live only in the profile.
     """
     spec = profile.spec(message)
+    sigs = {s.name: s for s in profile.signals[message]}
     out: dict[str, float | np.ndarray] = {}
     for name, value in si.items():
         if name not in spec.inputs:
             raise EncodeError(f"input {name!r} is not carried by {message} (it carries {list(spec.inputs)})")
         im = profile.inputs[name]
         v = im.to_dbc(value)
-        for sig in im.signals:
-            out[sig] = v
+        if im.combine == "mean" or len(im.signals) == 1:
+            for sig in im.signals:
+                out[sig] = v
+            continue
+        rest = np.asarray(v, dtype=np.float64)
+        for sig in im.signals[:-1]:
+            sc = SignalCodec.of(sigs[sig])
+            lo, hi = sc.range
+            q = np.rint((rest - sc.offset) / sc.scale) * sc.scale + sc.offset
+            if lo < hi:
+                q = np.clip(q, lo, hi)
+            out[sig] = q if q.ndim else float(q)
+            rest = rest - q
+        out[im.signals[-1]] = rest if rest.ndim else float(rest)
     return out

@@ -1,18 +1,38 @@
-"""Frame integrity: AUTOSAR E2E Profile 1 (SPEC section 3) and the hyundai profile's counters/checksums.
+"""Frame integrity: the registry of checks a profile chooses from, and the E2E receiver.
 
-Profile 1, Data ID mode BOTH, Data ID = the CAN id::
+The registry (:data:`INTEGRITY`, chosen per message by a profile file's ``integrity`` key):
 
-    CRC     = CRC-8-SAE-J1850 (poly 0x1D, start 0x00, no final xor)
-              over [data_id & 0xFF, data_id >> 8, payload[1], ..., payload[len-1]]
-    byte 0  = CRC
-    byte 1  = counter in the low nibble, 0..14 (+1 per frame, 15 invalid)
+==================== ======== ======== =================================================================
+name                 counter  checksum what is verified
+==================== ======== ======== =================================================================
+``none``             --       --       nothing: every frame is used
+``counter``          required optional the alive counter's sequence; a checksum signal, if named, is not
+                                       verified (its algorithm is not published)
+``autosar_e2e_p01``  required required AUTOSAR E2E Profile 1 (SPEC section 3): CRC byte 0, counter low
+                                       nibble of byte 1, 0..14
+``toyota_checksum``  optional required Toyota's checksum in the last byte
+``hyundai_whl_spd11`` required required the hyundai WHL_SPD11 checksum (SPEC section 3), its split
+                                       counter
+==================== ======== ======== =================================================================
 
-Three CRC implementations exist on purpose: the scalar path uses the PyPI package ``autosar-e2e``
-(``e2e.p01``, what the SPEC asks for), batches use a numpy 256-entry table (:func:`p01_crc_batch`),
-and the tests carry a third, bitwise one. They are checked against each other.
+The checks, on a frame's bytes ``d[0 .. len-1]``::
+
+    Profile 1: Data ID mode BOTH, Data ID = the CAN id
+        CRC     = CRC-8-SAE-J1850 (poly 0x1D, start 0x00, no final xor)
+                  over [data_id & 0xFF, data_id >> 8, d[1], ..., d[len-1]]       (byte 0 = CRC)
+    Toyota:     checksum = (sum of the id's bytes + len + d[0] + ... + d[len-2]) mod 256
+    WHL_SPD11:  checksum = (popcount(d[0..7], the top two bits of bytes 1, 3, 5, 7 masked) ^ 9) & 15
+
+Adding a check: its compiled checksum function, its line in :data:`INTEGRITY` and its branch in
+:func:`integrity_ok` and :func:`protect_row` (the kernels dispatch on the registry's code).
+
+Three Profile 1 CRC implementations exist on purpose: the scalar path uses the PyPI package
+``autosar-e2e`` (``e2e.p01``, what the SPEC asks for), the kernels a 256-entry table
+(:func:`p01_crc_row`), and the tests carry a third, bitwise one. They are checked against each other.
 
 The receiver (one per message) follows the Profile 1 check state machine, event-driven (called per
-received frame, not per cycle). Its per-frame logic exists ONCE, :func:`receive_frame`, a numba
+received frame, not per cycle); every scheme uses it (a message without a counter takes every good
+frame as the next in sequence). Its per-frame logic exists ONCE, :func:`receive_frame`, a numba
 function on a small int64 state vector; the live :class:`P01Receiver` and the replay batch loop
 :func:`receive_batch` both call it, so live and replay give the same statuses by construction.
 
@@ -38,19 +58,22 @@ timeout once, when the next frame shows the gap (so live and replay count identi
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from enum import Enum, IntEnum
+from enum import IntEnum
+from types import MappingProxyType
 
 import e2e.p01 as _p01
 import numba as nb
 import numpy as np
 from numba import njit
 
-from lde.can.bitfield import bytes_to_word, frame_word, get_field, get_parts, put_field, put_parts, word_bytes
+from lde.can.bitfield import get_parts, parts_array, put_parts
 
 __all__ = [
     "E2EStatus",
-    "IntegrityKind",
+    "Integrity",
+    "INTEGRITY",
     "IntegrityScheme",
     "ReceiverConfig",
     "ReceiverStats",
@@ -63,6 +86,7 @@ __all__ = [
     "p01_crc",
     "p01_crc_batch",
     "p01_check",
+    "toyota_checksum",
     "whl_spd11_checksum",
     "whl_spd11_checksum_batch",
     "read_counter",
@@ -110,7 +134,7 @@ P01_CRC_TABLE = crc8_j1850_table(0x1D)
 
 def p01_crc(data_id: int, data: bytes | bytearray) -> int:
     """Profile 1 CRC of a frame (``data[0]`` is the CRC slot and is ignored) via ``autosar-e2e``
-    (the reference the compiled :func:`p01_crc_word` is tested against)."""
+    (the reference the compiled :func:`p01_crc_row` is tested against)."""
     buf = bytearray(data)
     _p01.e2e_p01_protect(buf, int(data_id) & 0xFFFF, increment_counter=False)
     return buf[0]
@@ -123,62 +147,87 @@ def p01_check(data_id: int, data: bytes | bytearray) -> bool:
     return bool(_p01.e2e_p01_check(bytearray(data), int(data_id) & 0xFFFF))
 
 
-# ------------------------------------------------------------------------ integrity schemes
+# ------------------------------------------------------------------------ the integrity registry
+
+# the kernels' codes (:attr:`Integrity.code`)
+K_NONE, K_COUNTER, K_P01, K_TOYOTA, K_WHL_SPD = range(5)
+
+#: a counter or checksum signal: "required", "optional" or "none" (the check takes none)
+REQUIRED, OPTIONAL, NONE = "required", "optional", "none"
 
 
-class IntegrityKind(Enum):
-    """How a message is protected (DBC attribute ``LdeE2E``)."""
+@dataclass(frozen=True)
+class Integrity:
+    """One integrity check of the registry (module doc).
 
-    P01 = "P01_BOTH"  #: AUTOSAR E2E Profile 1, Data ID mode BOTH, Data ID = CAN id
-    HYUNDAI_WHL_SPD = "HYUNDAI_WHL_SPD"  #: split 4-bit counter + popcount checksum (WHL_SPD11)
-    COUNTER = "COUNTER"  #: alive counter checked, checksum not verified (algorithm unknown)
+    Attributes:
+        name: its name in a profile file (``integrity = "..."``).
+        code: the kernels' code (``K_*``).
+        counter, checksum: whether the profile names a counter / checksum signal for it
+            (:data:`REQUIRED`, :data:`OPTIONAL` or :data:`NONE`).
+        verifies_checksum: the checksum is computed and compared (else a named checksum is only
+            carried).
+        summary: one line for the docs and error messages.
+    """
+
+    name: str
+    code: int
+    counter: str
+    checksum: str
+    verifies_checksum: bool
+    summary: str
 
 
-# the kinds as ints for the compiled kernels
-K_P01, K_WHL_SPD, K_COUNTER = 0, 1, 2
-_KIND_CODE = {
-    IntegrityKind.P01: K_P01,
-    IntegrityKind.HYUNDAI_WHL_SPD: K_WHL_SPD,
-    IntegrityKind.COUNTER: K_COUNTER,
-}
+INTEGRITY: Mapping[str, Integrity] = MappingProxyType(
+    {
+        i.name: i
+        for i in (
+            Integrity("none", K_NONE, NONE, NONE, False, "nothing checked"),
+            Integrity(
+                "counter", K_COUNTER, REQUIRED, OPTIONAL, False, "alive counter; checksum not verified"
+            ),
+            Integrity("autosar_e2e_p01", K_P01, REQUIRED, REQUIRED, True, "AUTOSAR E2E Profile 1"),
+            Integrity("toyota_checksum", K_TOYOTA, OPTIONAL, REQUIRED, True, "Toyota checksum, last byte"),
+            Integrity("hyundai_whl_spd11", K_WHL_SPD, REQUIRED, REQUIRED, True, "hyundai WHL_SPD11 checksum"),
+        )
+    }
+)
 
-Field = tuple[int, int]  # (start bit, length), Intel byte order, as in DBC ``start|length@1``
-
-
-def parts_array(fields: tuple[Field, ...], rows: int = 2) -> np.ndarray:
-    """``fields`` as the int64 [rows, 2] (shift, length) array of :mod:`lde.can.bitfield` (unused rows 0)."""
-    if len(fields) > rows:
-        raise ValueError(f"at most {rows} parts per field, got {fields}")
-    a = np.zeros((rows, 2), dtype=np.int64)
-    for k, (start, length) in enumerate(fields):
-        a[k] = (start, length)
-    return a
+#: (start, length, little_endian) of a DBC field, as in ``start|length@1`` (True) / ``@0`` (False)
+Field = tuple[int, int, bool]
 
 
 @dataclass(frozen=True)
 class IntegrityScheme:
-    """Where a message's counter / checksum live and how they are checked.
+    """How a message is protected: the check (:data:`INTEGRITY`) and where its counter / checksum
+    live (DBC fields, least significant part first; WHL_SPD11 splits both into 2-bit halves).
 
-    ``counter_fields`` / ``checksum_fields`` are little-endian bit fields, least significant part
-    first (WHL_SPD11 splits both into 2-bit halves). ``modulus`` is the counter period (15 in
-    Profile 1, 2**bits otherwise) and ``invalid_counter`` a value that is never valid (15 in Profile 1,
-    -1 for none).
+    ``modulus`` is the counter period (15 in Profile 1, 2**bits otherwise; 1 without a counter) and
+    ``invalid_counter`` a value that is never valid (15 in Profile 1, -1 for none).
     """
 
-    kind: IntegrityKind
-    counter_fields: tuple[Field, ...]
+    integrity: Integrity
+    counter_fields: tuple[Field, ...] = ()
     checksum_fields: tuple[Field, ...] = ()
     modulus: int = 15
     invalid_counter: int = 15
 
     @property
+    def name(self) -> str:
+        return self.integrity.name
+
+    @property
+    def has_counter(self) -> bool:
+        return bool(self.counter_fields)
+
+    @property
     def verifies_checksum(self) -> bool:
-        return self.kind in (IntegrityKind.P01, IntegrityKind.HYUNDAI_WHL_SPD)
+        return self.integrity.verifies_checksum
 
     @property
     def kind_code(self) -> int:
-        """The kind as the kernels' int (``K_*``)."""
-        return _KIND_CODE[self.kind]
+        """The check as the kernels' int (``K_*``)."""
+        return self.integrity.code
 
     @property
     def counter_parts(self) -> np.ndarray:
@@ -190,11 +239,25 @@ class IntegrityScheme:
 
     def next_counter(self, counter: int) -> int:
         """The counter after ``counter``: +1 modulo ``modulus``, skipping ``invalid_counter``."""
+        if not self.has_counter:
+            return 0
         return int(advance_counter(counter, self.modulus, self.invalid_counter))
 
+    @classmethod
+    def of(
+        cls, integrity: Integrity, counter_fields: tuple[Field, ...], checksum_fields: tuple[Field, ...]
+    ) -> IntegrityScheme:
+        """A scheme whose counter period is 2**bits of its counter (Profile 1: :data:`P01_SCHEME`)."""
+        if integrity.code == K_P01:
+            return P01_SCHEME
+        bits = sum(n for _, n, _ in counter_fields)
+        return cls(integrity, counter_fields, checksum_fields, modulus=max(1, 1 << bits), invalid_counter=-1)
 
-#: The scheme of every lde message (and of lde's outputs on every profile).
-P01_SCHEME = IntegrityScheme(IntegrityKind.P01, counter_fields=((8, 4),), checksum_fields=((0, 8),))
+
+#: The scheme of every lde message (and of lde's outputs on every profile): CRC 0|8, counter 8|4.
+P01_SCHEME = IntegrityScheme(
+    INTEGRITY["autosar_e2e_p01"], counter_fields=((8, 4, True),), checksum_fields=((0, 8, True),)
+)
 
 # ------------------------------------------------------------------ the compiled integrity kernels
 
@@ -203,21 +266,37 @@ _WHL_SPD_MASK = np.uint64(0x3FFF3FFF3FFF3FFF)
 
 
 @njit(cache=True, inline="always")
-def p01_crc_word(data_id, w, length):  # pragma: no cover - compiled
-    """Profile 1 CRC of the frame ``w`` (``w_le``, ``length`` bytes):
+def p01_crc_row(data_id, data, length):  # pragma: no cover - compiled
+    """Profile 1 CRC of the frame ``data`` (``length`` bytes):
     crc = 0; for b in [id_lo, id_hi, byte 1, ..., byte length-1]: crc = T[crc ^ b]."""
     t = P01_CRC_TABLE
     crc = t[np.int64(data_id) & 0xFF]
     crc = t[crc ^ ((np.int64(data_id) >> 8) & 0xFF)]
     for k in range(1, length):
-        crc = t[crc ^ np.uint8(get_field(w, 8 * k, 8))]
+        crc = t[crc ^ data[k]]
     return crc
 
 
 @njit(cache=True, inline="always")
-def whl_spd11_checksum_word(w):  # pragma: no cover - compiled
-    """hyundai WHL_SPD11 checksum (SPEC 3): ``(popcount(w masked) ^ 9) & 15``."""
-    v = np.uint64(w) & _WHL_SPD_MASK
+def toyota_checksum_row(data_id, data, length):  # pragma: no cover - compiled
+    """Toyota's checksum: (the id's bytes + length + bytes 0 .. length-2) mod 256."""
+    s = np.int64(length)
+    a = np.int64(data_id)
+    while a > 0:
+        s += a & 0xFF
+        a >>= 8
+    for k in range(length - 1):
+        s += data[k]
+    return s & 0xFF
+
+
+@njit(cache=True, inline="always")
+def whl_spd11_checksum_row(data):  # pragma: no cover - compiled
+    """hyundai WHL_SPD11 checksum (SPEC 3): ``(popcount(bytes 0..7 masked) ^ 9) & 15``."""
+    v = np.uint64(0)
+    for k in range(8):
+        v |= np.uint64(data[k]) << np.uint64(8 * k)
+    v &= _WHL_SPD_MASK
     count = 0
     while v:
         v &= v - np.uint64(1)
@@ -226,25 +305,30 @@ def whl_spd11_checksum_word(w):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def integrity_ok(kind, data_id, w, length, chk_parts):  # pragma: no cover - compiled
-    """The frame's CRC / checksum verdict (True where the scheme verifies nothing)."""
+def integrity_ok(kind, data_id, data, length, chk_parts):  # pragma: no cover - compiled
+    """The frame's CRC / checksum verdict (True where the check verifies nothing)."""
     if kind == K_P01:
-        return length >= 2 and p01_crc_word(data_id, w, length) == get_field(w, 0, 8)
+        return length >= 2 and p01_crc_row(data_id, data, length) == data[0]
+    if kind == K_TOYOTA:
+        return length >= 1 and np.uint64(toyota_checksum_row(data_id, data, length)) == get_parts(
+            data, chk_parts
+        )
     if kind == K_WHL_SPD:
-        return whl_spd11_checksum_word(w) == get_parts(w, chk_parts)
+        return length >= 8 and np.uint64(whl_spd11_checksum_row(data)) == get_parts(data, chk_parts)
     return True
 
 
 @njit(cache=True, inline="always")
-def protect_word(kind, data_id, w, length, ctr_parts, chk_parts, counter):  # pragma: no cover - compiled
-    """``w`` with ``counter`` and the CRC / checksum written (COUNTER schemes: the counter only;
-    their checksum field, algorithm unknown, is left as is)."""
-    w = put_parts(w, ctr_parts, np.uint64(counter))
+def protect_row(kind, data_id, data, length, ctr_parts, chk_parts, counter):  # pragma: no cover - compiled
+    """Write ``counter`` (where the scheme has one) and the CRC / checksum into the frame ``data``
+    (``counter`` schemes: the counter only; their checksum field, algorithm unknown, is left as is)."""
+    put_parts(data, ctr_parts, np.uint64(counter))
     if kind == K_P01:
-        w = put_field(w, 0, 8, np.uint64(p01_crc_word(data_id, w, length)))
+        data[0] = p01_crc_row(data_id, data, length)
+    elif kind == K_TOYOTA:
+        put_parts(data, chk_parts, np.uint64(toyota_checksum_row(data_id, data, length)))
     elif kind == K_WHL_SPD:
-        w = put_parts(w, chk_parts, np.uint64(whl_spd11_checksum_word(w)))
-    return w
+        put_parts(data, chk_parts, np.uint64(whl_spd11_checksum_row(data)))
 
 
 @njit(cache=True, inline="always")
@@ -256,50 +340,55 @@ def advance_counter(counter, modulus, invalid):  # pragma: no cover - compiled
     return c
 
 
+def _rows(data: np.ndarray) -> np.ndarray:
+    """uint8 [n, >= 8] frames, contiguous."""
+    d = np.ascontiguousarray(np.asarray(data, dtype=np.uint8))
+    if d.ndim != 2 or d.shape[1] < 8:
+        d = np.pad(d.reshape(d.shape[0], -1), ((0, 0), (0, max(0, 8 - d.reshape(d.shape[0], -1).shape[1]))))
+    return d
+
+
+def _row(data: bytes | bytearray) -> np.ndarray:
+    """One frame's bytes as a uint8 row of at least 8 bytes (zero padded)."""
+    raw = bytes(data)
+    return np.frombuffer(raw.ljust(max(8, len(raw)), b"\x00"), np.uint8).copy()
+
+
 @njit(cache=True)
-def _words(data, out):  # pragma: no cover - compiled
+def _check_loop(kind, data_id, data, length, chk_parts, out):  # pragma: no cover - compiled
     for i in range(data.shape[0]):
-        out[i] = bytes_to_word(data[i], 8)
-
-
-def _as_words(data: np.ndarray) -> np.ndarray:
-    """uint8 [n, >=8] -> uint64 [n] ``w_le`` words (bytes past 8 ignored)."""
-    d = np.ascontiguousarray(np.asarray(data, dtype=np.uint8)[:, :8])
-    out = np.empty(d.shape[0], dtype=np.uint64)
-    _words(d, out)
-    return out
+        out[i] = integrity_ok(kind, data_id, data[i], length, chk_parts)
 
 
 @njit(cache=True)
-def _check_loop(kind, data_id, words, length, chk_parts, out):  # pragma: no cover - compiled
-    for i in range(words.shape[0]):
-        out[i] = integrity_ok(kind, data_id, words[i], length, chk_parts)
+def _counter_loop(data, parts, out):  # pragma: no cover - compiled
+    for i in range(data.shape[0]):
+        out[i] = np.int64(get_parts(data[i], parts))
 
 
 @njit(cache=True)
-def _counter_loop(words, parts, out):  # pragma: no cover - compiled
-    for i in range(words.shape[0]):
-        out[i] = np.int64(get_parts(words[i], parts))
+def _crc_loop(data_id, data, length, out):  # pragma: no cover - compiled
+    for i in range(data.shape[0]):
+        out[i] = p01_crc_row(data_id, data[i], length)
 
 
 @njit(cache=True)
-def _crc_loop(data_id, words, length, out):  # pragma: no cover - compiled
-    for i in range(words.shape[0]):
-        out[i] = p01_crc_word(data_id, words[i], length)
-
-
-@njit(cache=True)
-def _whl_loop(words, out):  # pragma: no cover - compiled
-    for i in range(words.shape[0]):
-        out[i] = whl_spd11_checksum_word(words[i])
+def _whl_loop(data, out):  # pragma: no cover - compiled
+    for i in range(data.shape[0]):
+        out[i] = whl_spd11_checksum_row(data[i])
 
 
 def p01_crc_batch(data_id: int, data: np.ndarray, length: int = 8) -> np.ndarray:
     """Profile 1 CRC of every frame of ``data`` (uint8 [n, >=length]) -> uint8 [n] (compiled table
-    CRC, :func:`p01_crc_word`)."""
+    CRC, :func:`p01_crc_row`)."""
     out = np.empty(np.shape(data)[0], dtype=np.uint8)
-    _crc_loop(int(data_id), _as_words(data), int(length), out)
+    _crc_loop(int(data_id), _rows(data), int(length), out)
     return out
+
+
+def toyota_checksum(data_id: int, data: bytes | bytearray) -> int:
+    """Toyota's checksum of one frame (its length is ``len(data)``; module doc)."""
+    return int(toyota_checksum_row(int(data_id), _row(data), len(data)))
 
 
 def whl_spd11_checksum(data: bytes | bytearray) -> int:
@@ -307,66 +396,59 @@ def whl_spd11_checksum(data: bytes | bytearray) -> int:
 
     ``(number of 1-bits in all 8 bytes, the top 2 bits of bytes 1, 3, 5, 7 masked) ^ 9) & 15``
     """
-    return int(whl_spd11_checksum_word(np.uint64(frame_word(data))))
+    return int(whl_spd11_checksum_row(_row(data)))
 
 
 def whl_spd11_checksum_batch(data: np.ndarray) -> np.ndarray:
     """:func:`whl_spd11_checksum` over uint8 [n, 8] -> uint8 [n]."""
     out = np.empty(np.shape(data)[0], dtype=np.uint8)
-    _whl_loop(_as_words(data), out)
+    _whl_loop(_rows(data), out)
     return out
 
 
 def read_counter_batch(scheme: IntegrityScheme, data: np.ndarray) -> np.ndarray:
-    """Counters of uint8 [n, 8] frames -> int64 [n]."""
+    """Counters of uint8 [n, >= 8] frames -> int64 [n]."""
     out = np.empty(np.shape(data)[0], dtype=np.int64)
-    _counter_loop(_as_words(data), scheme.counter_parts, out)
+    _counter_loop(_rows(data), scheme.counter_parts, out)
     return out
 
 
 def read_counter(scheme: IntegrityScheme, data: bytes | bytearray) -> int:
     """Counter of one frame."""
-    return int(get_parts(np.uint64(frame_word(data)), scheme.counter_parts))
+    return int(get_parts(_row(data), scheme.counter_parts))
 
 
 def check_batch(scheme: IntegrityScheme, data_id: int, data: np.ndarray, length: int = 8) -> np.ndarray:
     """Checksum / CRC verdict per frame -> bool [n] (all True where the scheme verifies nothing)."""
-    words = _as_words(data)
-    out = np.empty(words.shape[0], dtype=np.bool_)
-    _check_loop(scheme.kind_code, int(data_id), words, int(length), scheme.checksum_parts, out)
+    d = _rows(data)
+    out = np.empty(d.shape[0], dtype=np.bool_)
+    _check_loop(scheme.kind_code, int(data_id), d, int(length), scheme.checksum_parts, out)
     return out
 
 
 def check_frame(scheme: IntegrityScheme, data_id: int, data: bytes | bytearray) -> bool:
-    """:func:`check_batch` of one frame (its length is ``len(data)``, at most 8 bytes used)."""
-    n = min(len(data), 8)
-    w = np.uint64(frame_word(data, n))
-    return bool(integrity_ok(scheme.kind_code, int(data_id), w, n, scheme.checksum_parts))
+    """:func:`check_batch` of one frame (its length is ``len(data)``)."""
+    return bool(integrity_ok(scheme.kind_code, int(data_id), _row(data), len(data), scheme.checksum_parts))
 
 
 def protect_frame(scheme: IntegrityScheme, data_id: int, buf: bytearray, counter: int) -> None:
     """Write ``counter`` and the CRC / checksum into ``buf`` in place (the sender's side).
 
-    COUNTER schemes get the counter only; their checksum field (algorithm unknown) is left as is.
+    ``counter`` schemes get the counter only; their checksum field (algorithm unknown) is left as is.
     """
-    n = min(len(buf), 8)
-    w = protect_word(
-        scheme.kind_code,
-        int(data_id),
-        np.uint64(frame_word(buf, n)),
-        n,
-        scheme.counter_parts,
-        scheme.checksum_parts,
-        int(counter),
+    n = len(buf)
+    row = _row(buf)
+    protect_row(
+        scheme.kind_code, int(data_id), row, n, scheme.counter_parts, scheme.checksum_parts, int(counter)
     )
-    buf[:n] = word_bytes(int(w), n)
+    buf[:n] = row[:n].tobytes()
 
 
 # ----------------------------------------------------------------------------------- receiver
 
 # config vector slots
-C_MODULUS, C_INVALID, C_MAX_DELTA, C_SYNC, C_TIMEOUT_NS = range(5)
-C_SIZE = 5
+C_MODULUS, C_INVALID, C_MAX_DELTA, C_SYNC, C_TIMEOUT_NS, C_HAS_COUNTER = range(6)
+C_SIZE = 6
 
 # state vector slots
 S_WAIT_FIRST = 0  # 1 until the first good frame after (re-)init
@@ -409,6 +491,8 @@ def receive_frame(
 ) -> np.int64:
     """THE per-frame receiver step (module docstring); updates ``state`` in place, returns the status."""
     state[S_N_RECEIVED] += 1
+    if cfg[C_HAS_COUNTER] == 0:  # no counter: every good frame is the next in sequence
+        counter = (state[S_LAST_COUNTER] + 1) % cfg[C_MODULUS]
     state[S_ACCEPTED] = 0
     state[S_LOST_LAST] = 0
     # timeout without a good frame -> re-init (one NONEWDATA event)
@@ -492,6 +576,8 @@ class ReceiverConfig:
         invalid_counter: a counter value that is never valid (15 for Profile 1; -1 for none).
         max_delta: MaxDeltaCounter, the largest accepted counter step (default 2: one frame lost).
         sync_frames: consecutive good frames needed after a (re-)start or fault before values are used.
+        has_counter: False for a message without an alive counter (every good frame counts as the
+            next in sequence: no REPEATED, WRONGSEQUENCE or lost frames can be seen).
     """
 
     timeout_ns: int
@@ -499,9 +585,12 @@ class ReceiverConfig:
     invalid_counter: int = 15
     max_delta: int = 2
     sync_frames: int = 2
+    has_counter: bool = True
 
     def __post_init__(self) -> None:
-        if self.timeout_ns <= 0 or self.modulus < 2 or not (1 <= self.max_delta < self.modulus):
+        if self.timeout_ns <= 0 or (
+            self.has_counter and (self.modulus < 2 or not 1 <= self.max_delta < self.modulus)
+        ):
             raise ValueError(f"invalid ReceiverConfig {self}")
         if self.sync_frames < 0:
             raise ValueError(f"ReceiverConfig.sync_frames must be >= 0, got {self.sync_frames}")
@@ -513,15 +602,18 @@ class ReceiverConfig:
         cfg[C_MAX_DELTA] = self.max_delta
         cfg[C_SYNC] = self.sync_frames
         cfg[C_TIMEOUT_NS] = self.timeout_ns
+        cfg[C_HAS_COUNTER] = int(self.has_counter)
         return cfg
 
     @classmethod
     def for_scheme(cls, scheme: IntegrityScheme, timeout_ns: int, max_delta: int = 2, sync_frames: int = 2):
+        if not scheme.has_counter:
+            return cls(int(timeout_ns), 2, -1, 1, sync_frames, has_counter=False)
         return cls(
             timeout_ns=int(timeout_ns),
             modulus=scheme.modulus,
             invalid_counter=scheme.invalid_counter,
-            max_delta=max_delta,
+            max_delta=min(max_delta, scheme.modulus - 1),
             sync_frames=sync_frames,
         )
 

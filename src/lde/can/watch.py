@@ -143,15 +143,31 @@ class InputWatch:
 
     def missing(self, t_ns: int) -> dict[str, int]:
         """Input messages missing at ``t_ns``: name -> the time since which [ns] (their last frame,
-        or the watch's start when none came)."""
+        or the watch's start when none came). A message that never came is missing once every
+        input's warning time has passed since the start (the longest): a silent bus gets one
+        warning naming every input, not one per input as each one's time passes."""
         if self._start_ns is None:
             self._start_ns = t_ns
+        start = self._start_ns
+        started = t_ns - start >= max(self._after.values(), default=0)
         out = {}
         for name, after in self._after.items():
-            since = self._last.get(name, self._start_ns)
-            if t_ns - since >= after:
-                out[name] = since
+            last = self._last.get(name)
+            if last is None:
+                if started:
+                    out[name] = start
+            elif t_ns - last >= after:
+                out[name] = last
         return out
+
+    def late(self, t_ns: int) -> list[str]:
+        """Input messages without a frame within their message timeout at ``t_ns`` [ns] (none came
+        yet included): what the estimator lacks now (the status line)."""
+        return [
+            name
+            for name, spec in self.profile.messages.items()
+            if t_ns - self._last.get(name, -(1 << 62)) > spec.timeout_ns
+        ]
 
     def check(self, t_ns: int) -> list[tuple[str, str]]:
         """Lines to log at step time ``t_ns`` [ns] as (level, text), level "warning" or "info"."""

@@ -30,30 +30,21 @@ from collections.abc import Sequence
 
 from lde.errors import LdeError
 
-
-class _Choices(tuple):
-    """The names a ``--backend`` option shows (iteration: the help, argparse's error) and the ones
-    it accepts (``in``: the names and the old aliases, which still work but are not offered)."""
-
-    aliases: frozenset[str] = frozenset()
-
-    def __new__(cls, names: Sequence[str], aliases: Sequence[str] = ()) -> _Choices:
-        obj = super().__new__(cls, names)
-        obj.aliases = frozenset(aliases)
-        return obj
-
-    def __contains__(self, name: object) -> bool:
-        return super().__contains__(name) or name in self.aliases
-
-
-#: the backends' names, and accepted aliases (lde.engine.backends' registry and ALIASES; kept here so that
-#: building the parser stays light, tests/test_backends.py holds them equal)
-BACKEND_CHOICES = _Choices(("fixed", "float", "paper-fixed", "paper"), aliases=("lateral",))
-#: the help of every --backend option
+#: the help of every --backend option (the names are checked against lde.engine.backends' registry when
+#: the command runs, which keeps building the parser light; tests/test_backends.py checks that this text
+#: names every registered backend)
 BACKEND_HELP = (
-    "estimator: fixed (default): the lateral filter in fixed point with its float shadow check; "
-    "float: the lateral filter in float; paper-fixed / paper: the paper's 4-state filter in fixed point "
-    "/ float"
+    "estimator: fixed (default): the lateral filter in fixed point (the firmware model) with its float "
+    "shadow check; float: the lateral filter in float; paper: the paper's 4-state filter in float"
+)
+
+#: the shipped CAN profiles (lde.can.profiles.PROFILE_NAMES: kept here so that building the parser
+#: stays light; tests/test_profile_files.py holds them equal)
+PROFILE_CHOICES = ("lde", "hyundai", "toyota_rav4_2017")
+#: the help of every --profile option
+PROFILE_HELP = (
+    f"CAN profile: a shipped one ({', '.join(PROFILE_CHOICES)}) or a profile file (.toml; its format: "
+    "docs/guide/profiles.md)"
 )
 
 #: subcommand name -> module below lde.cli. A module that does not exist yet is skipped.
@@ -120,8 +111,20 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _notice_key(args: argparse.Namespace) -> str:
+    """What a run compiles, as the key of its measured compile time (lde.cli.kernels)."""
+    parts = [str(args.command), str(getattr(args, "backend", None) or "")]
+    if getattr(args, "smooth", False):
+        parts.append("--smooth")
+    return " ".join(p for p in parts if p)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     whole_process = argv is None  # the `lde` command: the process ends when this returns
+    if whole_process:
+        from lde.cli.kernels import use_kernel_cache
+
+        use_kernel_cache()  # before numba is imported: kernels keyed by lde's sources
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(argv)
     args = parser.parse_args(argv)
@@ -131,7 +134,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        if args.command == "warmup":  # says what it compiles itself
+            return int(args.func(args) or 0)
+        from lde.cli.kernels import compile_notice
+
+        with compile_notice(_notice_key(args), quiet=bool(getattr(args, "quiet", False))):
+            return int(args.func(args) or 0)
     except LdeError as exc:
         print(f"lde: error: {exc}", file=sys.stderr)
         return 2

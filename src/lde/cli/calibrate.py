@@ -27,6 +27,7 @@ from pathlib import Path
 
 from lde.analysis.adaptive import drive_from_grid, grid_from_frames
 from lde.analysis.calibrate import calibrate, write_vehicle
+from lde.cli import PROFILE_HELP
 from lde.errors import ConfigError
 from lde.io import read_log
 from lde.params import load_vehicle
@@ -46,7 +47,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--profile",
         default=None,
-        help="CAN profile: lde, hyundai or a .dbc path (default: the one an lde recording names, else lde)",
+        help=PROFILE_HELP + " (default: the one an lde recording names, else lde)",
     )
     p.add_argument(
         "--toml",
@@ -62,8 +63,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--torsion",
         choices=("auto", "yes", "no"),
         default="auto",
-        help="identify the torsion-bar twist in the steering angle (auto: not on profile lde, whose "
-        "angle is the MDPS's pinion angle; yes on profiles that carry the steering-wheel angle)",
+        help="identify the torsion-bar twist in the steering angle (auto: on profiles whose angle sensor "
+        "sits above the torsion bar, angle_above_torsion_bar; not on lde's, the MDPS's pinion angle)",
     )
     p.add_argument(
         "--keep-tires",
@@ -94,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     grid = grid_from_frames(log.frames, profile)
     drive = drive_from_grid(grid)
     if args.corrections:
-        torsion = args.torsion == "yes" or (args.torsion == "auto" and profile.name != "lde")
+        torsion = args.torsion == "yes" or (args.torsion == "auto" and profile.angle_above_torsion_bar)
         if not profile.steering_rate_signed:
             print(
                 f"note: profile {profile.name} carries the steering rate without its sign: "

@@ -10,8 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lde.cli import BACKEND_CHOICES, BACKEND_HELP
-from lde.cli.coldrun import begin, compile_ahead
+from lde.cli import BACKEND_HELP, PROFILE_HELP
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -25,7 +24,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=1, help="seed of wind, driver and sensor noise")
     p.add_argument("--duration", type=float, metavar="SEC", help="simulated seconds (default: scenario)")
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
-    p.add_argument("--backend", choices=BACKEND_CHOICES, default="fixed", help=BACKEND_HELP)
+    p.add_argument("--profile", default="lde", help=PROFILE_HELP + " (default: lde)")
+    p.add_argument("--backend", default="fixed", help=BACKEND_HELP)
     p.add_argument("--mcap", default="lde_demo.mcap", metavar="FILE", help="recording of the overlay run")
     p.add_argument(
         "--plot",
@@ -46,7 +46,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    cold = begin(args.backend)  # before the heavy imports: the notice within a second
     from lde.demo import DEFAULT_SCENARIO, run_demo
     from lde.params import load_vehicle
 
@@ -55,13 +54,13 @@ def run(args: argparse.Namespace) -> int:
         from lde.errors import ConfigError
 
         raise ConfigError(f"--duration must be > 0, got {args.duration}")
-    compile_ahead(cold)
     summary, _on, _off = run_demo(
         args.scenario or DEFAULT_SCENARIO,
         seed=args.seed,
         duration=args.duration,
         vehicle=vehicle,
         backend=args.backend,
+        profile=args.profile,
         mcap=None if args.no_mcap else args.mcap,
         png=None if args.no_plot else args.plot,
         full_off_run=args.full_off_run,

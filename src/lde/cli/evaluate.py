@@ -6,7 +6,7 @@ actual CG, as in the paper) with the Mw figure about the unloaded reference CG b
 bank-only scenario the Mw error is normalised by 1 m x max|Fw|; for a disturbance-free scenario the
 figures are the RMS of the estimate in N and Nm (``lde.analysis.metrics``). The default backend here is
 ``paper`` (``lde run``, ``replay`` and ``demo`` default to ``fixed``): the accuracy tables in
-docs/study.md were measured with the paper's float filter; give ``--backend fixed`` for the
+docs/design/studies.md were measured with the paper's float filter; give ``--backend fixed`` for the
 product's estimator. ``--zoo`` runs ``fixed`` and ``float`` unless ``--backends`` says otherwise.
 
 ``lde evaluate --zoo``: the estimator on cars it was never fitted to (``vcan_sim/zoo``). For every
@@ -23,8 +23,9 @@ payload plant also runs with the spec sheet plus the load (``PLANT + load`` rows
 driving, cold, scored from minute 2 on and per minute, and when the learner reports "learned") and
 warm light loads (2 m/s crosswind, 1 deg bank, no disturbance, the crosswind with 0.4 and 0.8 Nm of
 rack friction and with a rough driver), each beside its target; ``--backends`` defaults to
-``fixed`` there, ``--duration`` shortens the first drive only. Writes OUT/first_drive.md and OUT/first_drive.csv (every run, every minute).
-``--readme README.md --doc docs/study.md`` (full run only) write the summary and the tables between
+``fixed`` there, ``--duration`` shortens the first drive only. Writes OUT/first_drive.md and
+OUT/first_drive.csv (every run, every minute).
+``--readme FILE`` / ``--doc FILE`` (full run only) write the summary and the tables between
 the files' two marker comments (``lde evaluate --zoo: begin`` and ``end``).
 """
 
@@ -40,7 +41,6 @@ from lde.analysis.study import firstdrive, zoo, zooreport
 from lde.analysis.study.execute import load_sim_vehicle
 from lde.analysis.study.specsheet import write_spec_sheet
 from lde.analysis.study.tables import write_rows
-from lde.cli import BACKEND_CHOICES
 from lde.cli.replay_in_process import engine
 from lde.cli.study import add_cluster_arguments, add_run_arguments, cluster_config, est_options, sim_options
 from lde.errors import ConfigError
@@ -116,8 +116,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--doc",
         type=Path,
         metavar="FILE",
-        help="write the summary and the tables between the same markers of FILE, e.g. docs/study.md "
-        "(full run only)",
+        help="write the summary and the tables between the same markers of FILE (full run only)",
     )
     z.add_argument(
         "--first-drive",
@@ -208,9 +207,10 @@ def run_zoo(args: argparse.Namespace) -> int:
         raise ConfigError("--prior applies to warm runs: add warm to --modes")
     profiles = args.profiles or ((args.profile,) if args.profile else zoo.PROFILES)
     backends = args.backends or ((args.backend,) if args.backend else zoo.BACKENDS)
+    from lde.engine.backends import get_backend
+
     for b in backends:
-        if b not in BACKEND_CHOICES:
-            raise ConfigError(f"unknown backend {b!r} ({', '.join(BACKEND_CHOICES)})")
+        get_backend(b)  # ConfigError for an unknown or removed name
     out: Path = args.out
     if args.readme or args.doc:
         _check_full(args, modes, profiles, backends)

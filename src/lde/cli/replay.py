@@ -24,7 +24,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import FrameType
 
-from lde.cli import BACKEND_CHOICES, BACKEND_HELP
+from lde.cli import BACKEND_HELP, PROFILE_HELP
 from lde.errors import ConfigError, LdeError
 from lde.replay.columns import columns_help
 
@@ -48,12 +48,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--profile",
         default=None,
-        help="CAN profile: lde, hyundai or a .dbc path (default: the one an lde recording names, else lde)",
+        help=PROFILE_HELP + " (default: the one an lde recording names, else lde)",
     )
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
     p.add_argument(
         "--backend",
-        choices=BACKEND_CHOICES,
         default=None,
         help=BACKEND_HELP,
     )
@@ -78,12 +77,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         metavar="SEC",
         help="text and python-can logs: how far (log time) a frame may lag behind an earlier line and "
         "still be put in time order (default 10; 0 = sort the whole log in memory)",
-    )
-    p.add_argument(
-        "--shadow-thread",
-        action="store_true",
-        help="fixed backend: run its float shadow check as a second engine on another core "
-        "(less wall time when a core is idle, more CPU time; the same rows)",
     )
     p.add_argument(
         "--jobs",
@@ -193,6 +186,10 @@ def _summary(rep) -> str:
         + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in rep.timings.items())
         + ")",
     ]
+    if rep.buses:  # a log that names its buses: where the inputs came from
+        on = sorted(set(rep.buses.values()))
+        other = f"; {rep.other_bus} frames of them on other buses not used" if rep.other_bus else ""
+        lines.append(f"  input messages read from bus {', '.join(on)}{other}")
     if rep.learned:
         lines.append(f"  learned (from {rep.learned_origin or 'the vehicle file'}): {rep.learned}")
     if rep.steps == 0:
@@ -281,158 +278,136 @@ def _gc_off() -> Iterator[Callable[[], None]]:
 
 
 def _run(args: argparse.Namespace, resume_gc: Callable[[], None]) -> int:
-    from lde.jitcache import is_warm, notice
-
-    cold = not is_warm()
-    if cold and not args.quiet:  # before the heavy imports: said within a second
-        print(notice(), file=sys.stderr, flush=True)
-    helper = None
-    if cold and args.jobs is None and args.scheduler is None:
-        from lde.coldstart import start_helper
-
-        helper = start_helper(args.backend)  # compiles part of the data path on the other core
-    from lde.lazyblas import defer_blas_import
-
-    defer_blas_import()  # numba's BLAS check without importing scipy.linalg (0.2-0.45 s)
-
     from lde.can.profiles import load_profile
-    from lde.cli.jit import announce_compiles
     from lde.io import REORDER_WINDOW_NS
     from lde.params import load_vehicle
     from lde.replay.fleet import ReplayJob, run_jobs, summary_table
     from lde.replay.replay import resolve_backend
 
-    with announce_compiles(already_said=cold or args.quiet):
-        logs = [Path(p) for p in args.logs]
-        if args.reorder_window is not None and not args.reorder_window >= 0:
-            raise ConfigError(f"--reorder-window {args.reorder_window}: give seconds >= 0")
-        if args.jobs is not None and args.jobs < 1:
-            raise ConfigError(f"--jobs {args.jobs}: give 1 or more")
-        window = (
-            REORDER_WINDOW_NS
-            if args.reorder_window is None
-            else (None if args.reorder_window == 0 else int(round(args.reorder_window * 1e9)))
-        )
-        many = len(logs) > 1
-        for opt in (args.csv, args.mcap):
-            if many and opt is not None and opt.exists() and not opt.is_dir():
-                raise ConfigError(f"with several LOGs, {opt} must be a directory")
-        _check_paths(logs, [])
-        names = _out_names(logs)
-        if len(set(names.values())) < len(names):
-            raise ConfigError("several LOGs would write the same output file: give them different names")
-        outs = {
-            p: (_out_path(args.csv, names[p], ".csv", many), _out_path(args.mcap, names[p], ".mcap", many))
-            for p in logs
-        }
-        planned = [(opt, o) for c, m in outs.values() for opt, o in (("--csv", c), ("--mcap", m)) if o]
-        _check_paths(logs, planned, many)
-        # the options are checked here once (each job loads them again where it runs)
-        if args.profile is not None:
-            load_profile(args.profile)
-        vehicle = args.vehicle or "reference"
-        if Path(vehicle).suffix.lower() == ".toml" or Path(vehicle).exists():
-            vehicle = str(Path(vehicle).resolve())
-        load_vehicle(vehicle)
-        backend, _fn, note = resolve_backend(args.backend)
-        resume_gc()  # the imports are done; the replay runs with the collector as usual
-        if note and not args.quiet:
-            print(f"lde replay: note: {note}", file=sys.stderr)
-        if helper is not None:
-            from lde.coldstart import compile_split
+    logs = [Path(p) for p in args.logs]
+    if args.reorder_window is not None and not args.reorder_window >= 0:
+        raise ConfigError(f"--reorder-window {args.reorder_window}: give seconds >= 0")
+    if args.jobs is not None and args.jobs < 1:
+        raise ConfigError(f"--jobs {args.jobs}: give 1 or more")
+    window = (
+        REORDER_WINDOW_NS
+        if args.reorder_window is None
+        else (None if args.reorder_window == 0 else int(round(args.reorder_window * 1e9)))
+    )
+    many = len(logs) > 1
+    for opt in (args.csv, args.mcap):
+        if many and opt is not None and opt.exists() and not opt.is_dir():
+            raise ConfigError(f"with several LOGs, {opt} must be a directory")
+    _check_paths(logs, [])
+    names = _out_names(logs)
+    if len(set(names.values())) < len(names):
+        raise ConfigError("several LOGs would write the same output file: give them different names")
+    outs = {
+        p: (_out_path(args.csv, names[p], ".csv", many), _out_path(args.mcap, names[p], ".mcap", many))
+        for p in logs
+    }
+    planned = [(opt, o) for c, m in outs.values() for opt, o in (("--csv", c), ("--mcap", m)) if o]
+    _check_paths(logs, planned, many)
+    # the options are checked here once (each job loads them again where it runs)
+    if args.profile is not None:
+        for line in load_profile(args.profile).notes() if not args.quiet else ():
+            print(f"lde replay: note: {line}", file=sys.stderr)
+    vehicle = args.vehicle or "reference"
+    if Path(vehicle).suffix.lower() == ".toml" or Path(vehicle).exists():
+        vehicle = str(Path(vehicle).resolve())
+    load_vehicle(vehicle)
+    backend = resolve_backend(args.backend)
+    resume_gc()  # the imports are done; the replay runs with the collector as usual
+    if args.smooth:
+        from lde.replay.smoother import check_backend
 
-            compile_split(backend, helper, logs=logs)  # the step's kernels on both cores
-        if args.smooth:
-            from lde.replay.smoother import check_backend
-
-            check_backend(backend)
-            if args.csv is None and args.mcap is None:
-                raise ConfigError("--smooth writes its columns to --csv and/or --mcap: give one")
-            if backend != "float" and not args.quiet:
-                print(
-                    f"lde replay: note: --smooth with backend {backend}: the *_smooth columns are the float "
-                    "lateral filter's, smoothed (the smoother is float analysis); the other columns are "
-                    f"the {backend} backend's",
-                    file=sys.stderr,
-                )
-        if many:
-            for opt in (args.csv, args.mcap):
-                if opt is not None:
-                    try:
-                        opt.mkdir(parents=True, exist_ok=True)
-                    except OSError as exc:
-                        raise ConfigError(f"{opt}: cannot create the output directory: {exc}") from exc
-
-        def absolute(p: Path | None) -> Path | None:
-            return None if p is None else p.resolve()
-
-        learned = absolute(args.learned)
-
-        profile = args.profile
-        if profile is not None and Path(profile).suffix.lower() == ".dbc":
-            profile = str(Path(profile).resolve())
-        jobs = [
-            ReplayJob(
-                log=p.resolve(),
-                csv=absolute(outs[p][0]),
-                mcap=absolute(outs[p][1]),
-                profile=profile,
-                vehicle=vehicle,
-                backend=backend,
-                use_recorded_steps=not args.no_recorded_steps,
-                reorder_window_ns=window,
-                mcap_index=args.mcap_index,
-                shadow_thread=args.shadow_thread,
-                learned=learned,
-                smooth=args.smooth,
+        check_backend(backend)
+        if args.csv is None and args.mcap is None:
+            raise ConfigError("--smooth writes its columns to --csv and/or --mcap: give one")
+        if backend != "float" and not args.quiet:
+            print(
+                f"lde replay: note: --smooth with backend {backend}: the *_smooth columns are the float "
+                "lateral filter's, smoothed (the smoother is float analysis); the other columns are "
+                f"the {backend} backend's",
+                file=sys.stderr,
             )
-            for p in logs
-        ]
-        on_dask = args.scheduler is not None or (args.jobs is not None and (args.jobs > 1 or many))
-        # a bar only on a terminal: its carriage returns would land in a file or a pipe
-        show_bar = (many or on_dask) and not args.quiet and sys.stderr.isatty()
+    if many:
+        for opt in (args.csv, args.mcap):
+            if opt is not None:
+                try:
+                    opt.mkdir(parents=True, exist_ok=True)
+                except OSError as exc:
+                    raise ConfigError(f"{opt}: cannot create the output directory: {exc}") from exc
 
-        def report(rep) -> None:
-            lines = [f"lde replay: warning: {rep.log}: {w}" for w in rep.warnings]  # even with -q
-            if not args.quiet and rep.ok:
-                lines.append(_summary(rep))
-            if rep.error and many:  # said once, here (the table marks the log "error")
-                lines.append(f"lde: error: {rep.error_line}")
-            for text in lines:
-                if show_bar:
-                    from tqdm import tqdm
+    def absolute(p: Path | None) -> Path | None:
+        return None if p is None else p.resolve()
 
-                    tqdm.write(text, file=sys.stderr)
-                else:
-                    print(text, file=sys.stderr)
+    learned = absolute(args.learned)
 
-        with _signals_stop() as stopped:
-            if on_dask:  # distributed is imported only here: ~0.5 s of start-up
-                from lde.replay.fleet_dask import ClusterConfig, run_jobs_on_dask
+    profile = args.profile
+    if profile is not None and Path(profile).is_file():  # a profile file: the jobs may run elsewhere
+        profile = str(Path(profile).resolve())
+    jobs = [
+        ReplayJob(
+            log=p.resolve(),
+            csv=absolute(outs[p][0]),
+            mcap=absolute(outs[p][1]),
+            profile=profile,
+            vehicle=vehicle,
+            backend=backend,
+            use_recorded_steps=not args.no_recorded_steps,
+            reorder_window_ns=window,
+            mcap_index=args.mcap_index,
+            learned=learned,
+            smooth=args.smooth,
+        )
+        for p in logs
+    ]
+    on_dask = args.scheduler is not None or (args.jobs is not None and (args.jobs > 1 or many))
+    # a bar only on a terminal: its carriage returns would land in a file or a pipe
+    show_bar = (many or on_dask) and not args.quiet and sys.stderr.isatty()
 
-                cfg = ClusterConfig(scheduler=args.scheduler, n_workers=args.jobs or 2)
-                reports = run_jobs_on_dask(
-                    jobs, cfg, progress=show_bar, on_report=report, stop=lambda: bool(stopped)
-                )
+    def report(rep) -> None:
+        lines = [f"lde replay: warning: {rep.log}: {w}" for w in rep.warnings]  # even with -q
+        if not args.quiet and rep.ok:
+            lines.append(_summary(rep))
+        if rep.error and many:  # said once, here (the table marks the log "error")
+            lines.append(f"lde: error: {rep.error_line}")
+        for text in lines:
+            if show_bar:
+                from tqdm import tqdm
+
+                tqdm.write(text, file=sys.stderr)
             else:
-                reports = run_jobs(jobs, progress=show_bar, on_report=report, stop=lambda: bool(stopped))
-        if stopped:
-            left = len(jobs) - len(reports)
-            rest = f"; {left} log{'s' if left > 1 else ''} not replayed" if left else ""
-            print(f"lde replay: stopped by {stopped[0].name}{rest}", file=sys.stderr)
-            return 128 + int(stopped[0])
-        notes = [] if args.quiet else [n for n in (_nothing_written_note(args),) if n]
-        if not many:
-            if reports[0].error:
-                raise LdeError(reports[0].error)
-            for text in notes:
                 print(text, file=sys.stderr)
-            return 0 if reports[0].usable else EXIT_NOTHING_USABLE
-        if not args.quiet:
-            print(summary_table(reports), file=sys.stderr)
-            notes += [n for n in (_outputs_note(args, reports),) if n]
-            for text in notes:
-                print(text, file=sys.stderr)
-        if any(not r.ok for r in reports):
-            return 2
-        return 0 if all(r.usable for r in reports) else EXIT_NOTHING_USABLE
+
+    with _signals_stop() as stopped:
+        if on_dask:  # distributed is imported only here: ~0.5 s of start-up
+            from lde.replay.fleet_dask import ClusterConfig, run_jobs_on_dask
+
+            cfg = ClusterConfig(scheduler=args.scheduler, n_workers=args.jobs or 2)
+            reports = run_jobs_on_dask(
+                jobs, cfg, progress=show_bar, on_report=report, stop=lambda: bool(stopped)
+            )
+        else:
+            reports = run_jobs(jobs, progress=show_bar, on_report=report, stop=lambda: bool(stopped))
+    if stopped:
+        left = len(jobs) - len(reports)
+        rest = f"; {left} log{'s' if left > 1 else ''} not replayed" if left else ""
+        print(f"lde replay: stopped by {stopped[0].name}{rest}", file=sys.stderr)
+        return 128 + int(stopped[0])
+    notes = [] if args.quiet else [n for n in (_nothing_written_note(args),) if n]
+    if not many:
+        if reports[0].error:
+            raise LdeError(reports[0].error)
+        for text in notes:
+            print(text, file=sys.stderr)
+        return 0 if reports[0].usable else EXIT_NOTHING_USABLE
+    if not args.quiet:
+        print(summary_table(reports), file=sys.stderr)
+        notes += [n for n in (_outputs_note(args, reports),) if n]
+        for text in notes:
+            print(text, file=sys.stderr)
+    if any(not r.ok for r in reports):
+        return 2
+    return 0 if all(r.usable for r in reports) else EXIT_NOTHING_USABLE

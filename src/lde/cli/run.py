@@ -2,9 +2,15 @@
 
 The bus is opened the python-can way: ``--interface``/``--channel``/``--bitrate`` where given, else
 python-can's environment variables (``CAN_INTERFACE``, ``CAN_CHANNEL``, ``CAN_BITRATE``) or its
-config file (``~/can.conf``, ``$XDG_CONFIG_HOME/can.conf``, ...). SIGINT/SIGTERM end the service
-cleanly: the overlay request ramps to zero, then the learned state (``--learned``) is written and
-the recording is closed.
+config file (``~/can.conf``, ``$XDG_CONFIG_HOME/can.conf``, ...). On python-can's ``udp_multicast``
+every program on this host with the same group (``--channel``) and port (``--bus-kwarg port=N``) is
+on the same bus: give yours a group and port of its own, e.g. ``-c 239.74.163.77 --bus-kwarg
+port=47311``. SIGINT/SIGTERM end the service cleanly: the overlay request ramps to zero, then the
+learned state (``--learned``) is written and the recording is closed.
+
+While it runs it prints one status line a second to stderr (valid share, Fw, Mw, bank, overlay,
+learner, deadline misses, missing inputs). Exit status 3 when no input message ever arrived (nothing
+usable, as ``lde replay``).
 """
 
 from __future__ import annotations
@@ -18,12 +24,12 @@ import threading
 from types import FrameType
 from typing import TYPE_CHECKING
 
-from lde.cli import BACKEND_CHOICES, BACKEND_HELP
-from lde.cli.coldrun import begin, compile_ahead
+from lde.cli import BACKEND_HELP, PROFILE_HELP
+from lde.cli.replay import EXIT_NOTHING_USABLE
 from lde.errors import BusError, ConfigError
 
 if TYPE_CHECKING:
-    from lde.service.service import StepResult
+    from lde.service.service import Service, StepResult
 
 log = logging.getLogger("lde.service.service")
 
@@ -35,14 +41,21 @@ def add_bus_arguments(p: argparse.ArgumentParser) -> None:
     """python-can bus options (shared with ``lde sim``-style commands)."""
     g = p.add_argument_group("CAN bus (python-can; omitted options come from its env/config)")
     g.add_argument("-i", "--interface", help="python-can interface: socketcan, virtual, pcan, vector, ...")
-    g.add_argument("-c", "--channel", help="channel: vcan0, can0, PCAN_USBBUS1, ...")
+    g.add_argument(
+        "-c",
+        "--channel",
+        help="channel: vcan0, can0, PCAN_USBBUS1, a udp_multicast group (239.74.X.Y: pick your own, with "
+        "--bus-kwarg port=N, so that no other program on this host shares the bus), ...",
+    )
     g.add_argument("-b", "--bitrate", type=int, help="bit rate [bit/s] where the interface sets it")
     g.add_argument(
         "--bus-kwarg",
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="extra keyword for can.Bus (repeatable), e.g. receive_own_messages=False",
+        help="extra keyword for can.Bus (repeatable), e.g. receive_own_messages=False; udp_multicast: "
+        "port=N (python-can's default 43113 is shared by every user of that group) and hop_limit=0 (stay "
+        "on this host)",
     )
 
 
@@ -76,9 +89,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_bus_arguments(p)
-    p.add_argument("--profile", default="lde", help="CAN profile: lde (default) or hyundai")
+    p.add_argument("--profile", default="lde", help=PROFILE_HELP + " (default: lde)")
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
-    p.add_argument("--backend", choices=BACKEND_CHOICES, default="fixed", help=BACKEND_HELP)
+    p.add_argument("--backend", default="fixed", help=BACKEND_HELP)
     p.add_argument("--record", metavar="FILE.mcap", help="record frames, estimates and diagnostics to MCAP")
     p.add_argument(
         "--learned",
@@ -128,6 +141,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "counts them at the interface, elsewhere those that reach the service; raise it on a shared bus)",
     )
     p.add_argument("--log-period", type=float, default=10.0, metavar="SEC", help="timing log line period")
+    p.add_argument(
+        "--status-interval",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="print a status line to stderr every S seconds (default 1): valid share of the steps, Fw [N], "
+        "Mw [Nm], bank [deg], overlay state and torque [Nm], learner state, deadline misses, missing inputs",
+    )
+    p.add_argument("--quiet", "-q", action="store_true", help="no status lines")
     p.set_defaults(func=run)
 
 
@@ -155,7 +177,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--flood-rate {args.flood_rate}: need frames per second > 0")
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise ConfigError(f"--duration {args.duration}: need seconds > 0 (leave it out to run until stopped)")
-    cold = begin(args.backend)  # before the heavy imports: the notice within a second
+    if not (args.status_interval > 0 and math.isfinite(args.status_interval)):
+        raise ConfigError(f"--status-interval {args.status_interval}: need seconds > 0 (--quiet: none)")
     from lde.can.profiles import load_profile
     from lde.clock import MonotonicClock
     from lde.params import load_vehicle
@@ -167,10 +190,11 @@ def run(args: argparse.Namespace) -> int:
     # one ever hold the interpreter lock, the loop must get it back within a fraction of a step
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
     profile = load_profile(args.profile)
+    for line in profile.notes():
+        log.warning("%s", line)
     vehicle = load_vehicle(args.vehicle)
     if vehicle.defaults:
         log.info("%s", vehicle.defaults_note())
-    compile_ahead(cold)  # before real-time priority: the compilers are not real-time work
     if args.realtime:
         _realtime(args)
     elif args.cpu:
@@ -181,7 +205,11 @@ def run(args: argparse.Namespace) -> int:
         except (OSError, ValueError) as exc:
             raise ConfigError(f"--cpu {args.cpu}: cannot pin to these CPUs: {exc}") from exc
 
-    bus = svc_mod.open_bus(**bus_kwargs(args))
+    from lde.can.busio import bus_label
+
+    kw = bus_kwargs(args)
+    bus = svc_mod.open_bus(**kw)
+    name = bus_label(**kw)
     recorder = None
     service = None
     stop = threading.Event()
@@ -190,6 +218,7 @@ def run(args: argparse.Namespace) -> int:
         stop.set()
 
     old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    code = 0
     try:
         service = svc_mod.Service(
             bus,
@@ -201,38 +230,29 @@ def run(args: argparse.Namespace) -> int:
             log_period_s=args.log_period,
             grid=args.grid,
             learned=args.learned,
+            bus_name=name,
             **({} if args.flood_rate is None else {"flood_hz": args.flood_rate}),
         )
         if args.record:
             from lde.io.recording import LEARNED_START_KEY, Recorder
 
             meta = {
-                "profile": profile.name,
+                **profile.metadata(),
                 "vehicle": vehicle.name,
                 "vehicle_source": vehicle.source,
                 "backend": args.backend,
                 "step_ns": str(STEP_NS),
-                "bus": str(getattr(bus, "channel_info", "")),
+                "bus": name,
             }
             if vehicle.defaults:  # what the vehicle file left to lde's defaults, as the log said
                 meta["vehicle_defaults"] = "; ".join(vehicle.defaults)
             if service.learned_start:
                 meta[LEARNED_START_KEY] = service.learned_start
-            recorder = service.recorder = Recorder(args.record, metadata=meta)
-        on_step = None
-        if args.duration is not None:
-            span_ns = max(STEP_NS, int(args.duration * 1e9))
-            first: list[int] = []
-
-            def on_step(res: StepResult) -> None:  # --duration ends like a signal: ramp out, then stop
-                if not first:
-                    first.append(res.t_ns)
-                elif res.t_ns - first[0] >= span_ns:
-                    stop.set()
-
+            recorder = service.recorder = Recorder(args.record, metadata=meta, frame_bytes=service.rx_width)
+        ends = _Ends(service, stop, args.duration, None if args.quiet else args.status_interval)
         log.info(
             "lde run: %s, profile %s, vehicle %s, backend %s, %s grid, input filters: %s%s",
-            getattr(bus, "channel_info", "bus"),
+            name,
             profile.name,
             vehicle.name,
             args.backend,
@@ -240,11 +260,21 @@ def run(args: argparse.Namespace) -> int:
             service.filters,
             f", recording to {args.record}" if args.record else "",
         )
-        summary = service.run(stop_event=stop, on_step=on_step)
+        if name.startswith("udp_multicast:"):
+            log.info(
+                "%s: every program on this host with this group and port is on this bus; give each bus a"
+                " group and port of its own (--channel 239.74.X.Y --bus-kwarg port=N)",
+                name,
+            )
+        summary = service.run(stop_event=stop, on_step=ends.on_step)
         log.info("%s", summary.log_line())
         log.info("%s", service.fault_summary())
         if service.late_rx:
             log.info("frames that reached the service after the step of their timestamp: %d", service.late_rx)
+        if service.valid_steps == 0:
+            log.warning("%s", _nothing_usable(service))
+            if service.inputs_received == 0:
+                code = EXIT_NOTHING_USABLE
     finally:
         for s, h in old.items():
             signal.signal(s, h)
@@ -255,4 +285,50 @@ def run(args: argparse.Namespace) -> int:
             if recorder is not None:
                 recorder.close()
             bus.shutdown()
-    return 0
+    return code
+
+
+class _Ends:
+    """Per step of ``lde run``: the status line every ``status_s`` [s] of step time (None: none), and
+    the stop after ``duration_s`` [s] (None: until a signal), which ends like a signal does (the
+    overlay ramps out, then the service stops)."""
+
+    def __init__(
+        self, service: Service, stop: threading.Event, duration_s: float | None, status_s: float | None
+    ):
+        from lde.units import STEP_NS
+
+        self.service = service
+        self.stop = stop
+        self.span_ns = None if duration_s is None else max(STEP_NS, int(duration_s * 1e9))
+        self.status_ns = None if status_s is None else max(STEP_NS, int(status_s * 1e9))
+        self.first: int | None = None
+        self.next_status = 0
+
+    def on_step(self, res: StepResult) -> None:
+        t = res.t_ns
+        if self.first is None:
+            self.first = t
+            self.next_status = t + (self.status_ns or 0)
+        elif self.span_ns is not None and t - self.first >= self.span_ns:
+            self.stop.set()
+        if self.status_ns is not None and t >= self.next_status:
+            self.next_status += self.status_ns * max(1, (t - self.next_status) // self.status_ns + 1)
+            print(f"lde run: {self.service.status().line()}", file=sys.stderr, flush=True)
+
+
+def _nothing_usable(service: Service) -> str:
+    """Why a run gave no valid estimate, for its last line."""
+    where = f"on {service.bus_name} with profile {service.profile.name}"
+    if service.inputs_received == 0:
+        from lde.can.watch import describe_ids
+
+        seen = describe_ids(service.watch.ids, service.profile)
+        return (
+            f"no input ever arrived {where} in {service.steps} steps ({seen}); no valid estimate, nothing"
+            " usable: check --interface/--channel and --profile"
+        )
+    return (
+        f"no valid estimate in {service.steps} steps {where} ({service.inputs_received} input frames"
+        " arrived; see the warnings above); nothing usable"
+    )

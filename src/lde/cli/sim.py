@@ -32,6 +32,7 @@ from dataclasses import replace
 from pathlib import Path
 from types import FrameType
 
+from lde.cli import PROFILE_HELP
 from lde.cli.run import add_bus_arguments, bus_kwargs
 from lde.errors import ConfigError
 
@@ -46,7 +47,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--list", action="store_true", help="list the scenarios and exit")
     p.add_argument("--scenario", "-s", metavar="NAME", help="scenario name (see --list)")
-    p.add_argument("--profile", default="lde", help="CAN profile: lde (default), hyundai, or a .dbc path")
+    p.add_argument("--profile", default="lde", help=PROFILE_HELP + " (default: lde)")
     p.add_argument("--vehicle", default=None, help="vehicle TOML file or shipped name (default: reference)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random part (default 0)")
     p.add_argument("--duration", type=float, metavar="SEC", help="length [s] (default: the scenario's)")
@@ -156,13 +157,6 @@ def _check_outputs(args: argparse.Namespace) -> None:
         parent = path.parent if str(path.parent) else Path(".")
         if not parent.is_dir():
             raise ConfigError(f"{opt} {path}: no such directory {parent}")
-
-
-def _overlay_filter(profile) -> list[dict[str, object]]:
-    """python-can receive filter passing only the profile's ``LDE_Overlay`` frame."""
-    spec = profile.spec("LDE_Overlay")
-    ext = bool(getattr(spec, "is_extended", False))
-    return [{"can_id": int(spec.frame_id), "can_mask": 0x1FFFFFFF if ext else 0x7FF, "extended": ext}]
 
 
 def _renice(level: int) -> None:
@@ -299,22 +293,22 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_live(args: argparse.Namespace, sim, realtime: bool, streamer) -> None:
     """Pump ``sim`` onto the bus until its end or a signal; ``streamer`` writes the files as it goes."""
-    from lde.service.service import open_bus
+    from lde.can.busio import bus_label, open_bus, receive_only
     from vcan_sim.closed_loop import OverlayReceiver
     from vcan_sim.emitter import LATE_S, MAX_LAG_S, PumpStats, pump
 
     receiver = None if args.open_loop else OverlayReceiver(sim.profile)
     kw = bus_kwargs(args)
-    # the kernel (SocketCAN) hands the simulator only the frames it reads: LDE_Overlay. Without
-    # the filter every LDE_Estimate/LDE_Diag frame wakes it up too (3 wake-ups per service step
-    # instead of 1), which on a slow single CPU (user-mode Linux) starves its own sending.
-    kw.setdefault("can_filters", _overlay_filter(sim.profile))
     bus = open_bus(**kw)
+    if receiver is not None:
+        # where the kernel can, it hands the simulator only the frame it reads, LDE_Overlay: on a slow
+        # single CPU (user-mode Linux) reading every LDE_Estimate/LDE_Diag frame too starves its sending
+        receive_only(bus, [sim.profile.spec("LDE_Overlay").frame_id])
     st: PumpStats | None = None
     trace: list[tuple[int, int, int, int]] | None = [] if args.send_trace else None
     print(
-        f"lde sim: {args.scenario} on {getattr(bus, 'channel_info', 'the bus')} "
-        f"({'real time' if realtime else 'fast'}, {sim.duration:.0f} s); SIGINT/SIGTERM stop it",
+        f"lde sim: {args.scenario} on {bus_label(**kw)} ({'real time' if realtime else 'fast'}, "
+        f"{sim.duration:.0f} s); SIGINT/SIGTERM stop it",
         file=sys.stderr,
         flush=True,
     )
@@ -343,9 +337,16 @@ def _run_live(args: argparse.Namespace, sim, realtime: bool, streamer) -> None:
     if st is not None:
         used = receiver.stats.used if receiver else 0
         # closed loop: the steps that found no new overlay frame ran on the last request
-        stale = (
-            f", steps on the last overlay request {st.stale_overlay_steps} of {st.steps}" if receiver else ""
-        )
+        stale = ""
+        if receiver:
+            rs, es = receiver.stats, receiver.e2e.stats
+            stale = (
+                f" of {rs.received} received (re-synchronising {es.resync} after {es.initial} (re)starts,"
+                f" E2E rejected {rs.rejected}, malformed {rs.malformed}), "
+                f"steps on the last overlay request {st.stale_overlay_steps} of {st.steps}"
+            )
+            if st.rx_full_steps:
+                stale += f", steps that left frames queued for the next {st.rx_full_steps}"
         print(
             f"lde sim: {args.scenario}: sent {st.sent} frames over {st.sim_s:.2f} s simulated in "
             f"{st.wall_s:.2f} s wall ({'real time' if realtime else 'fast'}, CPU {st.cpu_s:.2f} s); "

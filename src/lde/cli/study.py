@@ -19,8 +19,8 @@ Presets (``--preset``):
   tires; + ``lde calibrate``), the ladder and the faults with their winners; ``summary_all.md``.
 
 The default backend here is ``paper`` (``lde run``, ``replay`` and ``demo`` default to ``fixed``):
-the presets reproduce the paper's study, and the tables in docs/study.md were measured with the
-paper's float filter. Give ``--backend fixed`` for the product's estimator.
+the presets reproduce the paper's study, and the tables in docs/design/studies.md were measured
+with the paper's float filter. Give ``--backend fixed`` for the product's estimator.
 
 Runs go to a ``LocalCluster(n_workers=--workers, threads_per_worker=1)`` by default or to an existing
 scheduler with ``--scheduler tcp://HOST:8786``; ``--workers 0`` runs in this process.
@@ -35,7 +35,7 @@ import sys
 from pathlib import Path
 
 from lde.analysis import study
-from lde.cli import BACKEND_CHOICES
+from lde.cli import PROFILE_HELP
 from lde.cli.replay_in_process import engine
 from lde.errors import ConfigError
 
@@ -69,12 +69,13 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--backend",
-        choices=BACKEND_CHOICES,
         default=None,
         help="replay backend (default here: paper, the paper's float filter, which the tables in "
-        "docs/study.md were measured with; lde run, replay and demo default to fixed)",
+        "docs/design/studies.md were measured with; lde run, replay and demo default to fixed)",
     )
-    g.add_argument("--profile", default=None, help="CAN profile of the simulated bus: lde (default), hyundai")
+    g.add_argument(
+        "--profile", default=None, help="of the simulated bus: " + PROFILE_HELP + " (default: lde)"
+    )
     g.add_argument(
         "--sim-option",
         action="append",

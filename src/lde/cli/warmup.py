@@ -1,9 +1,10 @@
 """``lde warmup [--parts fixed,float,...] [--jobs N] [--background]``: compile lde's numba kernels now.
 
-A first run after an install or an upgrade compiles them (25-35 s of CPU per backend); after
-``lde warmup`` the first ``lde replay``, ``lde run`` or ``lde demo`` starts warm. Run it once
-after ``pip install`` (with ``--jobs 2`` on two cores; ``--background`` returns at once and leaves
-the compiling to a detached process, e.g. in a post-install step).
+A first run after an install or an upgrade compiles the kernels it needs; after ``lde warmup`` the
+first ``lde replay``, ``lde run`` or ``lde demo`` starts warm. Run it once after ``pip install``
+(with ``--jobs 2`` on two cores; ``--background`` returns at once and leaves the compiling to a
+detached process, e.g. in a post-install step). It also removes the kernels compiled for other
+versions of lde's sources (lde.cli.kernels).
 """
 
 from __future__ import annotations
@@ -18,10 +19,6 @@ from pathlib import Path
 
 from lde.errors import ConfigError
 
-#: the parts of :data:`lde.warmup.PARTS` (named here so that ``lde --help`` imports no kernel; a test
-#: checks they agree)
-PART_NAMES = ("fixed", "float", "paper-fixed", "paper", "logio", "sim", "smooth")
-
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
@@ -32,8 +29,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--parts",
         default=None,
-        help=f"comma-separated, of: {', '.join(PART_NAMES)} (the data path per backend, the log readers and "
-        "writers, the simulator, the smoother; default: all)",
+        help="comma-separated, of: a backend's name (its data path), logio (the log readers and writers), "
+        "sim (the simulator), smooth (the smoother); default: all",
     )
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="compile in N processes")
     p.add_argument(
@@ -47,10 +44,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lde.jitcache import cache_dirs, is_warm
+    from lde.cli.kernels import kernel_dir, prune_other_kernel_dirs
 
-    print(f"lde warmup: compiling into {' or '.join(map(str, cache_dirs()))}", file=sys.stderr, flush=True)
-    warm = is_warm()
+    where = os.environ.get("NUMBA_CACHE_DIR", "")
+    ours = where == str(kernel_dir())  # the lde command's kernel directory (not a library's cache)
+    print(f"lde warmup: compiling into {where or 'numba default cache'}", file=sys.stderr, flush=True)
     from lde.warmup import PARTS, warm_up
 
     parts = list(PARTS) if args.parts is None else [p.strip() for p in args.parts.split(",") if p.strip()]
@@ -64,11 +62,10 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     for part, seconds in warm_up(parts, jobs=args.jobs):
         print(f"  {part}: {seconds:.1f} s", file=sys.stderr, flush=True)
-    state = "were cached already" if warm else "compiled"
-    print(
-        f"lde warmup: done in {time.perf_counter() - t0:.1f} s (the data path's kernels {state})",
-        file=sys.stderr,
-    )
+    print(f"lde warmup: done in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    if ours:
+        for gone in prune_other_kernel_dirs(Path(where)):
+            print(f"lde warmup: removed {gone} (kernels of other sources)", file=sys.stderr)
     return 0
 
 

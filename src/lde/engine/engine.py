@@ -14,18 +14,17 @@ give the same rows whichever way they are cut: the live service and replay are t
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from lde.can.codec import MessageCodec, words_le
+from lde.can.codec import MessageCodec
 from lde.can.e2e import ReceiverStats
 from lde.can.frames import FrameBatch
 from lde.can.profiles import INPUT_NAMES, Profile
-from lde.engine.backends import BackendState, get_backend
+from lde.engine.backends import BackendState, make_backend_state
 from lde.engine.grid import (
     G_FINISH,
     G_K,
@@ -53,16 +52,16 @@ from lde.engine.loop import (
     V_T_ALIGN,
     V_T_OVERLAY,
     V_ZERO,
+    loop_arrays,
+    run_loop,
 )
-from lde.engine.loopargs import loop_arrays
 from lde.engine.receiver import N_INPUTS, RxState, RxTables
 from lde.errors import ConfigError
 from lde.estimator import lateral as E
 from lde.estimator.conditioning import check_profile
 from lde.estimator.learned import LearnedSnapshot, LearnedState, load_learned, parse_learned, save_snapshot
 from lde.estimator.learner import tire_state
-from lde.estimator.overlay import limiter_params, new_limiter_state
-from lde.estimator.paper import (
+from lde.estimator.outputs import (
     N_OUT,
     O_BANK,
     O_BETA,
@@ -74,6 +73,7 @@ from lde.estimator.paper import (
     O_T_ALIGN,
     O_YAW,
 )
+from lde.estimator.overlay import limiter_params, new_limiter_state
 from lde.params import Vehicle
 from lde.units import STEP_S
 
@@ -111,7 +111,7 @@ class OutputTable:
         start, stop, rows = [], [], 0
         cols: dict[str, list[np.ndarray]] = {
             k: []
-            for k in ("shift", "nbits", "le", "signed", "scale", "offset", "lo", "hi", "is_value", "source")
+            for k in ("pos", "nbits", "le", "signed", "scale", "offset", "lo", "hi", "is_value", "source")
         }
         for c in codecs:
             lay = c.layout
@@ -119,7 +119,7 @@ class OutputTable:
             start.append(rows)
             rows += len(c.order)
             stop.append(rows)
-            cols["shift"].append(lay.shift)
+            cols["pos"].append(lay.pos)
             cols["nbits"].append(lay.nbits)
             cols["le"].append(lay.little_endian)
             cols["signed"].append(lay.signed)
@@ -140,7 +140,7 @@ class OutputTable:
             np.stack([c.scheme.checksum_parts for c in codecs]),
             np.array([c.scheme.modulus for c in codecs], np.int64),
             np.array([c.scheme.invalid_counter for c in codecs], np.int64),
-            cat["shift"],
+            cat["pos"],
             cat["nbits"],
             cat["le"],
             cat["signed"],
@@ -228,6 +228,10 @@ class StepBlock:
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
 
+    def columns(self) -> tuple[np.ndarray, ...]:
+        """The columns in field order: the compiled loop's ``out`` (:func:`lde.engine.loop.run_loop`)."""
+        return tuple(getattr(self, f.name) for f in fields(self))
+
     def head(self, n: int) -> StepBlock:
         """The first ``n`` rows (views)."""
         return StepBlock(**{f.name: getattr(self, f.name)[:n] for f in fields(self)})
@@ -295,11 +299,7 @@ class StepBlock:
         return self.ok[:, 1]
 
 
-#: a batch longer than this runs the backend's shadow in a second thread (:meth:`Engine.feed`)
-_SHADOW_MIN_FRAMES = 50_000
-_SHADOW_CHUNK = 65_536
 _MAX_HINT_ROWS = 1 << 21
-_NO_PRE = np.zeros((0, 2))
 _NO_TIMES = np.zeros(0, np.int64)
 _NO_BOOL = np.zeros(0, np.bool_)
 _NO_U8 = np.zeros(0, np.uint8)
@@ -330,9 +330,6 @@ class Engine:
         dt: the model period [s] (the grid period).
         encode_outputs: encode the output frames (``StepBlock.frames``); False for a replay whose
             output is only a CSV (the frames are then zeros).
-        shadow_thread: the fixed backend's float shadow of a large batch runs as a second engine in
-            another thread (:meth:`_feed_with_shadow`: less wall time on an idle second core, more
-            CPU time); False: inline, one core (same rows either way).
     """
 
     def __init__(
@@ -344,20 +341,16 @@ class Engine:
         explicit: bool = False,
         dt: float = STEP_S,
         encode_outputs: bool = True,
-        shadow_thread: bool = True,
     ) -> None:
         check_profile(vehicle, profile.steering_rate_signed, profile.name)
         self.profile = profile
         self.vehicle = vehicle
-        self.backend = get_backend(backend)
-        self._pinned: Any = None  # the compiled overload of run_arrays(pinned=True) calls (the live path)
+        self.backend_name = backend
         self.explicit = explicit
         self.encode_outputs = encode_outputs
-        self.shadow_thread = shadow_thread
         self.rx_tables = RxTables.of(profile)
         self.outputs = OutputTable.of(profile)
         self._dt = dt
-        self.est: BackendState
         self.reset()
 
     def reset(self) -> None:
@@ -366,27 +359,42 @@ class Engine:
         self.rx = RxState.initial(self.rx_tables)
         self.grid = new_grid(MODE_EXPLICIT if self.explicit else MODE_ANCHORED)
         self.prev_t = np.full(1, np.iinfo(np.int64).min, np.int64)  # the previous step's time
-        self.lp = limiter_params(vehicle)
+        self.lp = limiter_params(vehicle, allowed=self.overlay_allowed)
         self.lsi, self.lsf = new_limiter_state()
         self.counters = np.zeros(len(self.outputs.names), np.int64)
         self.used_since = np.zeros(1, np.int64)
         self._steps, self._enable, self._extra = _NO_TIMES, _NO_BOOL, _NO_U8
-        # the loop's fixed arrays as one compiled argument (lde.engine.loopargs: 1 to unbox instead of 51)
+        self.frames_fed = 0
+        self.est: BackendState = self._new_backend_state()
+        self.backend = self.est.backend
+        # the loop's backend-independent arrays as one compiled argument (lde.engine.loop.LoopArrays)
         self._la = loop_arrays(
             self.rx_tables.kernel_args(),
             self.outputs.args,
             self.rx.kernel_args(),
+            self.grid,
             self.prev_t,
             self.lp,
             self.lsi,
             self.lsf,
             self.counters,
             self.used_since,
+            self.rx_tables.anchor,
         )
-        self.frames_fed = 0
-        self.est = self.backend.make(vehicle, self._dt, self.profile.angle_above_torsion_bar)
-        self._shadow: Engine | None = None
         self.learned_from: LearnedState | None = None
+
+    def _new_backend_state(self) -> BackendState:
+        """The backend's parameters and state at the start (:meth:`reset`)."""
+        return make_backend_state(
+            self.backend_name, self.vehicle, self._dt, self.profile.angle_above_torsion_bar
+        )
+
+    @property
+    def overlay_allowed(self) -> bool:
+        """The overlay may be enabled: not while a torque input of the profile has an unknown
+        scale (a torque request in unknown units is unsafe). The loop's enable is this and the
+        step's own enable (``LP_ALLOWED`` of the limiter's parameters carries it)."""
+        return self.profile.torque_scales_known
 
     @property
     def steps(self) -> int:
@@ -416,17 +424,17 @@ class Engine:
         self._require_learning()
         if not Path(path).exists():
             return None
-        info = self.est.info
-        return self._use(load_learned(path, self.profile.name, info["p"], info["lp"]))
+        e = self.est
+        return self._use(load_learned(path, self.profile.name, e.state.p, e.params.lp))
 
     def load_learned_text(self, text: str, source: str) -> LearnedState:
         """:meth:`load_learned` of a learned-state file's text (a recording's learned start)."""
         self._require_learning()
-        info = self.est.info
-        return self._use(parse_learned(text, source, self.profile.name, info["p"], info["lp"]))
+        e = self.est
+        return self._use(parse_learned(text, source, self.profile.name, e.state.p, e.params.lp))
 
     def _use(self, got: LearnedState) -> LearnedState:
-        self.est.info["learner"][:] = got.learner
+        self.est.state.ls[:] = got.learner
         self.est.params_changed()  # the fixed backend re-quantises its coefficient set from p
         self.learned_from = got
         return got
@@ -436,12 +444,12 @@ class Engine:
         run (valid steps). ConfigError for a backend that does not learn."""
         self._require_learning()
         prev = self.learned_from
-        info = self.est.info
+        st = self.est.state
         return LearnedSnapshot(
             self.vehicle.name,
             self.profile.name,
-            info["p"].copy(),
-            info["learner"].copy(),
+            st.p.copy(),
+            st.ls.copy(),
             (prev.drives if prev is not None else 0) + 1,
             (prev.seconds if prev is not None else 0.0) + float(seconds),
         )
@@ -455,7 +463,7 @@ class Engine:
         """What the learner holds now, one line (empty for a backend that does not learn)."""
         if not self.learns:
             return ""
-        p, ls = self.est.info["p"], self.est.info["learner"]
+        p, ls = self.est.state.p, self.est.state.ls
         state = ("not learned", "learning", "learned")[min(2, tire_state(ls))]
         return (
             f"tires {state}: Cf {p[E.P_CF]:.0f} Cr {p[E.P_CR]:.0f} N/rad, K {p[E.P_K]:.0f} Nm/rad, "
@@ -478,7 +486,7 @@ class Engine:
         can_id: np.ndarray,
         is_extended: np.ndarray,
         dlc: np.ndarray,
-        words: np.ndarray,
+        data: np.ndarray,
         is_rx: np.ndarray,
         out: StepBlock,
         *,
@@ -488,10 +496,9 @@ class Engine:
         extra_status: np.ndarray = _NO_U8,
         final: bool = True,
         t_end_ns: int | None = None,
-        pinned: bool = False,
     ) -> tuple[int, int]:
         """The compiled loop on raw frame columns from frame ``i0`` (the live hot path: no copies);
-        ``words`` are the frames' first 8 bytes as little-endian uint64 (:func:`lde.can.codec.words_le`).
+        ``data`` are the frames' bytes, uint8 [n, width] (:attr:`lde.can.frames.FrameBatch.data`).
         Fills ``out`` from row 0; returns (next frame index, rows written).
 
         ``final``: no frame follows these (live: every frame up to the step times has been given;
@@ -499,18 +506,13 @@ class Engine:
         ``t_end_ns`` or the last frame). Explicit mode: ``step_times`` are this call's steps
         (``enable``/``extra_status`` per step, or empty: on / 0); the frames after the last one stay
         unfed.
-
-        ``pinned``: the first such call resolves numba's overload for its argument types, later ones
-        call it directly (numba's type dispatch of the loop's 31 arguments costs about 20 us on a cold
-        cache). Only for a caller that passes arguments of the same types every time (the live
-        service's preallocated columns): the compiled entry point does not check array dtypes.
         """
         g = self.grid
         if self.explicit:
             g[G_K] = 0
             g[G_FINISH] = 0
         args = self._args(
-            (t_ns, can_id, is_extended, dlc, words, is_rx),
+            (t_ns, can_id, is_extended, dlc, data, is_rx),
             out,
             i0,
             step_times,
@@ -519,15 +521,7 @@ class Engine:
             final,
             t_end_ns,
         )
-        if pinned and self._pinned is not None:
-            i, n = self._pinned(*args)
-        else:
-            run = self.backend.run
-            i, n = run(*args)
-            if pinned:  # a backend loop that is not a numba dispatcher is called as it is
-                ovl = getattr(run, "overloads", None)
-                sig = tuple(run.typeof_pyval(a) for a in args) if ovl is not None else None
-                self._pinned = ovl[sig].entry_point if ovl is not None and sig in ovl else run
+        i, n = run_loop(*args)
         if g[G_OVERFLOW]:
             raise overflow_error(int(g[G_MAX_STEPS]), int(g[G_PERIOD]))
         return int(i), int(n)
@@ -548,16 +542,15 @@ class Engine:
     def live_args_valid(self, args: tuple) -> bool:
         """``args`` (:meth:`live_args`) still name this engine's state (not after :meth:`reset`)."""
         e = self.est
-        return args[0] is e.params and args[1] is e.state and args[2] is self._la and args[3] is self.grid
+        return args[0] is e.params and args[1] is e.state and args[2] is self._la
 
     def run_live(self, args: tuple) -> tuple[int, int]:
-        """:meth:`run_arrays` (explicit mode, ``pinned``, resolved before by a pinned call) on an
-        argument tuple from :meth:`live_args`: the live step's engine call without rebuilding its 31
-        arguments (about 8 us of Python per step on a hot cache)."""
+        """:meth:`run_arrays` (explicit mode) on an argument tuple from :meth:`live_args`: the live
+        step's engine call without rebuilding its arguments."""
         g = self.grid
         g[G_K] = 0
         g[G_FINISH] = 0
-        i, n = self._pinned(*args)
+        i, n = run_loop(*args)
         if g[G_OVERFLOW]:
             raise overflow_error(int(g[G_MAX_STEPS]), int(g[G_PERIOD]))
         return i, n
@@ -574,41 +567,18 @@ class Engine:
         t_end_ns: int | None,
     ) -> tuple:
         e = self.est
-        g = self.grid
-        t_ns, can_id, is_extended, dlc, words, is_rx = frames
         return (
             e.params,
             e.state,
             self._la,
-            g,
-            step_times,
-            enable,
-            extra_status,
-            self.encode_outputs,
+            frames,
+            (step_times, enable, extra_status),
+            out.columns(),
+            i0,
             final,
             np.int64(t_end_ns or 0),
             t_end_ns is not None,
-            i0,
-            t_ns,
-            can_id,
-            is_extended,
-            dlc,
-            words,
-            is_rx,
-            self.rx_tables.anchor,
-            out.t_ns,
-            out.status,
-            out.est,
-            out.t_overlay,
-            out.overlay_state,
-            out.overlay_enable,
-            out.inputs,
-            out.ages,
-            out.valid_mask,
-            out.ok,
-            out.frames_used,
-            out.e2e_rejects,
-            out.frames,
+            self.encode_outputs,
         )
 
     def feed(
@@ -643,13 +613,10 @@ class Engine:
             self._steps = np.concatenate([self._steps, t])
             self._enable = np.concatenate([self._enable, en])
             self._extra = np.concatenate([self._extra, ex])
-        if self.shadow_thread and self.est.shadow is not None and len(frames) > _SHADOW_MIN_FRAMES:
-            return self._feed_with_shadow(frames, final, t_end_ns, block_rows)
         return self._feed(frames, final, t_end_ns, block_rows)
 
     def _feed(self, frames: FrameBatch, final: bool, t_end_ns: int | None, block_rows: int) -> StepBlock:
         blocks: list[StepBlock] = []
-        words = words_le(frames.data)
         i = 0
         rows = self._rows_hint(frames, block_rows)
         while True:
@@ -659,7 +626,7 @@ class Engine:
                 frames.can_id,
                 frames.is_extended,
                 frames.dlc,
-                words,
+                frames.data,
                 frames.is_rx,
                 out,
                 i0=i,
@@ -689,53 +656,6 @@ class Engine:
         else:
             hint = 0
         return int(min(max(hint, block_rows), _MAX_HINT_ROWS))
-
-    def _feed_with_shadow(
-        self, frames: FrameBatch, final: bool, t_end_ns: int | None, block_rows: int
-    ) -> StepBlock:
-        """:meth:`_feed` with the backend's shadow (the float step) computed by a shadow engine on
-        the other core: the frames go in sub-chunks; while this engine runs sub-chunk j with the
-        shadow's estimates of j, the shadow engine runs j + 1. The same kernels on the same inputs
-        as the inline shadow: the same rows."""
-        sh = self._shadow_engine()
-        parts = [
-            frames.take(np.arange(a, min(a + _SHADOW_CHUNK, len(frames))))
-            for a in range(0, len(frames), _SHADOW_CHUNK)
-        ]
-        blocks: list[StepBlock] = []
-        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="lde-shadow") as pool:
-
-            def shadow_run(k: int) -> StepBlock:
-                last = k == len(parts) - 1
-                return sh._feed(parts[k], final and last, t_end_ns, block_rows)
-
-            ahead = pool.submit(shadow_run, 0)
-            for k, part in enumerate(parts):
-                ref = ahead.result()
-                if k + 1 < len(parts):
-                    ahead = pool.submit(shadow_run, k + 1)
-                self.est.with_shadow(np.ascontiguousarray(ref.est[:, :2]))
-                last = k == len(parts) - 1
-                blocks.append(self._feed(part, final and last, t_end_ns, max(block_rows, len(ref) + 1)))
-                if len(blocks[-1]) != len(ref):  # the two engines step on the same grid
-                    raise RuntimeError("shadow engine out of step")
-        self.est.with_shadow(_NO_PRE)
-        self.frames_fed = len(frames)
-        return StepBlock.concat(blocks) if len(blocks) > 1 else blocks[0]
-
-    def _shadow_engine(self) -> Engine:
-        """The engine of the backend's shadow, at the same point of the data path as this one."""
-        if self._shadow is None:
-            if self.steps or self.frames_fed:
-                raise RuntimeError("a shadow engine can only join an engine before its first frame")
-            shadow = self.est.shadow
-            assert shadow is not None
-            self._shadow = Engine(
-                self.profile, self.vehicle, shadow, explicit=self.explicit, dt=self._dt, encode_outputs=False
-            )
-        sh = self._shadow
-        sh._steps, sh._enable, sh._extra = self._steps, self._enable, self._extra
-        return sh
 
     def finish(self, t_end_ns: int | None = None) -> StepBlock:
         """The log has ended: the remaining steps run (anchored: up to ``t_end_ns`` or the last frame;

@@ -44,7 +44,6 @@ import numba as nb
 import numpy as np
 from numba import njit
 
-from lde.can.codec import words_le
 from lde.can.e2e import S_ACCEPTED
 from lde.can.frames import FrameBatch
 from lde.can.profiles import INPUT_NAMES, Profile
@@ -380,7 +379,7 @@ def _inputs_kernel(
     can_id,
     is_ext,
     dlc,
-    words,
+    data,
     anchor,
     out_t,
     out_v,
@@ -415,7 +414,7 @@ def _inputs_kernel(
             continue
         if not have:
             break
-        m, code = rx_feed(tb, st, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), words[i])
+        m, code = rx_feed(tb, st, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), data[i])
         grid_frame(g, t[i], m >= 0, m == anchor and code >= 0 and e2e[m, S_ACCEPTED] != 0)
         i += 1
     return i, n
@@ -467,7 +466,8 @@ def build_grid(
         g, explicit = new_grid(MODE_EXPLICIT), times
     else:
         g, explicit = new_grid(MODE_ANCHORED), np.zeros(0, np.int64)
-    return _sample_frames(profile, frames, g, explicit, t_end_ns)
+    used = decoded.used_profile if decoded.used_profile is not None else profile
+    return _sample_frames(used, frames, g, explicit, t_end_ns)
 
 
 def _sample_frames(
@@ -477,7 +477,6 @@ def _sample_frames(
     st = RxState.initial(tb)
     tba, sta = tb.kernel_args(), st.kernel_args()
     chunks: list[tuple[np.ndarray, ...]] = []
-    words = words_le(frames.data)
     cap = 1 << 16
     i = 0
     while True:
@@ -501,7 +500,7 @@ def _sample_frames(
             frames.can_id,
             frames.is_extended,
             frames.dlc,
-            words,
+            frames.data,
             tb.anchor,
             *out,
         )

@@ -4,13 +4,15 @@ One compiled receiver, used by every path (the engine's loop, the live :class:`R
 :func:`decode_batch`, :func:`lde.engine.grid.build_grid`). Per frame, in time order (:func:`rx_feed`):
 
 1. select by id: only 11-bit frames whose id is one of the profile's input messages (unknown ids and
-   29-bit frames are ignored, also a 29-bit frame whose number equals a known 11-bit id);
+   29-bit frames are ignored, also a 29-bit frame whose number equals a known 11-bit id); the frame's
+   bytes are a uint8 row (8 bytes for classic CAN, up to 64 for CAN FD);
 2. a frame whose length (dlc) differs from the message's DBC length is *malformed*: counted, never
    raised, and not passed to the E2E receiver;
 3. the E2E receiver (:func:`lde.can.e2e.receive_frame`, one state per message) gives the frame a status,
    an ``accepted`` flag (its values are used) and the message's ``trusted`` flag after the frame;
-4. an accepted frame is decoded: ``SI = factor * mean(DBC values of the input's signals)``
-   (:class:`lde.can.profiles.InputMap`) and becomes the latest sample of its message's inputs.
+4. an accepted frame is decoded: ``SI = factor * (combined DBC values of the input's signals +
+   offset)``, combined = their mean or sum (:class:`lde.can.profiles.InputMap`), and becomes the
+   latest sample of its message's inputs.
 
 Sampling at a time ``t`` after every frame with time ``<= t`` was fed (:func:`rx_sample`)::
 
@@ -20,6 +22,9 @@ Sampling at a time ``t`` after every frame with time ``<= t`` was fed (:func:`rx
     trusted_m(t) = 'trusted' after the latest frame of message m passed to the E2E receiver
     mdps_ok(t)   = all MDPS-group inputs valid and all their messages trusted; esc_ok likewise
 
+An input the profile declares absent has no message: its value is NaN, its age -1, it is never
+valid, and it does not count in its group's ``ok`` (the group is usable without it).
+
 Stale values are held (``valid`` says they are stale); the estimator decides what to do with them.
 Which frames precede which step is the grid's rule (:mod:`lde.engine.grid`): frames with time ``<= t_k``.
 """
@@ -27,12 +32,13 @@ Which frames precede which step is the grid's rule (:mod:`lde.engine.grid`): fra
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numba import njit
 
-from lde.can.bitfield import bytes_to_word, byteswap64, get_parts
+from lde.can.bitfield import get_parts
+from lde.can.channels import ChannelSelect
 from lde.can.codec import SignalCodec, raw_value
 from lde.can.e2e import (
     C_SIZE,
@@ -45,8 +51,9 @@ from lde.can.e2e import (
     new_state,
     receive_frame,
 )
-from lde.can.frames import FrameBatch
-from lde.can.profiles import INPUT_NAMES, MDPS_INPUTS, Profile
+from lde.can.frames import MAX_DATA, FrameBatch, data_width
+from lde.can.profiles import INPUT_NAMES, MDPS_INPUTS, Profile, observe_timeouts
+from lde.errors import ConfigError
 
 __all__ = [
     "RxTables",
@@ -90,8 +97,10 @@ class RxTables:
     Message rows (``m``): ``frame_id``, ``length``, ``kind`` (``lde.can.e2e.K_*``), ``ctr_parts`` and
     ``chk_parts`` (m, 2, 2), ``cfg`` (m, C_SIZE) receiver configuration, ``timeout_ns``, ``group``
     (``G_MDPS`` | ``G_ESC``). ``id2msg`` maps an 11-bit id to its row (-1: not an input).
-    Input rows (:data:`N_INPUTS`, :data:`INPUT_NAMES` order): ``in_msg``, ``in_sig0`` / ``in_nsig``
-    (their signals' rows), ``in_factor``, ``in_group``. Signal rows: ``sig_*``.
+    Input rows (:data:`N_INPUTS`, :data:`INPUT_NAMES` order): ``in_msg`` (-1: absent), ``in_sig0`` /
+    ``in_nsig`` (their signals' rows), ``in_factor``, ``in_group``, ``in_div`` (the number of signals
+    for a mean, 1 for a sum). Signal rows: ``sig_*`` (``sig_pos``: the packer position,
+    :mod:`lde.can.bitfield`; an input's offset is folded into its signals' offsets).
     """
 
     names: tuple[str, ...]
@@ -110,15 +119,22 @@ class RxTables:
     in_nsig: np.ndarray
     in_factor: np.ndarray
     in_group: np.ndarray
-    sig_shift: np.ndarray
+    sig_pos: np.ndarray
     sig_nbits: np.ndarray
     sig_le: np.ndarray
     sig_signed: np.ndarray
     sig_scale: np.ndarray
     sig_offset: np.ndarray
+    in_div: np.ndarray
 
     @classmethod
     def of(cls, profile: Profile) -> RxTables:
+        if not profile.timeouts_known:
+            late = [m.name for m in profile.messages.values() if m.receiver is None]
+            raise ConfigError(
+                f"{profile.path or profile.name}: no timeout for {', '.join(late)} (no cycle time in the "
+                f"DBC): set timeout_ms in [messages.{late[0]}] (a replay takes it from the log's rate)"
+            )
         specs = list(profile.messages.values())
         names = tuple(s.name for s in specs)
         row = {n: k for k, n in enumerate(names)}
@@ -127,24 +143,39 @@ class RxTables:
         for k, s in enumerate(specs):
             if 0 <= s.frame_id < 2048:
                 id2msg[s.frame_id] = k
-        ctr = np.zeros((m, 2, 2), np.int64)
-        chk = np.zeros((m, 2, 2), np.int64)
         cfg = np.zeros((m, C_SIZE), np.int64)
+        ctr = np.zeros((m, 2, 3), np.int64)
+        chk = np.zeros((m, 2, 3), np.int64)
         for k, s in enumerate(specs):
             ctr[k] = s.scheme.counter_parts
             chk[k] = s.scheme.checksum_parts
+            assert s.receiver is not None
             cfg[k] = s.receiver.as_array()
         codecs: list[SignalCodec] = []
-        in_msg, in_sig0, in_nsig, in_factor, in_group = [], [], [], [], []
+        in_msg, in_sig0, in_nsig, in_factor, in_group, in_div = [], [], [], [], [], []
         for name in INPUT_NAMES:
-            im = profile.inputs[name]
+            in_group.append(G_MDPS if name in MDPS_INPUTS else G_ESC)
+            im = profile.inputs.get(name)
+            if im is None:  # absent: no message, never valid
+                in_msg.append(-1)
+                in_sig0.append(len(codecs))
+                in_nsig.append(0)
+                in_factor.append(0.0)
+                in_div.append(1.0)
+                continue
             sigs = {sg.name: sg for sg in profile.signals[im.message]}
             in_msg.append(row[im.message])
             in_sig0.append(len(codecs))
             in_nsig.append(len(im.signals))
             in_factor.append(float(im.factor))
-            in_group.append(G_MDPS if name in MDPS_INPUTS else G_ESC)
-            codecs += [SignalCodec.of(sigs[sn]) for sn in im.signals]
+            n = len(im.signals)
+            in_div.append(float(n) if im.combine == "mean" else 1.0)
+            # the input's offset on its signals: mean(v) + o = mean(v + o); sum(v) + o on the first
+            for j, sn in enumerate(im.signals):
+                sc = SignalCodec.of(sigs[sn])
+                if im.offset and (im.combine == "mean" or j == 0):
+                    sc = replace(sc, offset=sc.offset + im.offset)
+                codecs.append(sc)
         group = np.zeros(m, np.int64)
         for k, s in enumerate(specs):
             group[k] = G_MDPS if s.group == "mdps" else G_ESC
@@ -165,12 +196,13 @@ class RxTables:
             in_nsig=np.array(in_nsig, np.int64),
             in_factor=np.array(in_factor, np.float64),
             in_group=np.array(in_group, np.int64),
-            sig_shift=np.array([c.shift for c in codecs], np.int64),
+            sig_pos=np.array([c.pos for c in codecs], np.int64),
             sig_nbits=np.array([c.length for c in codecs], np.int64),
             sig_le=np.array([c.little_endian for c in codecs], np.bool_),
             sig_signed=np.array([c.signed for c in codecs], np.bool_),
             sig_scale=np.array([c.scale for c in codecs], np.float64),
             sig_offset=np.array([c.offset for c in codecs], np.float64),
+            in_div=np.array(in_div, np.float64),
         )
 
     def kernel_args(self) -> tuple:
@@ -190,12 +222,13 @@ class RxTables:
             self.in_nsig,
             self.in_factor,
             self.in_group,
-            self.sig_shift,
+            self.sig_pos,
             self.sig_nbits,
             self.sig_le,
             self.sig_signed,
             self.sig_scale,
             self.sig_offset,
+            self.in_div,
         )
 
 
@@ -260,9 +293,9 @@ def rx_count_ignored(st):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def rx_feed(tb, st, t_ns, can_id, is_extended, dlc, w_le):  # pragma: no cover - compiled
-    """Feed one frame (time ``t_ns``, id, length ``dlc`` in bytes, ``w_le`` its first 8 bytes as
-    the little-endian word). Returns (message row or -1, code): :data:`FEED_IGNORED`,
+def rx_feed(tb, st, t_ns, can_id, is_extended, dlc, data):  # pragma: no cover - compiled
+    """Feed one frame (time ``t_ns``, id, length ``dlc`` in bytes, ``data`` its bytes: a uint8 row
+    of at least ``dlc`` bytes). Returns (message row or -1, code): :data:`FEED_IGNORED`,
     :data:`FEED_MALFORMED` or the frame's E2E status; ``st[0][m, S_ACCEPTED]`` says if its values
     are now the message's latest sample."""
     (
@@ -280,12 +313,13 @@ def rx_feed(tb, st, t_ns, can_id, is_extended, dlc, w_le):  # pragma: no cover -
         in_nsig,
         in_factor,
         _in_group,
-        sig_shift,
+        sig_pos,
         sig_nbits,
         sig_le,
         sig_signed,
         sig_scale,
         sig_offset,
+        in_div,
     ) = tb
     e2e, malformed, acc_t, acc_have, value, _ignored = st
     m = rx_msg_of(tb, can_id, is_extended)
@@ -293,29 +327,25 @@ def rx_feed(tb, st, t_ns, can_id, is_extended, dlc, w_le):  # pragma: no cover -
         rx_count_ignored(st)
         return -1, FEED_IGNORED
     n = length[m]
-    if dlc != n:
+    if dlc != n or n > data.shape[0]:
         malformed[m] += 1
         return m, FEED_MALFORMED
-    w = np.uint64(w_le)
-    if n < 8:
-        w &= (np.uint64(1) << np.uint64(8 * n)) - np.uint64(1)
-    ok = integrity_ok(kind[m], frame_id[m], w, n, chk_parts[m])
-    counter = np.int64(get_parts(w, ctr_parts[m]))
+    ok = integrity_ok(kind[m], frame_id[m], data, n, chk_parts[m])
+    counter = np.int64(get_parts(data, ctr_parts[m]))
     status = receive_frame(e2e[m], cfg[m], np.int64(t_ns), counter, ok)
     if e2e[m, S_ACCEPTED] != 0:
         acc_t[m] = t_ns
         acc_have[m] = True
-        w_be = byteswap64(w)
         for i in range(in_msg.shape[0]):
             if in_msg[i] != m:
                 continue
             k0 = in_sig0[i]
             v = 0.0
             for k in range(k0, k0 + in_nsig[i]):
-                raw = raw_value(w, w_be, sig_shift[k], sig_nbits[k], sig_le[k], sig_signed[k])
+                raw = raw_value(data, sig_pos[k], sig_nbits[k], sig_le[k], sig_signed[k])
                 v = v + (raw * sig_scale[k] + sig_offset[k])
-            if in_nsig[i] > 1:
-                v = v / in_nsig[i]
+            if in_div[i] != 1.0:  # a mean (x / 1.0 is x: a sum is left as it is)
+                v = v / in_div[i]
             value[i] = v * in_factor[i]
     return m, status
 
@@ -334,6 +364,10 @@ def rx_sample(tb, st, t_ns, values, ages):  # pragma: no cover - compiled
     ok_esc = True
     for i in range(in_msg.shape[0]):
         m = in_msg[i]
+        if m < 0:  # absent: never valid, not part of its group's verdict
+            values[i] = np.nan
+            ages[i] = -1
+            continue
         good = False
         if acc_have[m]:
             values[i] = value[i]
@@ -404,6 +438,10 @@ class Decoded:
     t_first_ns: int | None  # first / last frame time of the whole batch
     t_last_ns: int | None
     frames: FrameBatch | None = None
+    #: the profile as decoded with (its timeouts observed in the frames where its DBC has none)
+    used_profile: Profile | None = None
+    #: input-message frames on another bus than their message's (:class:`lde.can.channels.ChannelSelect`)
+    other_bus: int = 0
 
     @property
     def stats(self) -> dict[str, ReceiverStats]:
@@ -417,9 +455,7 @@ def _feed_all(tb, st, t, can_id, is_ext, dlc, data, msg_out, code_out, acc_out, 
     e2e = st[0]
     value = st[4]
     for i in range(t.shape[0]):
-        m, code = rx_feed(
-            tb, st, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), bytes_to_word(data[i], 8)
-        )
+        m, code = rx_feed(tb, st, t[i], np.int64(can_id[i]), is_ext[i], np.int64(dlc[i]), data[i])
         msg_out[i] = m
         code_out[i] = code
         if code >= 0:
@@ -431,9 +467,14 @@ def _feed_all(tb, st, t, can_id, is_ext, dlc, data, msg_out, code_out, acc_out, 
 
 
 def decode_batch(profile: Profile, frames: FrameBatch, tables: RxTables | None = None) -> Decoded:
-    """Decode a batch of frames (any order; stably sorted by time first) with the receiver kernel."""
-    tb = RxTables.of(profile) if tables is None else tables
+    """Decode a batch of frames (any order; stably sorted by time first) with the receiver kernel:
+    each input message's frames of its own bus (:class:`lde.can.channels.ChannelSelect`), the
+    timeouts its DBC does not give observed in the frames (:func:`lde.can.profiles.observe_timeouts`)."""
     frames = frames.sort()
+    select = ChannelSelect(profile)
+    frames = select(frames)
+    profile = observe_timeouts(profile, frames)
+    tb = RxTables.of(profile) if tables is None else tables
     n = len(frames)
     st = RxState.initial(tb)
     msg = np.empty(n, np.int64)
@@ -486,6 +527,8 @@ def decode_batch(profile: Profile, frames: FrameBatch, tables: RxTables | None =
         t_first_ns=int(frames.t_ns[0]) if n else None,
         t_last_ns=int(frames.t_ns[-1]) if n else None,
         frames=frames,
+        used_profile=profile,
+        other_bus=select.dropped,
     )
 
 
@@ -574,13 +617,13 @@ class Receiver:
         is_extended: bool = False,
     ) -> FrameStatus:
         """Process one received frame (time ``t_ns`` [ns]); never raises for a bad frame."""
-        raw = bytes(data)
+        raw = bytes(data)[:MAX_DATA]
         length = len(raw) if dlc is None else int(dlc)
-        if len(raw) < min(length, 8):  # fewer data bytes than the dlc says: cannot be decoded
+        if len(raw) < length:  # fewer data bytes than the dlc says: cannot be decoded
             length = -1
-        w = np.uint64(int.from_bytes(raw[:8].ljust(8, b"\x00"), "little"))
+        row = np.frombuffer(raw.ljust(data_width(len(raw)), b"\x00"), np.uint8)
         m, code = rx_feed(
-            self._tb, self._st, np.int64(t_ns), np.int64(can_id), bool(is_extended), np.int64(length), w
+            self._tb, self._st, np.int64(t_ns), np.int64(can_id), bool(is_extended), np.int64(length), row
         )
         if m < 0:
             return _IGNORED

@@ -75,6 +75,48 @@ def predict_inplace(x, P, Phi, Eu, Qd, tmp):  # pragma: no cover - compiled
             P[j, i] = s
 
 
+@njit(cache=True)
+def invert_small(ws, a, ai, m):  # pragma: no cover - compiled
+    """``ws[ai, :m, :m] <- ws[a, :m, :m]^-1`` by Gauss-Jordan elimination with partial pivoting
+    (the row with the largest remaining entry of each column leads), overwriting ``ws[a]``.
+
+    The same elimination as LAPACK's LU inverse, in loops over at most ``NX`` rows: numba compiles
+    ``np.linalg.inv`` into a call to LAPACK, which it finds only in scipy, so a kernel with it
+    would not compile on a plain install (scipy is no dependency). ``ws`` is a scratch array
+    (slots, n, n) as in :func:`update_inplace`; a singular matrix (an exactly zero pivot) raises
+    ``ZeroDivisionError``.
+    """
+    for i in range(m):
+        for j in range(m):
+            ws[ai, i, j] = 1.0 if i == j else 0.0
+    for c in range(m):
+        p = c
+        big = abs(ws[a, c, c])
+        for r in range(c + 1, m):
+            v = abs(ws[a, r, c])
+            if v > big:
+                big = v
+                p = r
+        if p != c:
+            for j in range(m):
+                t = ws[a, c, j]
+                ws[a, c, j] = ws[a, p, j]
+                ws[a, p, j] = t
+                t = ws[ai, c, j]
+                ws[ai, c, j] = ws[ai, p, j]
+                ws[ai, p, j] = t
+        d = 1.0 / ws[a, c, c]
+        for j in range(m):
+            ws[a, c, j] *= d
+            ws[ai, c, j] *= d
+        for r in range(m):
+            if r != c:
+                f = ws[a, r, c]
+                for j in range(m):
+                    ws[a, r, j] -= f * ws[a, c, j]
+                    ws[ai, r, j] -= f * ws[ai, c, j]
+
+
 #: number of (4, 4) scratch matrices :func:`update_inplace` needs (``ws`` shape (UPDATE_WS, 4, 4))
 UPDATE_WS = 9
 # scratch slots: used rows of H (m, n); innovation y (row 0, m); P H^T (n, m), later Kg R (n, m);
@@ -124,7 +166,7 @@ def update_inplace(x, P, z, H, Du, R, use, ws):  # pragma: no cover - compiled
             for k in range(n):
                 s += ws[_HC, a, k] * ws[_PHT, k, b]
             ws[_S, a, b] = s
-    # S^-1: closed form for 1 and 2 rows, LAPACK otherwise
+    # S^-1: closed form for 1 and 2 rows, Gauss-Jordan for 3 and 4 (S is not needed after it)
     if m == 1:
         ws[_SI, 0, 0] = 1.0 / ws[_S, 0, 0]
     elif m == 2:
@@ -134,7 +176,7 @@ def update_inplace(x, P, z, H, Du, R, use, ws):  # pragma: no cover - compiled
         ws[_SI, 1, 0] = -ws[_S, 1, 0] / det
         ws[_SI, 1, 1] = ws[_S, 0, 0] / det
     else:
-        ws[_SI, :m, :m] = np.linalg.inv(ws[_S, :m, :m].copy())
+        invert_small(ws, _S, _SI, m)
     # Kg = P H^T S^-1
     for i in range(n):
         for b in range(m):

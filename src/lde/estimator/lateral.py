@@ -53,13 +53,13 @@ group, LOW_SPEED below ``min_speed``, NOT_CONVERGED for ``converge_time`` after 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from lde.estimator.paper import O_BANK, O_BETA, O_FW, O_FW_WIND, O_MW, O_MW_WIND, O_T_ALIGN, O_YAW
+from lde.estimator.outputs import O_BANK, O_BETA, O_FW, O_FW_WIND, O_MW, O_MW_WIND, O_T_ALIGN, O_YAW
 from lde.params import Vehicle
-from lde.refcount import NO_REFCOUNT
 from lde.status import DEGRADED, ESC_FAULT, LOW_SPEED, MDPS_FAULT, NOT_CONVERGED, VALID
 from lde.units import DEG, STEP_S, G
 
@@ -121,6 +121,26 @@ def params_vector(
     # torque's scale unknown has it learned: lde.estimator.learner, L_TSCALE)
     p[P_KC], p[P_KA] = 1.0, 1.0
     return p
+
+
+class FilterState(NamedTuple):
+    """The filter's state besides its parameter vector (what :func:`step_kernel` changes)."""
+
+    x: np.ndarray  # (NX,) [beta rad, r rad/s, F_wind N, M_wind Nm, F_bank N], the a-priori estimate
+    P: np.ndarray  # (NX, NX) its covariance (SI units squared)
+    fs: np.ndarray  # (N_F,) float aux slots (F_*)
+    ints: np.ndarray  # (N_I,) int64 aux slots (I_*)
+    h: np.ndarray  # (NX,) scratch: a measurement row
+    ph: np.ndarray  # (NX,) scratch: P h
+
+
+def new_filter_state(p: np.ndarray) -> FilterState:
+    """A reset filter state for the parameter vector ``p`` (held until the first usable step)."""
+    f = FilterState(
+        np.zeros(NX), np.zeros((NX, NX)), np.zeros(N_F), np.zeros(N_I, np.int64), np.zeros(NX), np.zeros(NX)
+    )
+    reset_kernel(p, f.x, f.P, f.fs, f.ints)
+    return f
 
 
 # --- compiled kernels --------------------------------------------------------------------------
@@ -233,6 +253,13 @@ def wind_moment_output(p, out):  # pragma: no cover - compiled
         out[O_MW_WIND] = mw
 
 
+@njit(cache=True)
+def overlay_gain(p):  # pragma: no cover - compiled
+    """The overlay law's gain ``K / (N Cf L)`` [Nm at the column per N m] from the current (learned)
+    parameters (the holding torque is ``2 K alpha_f / N``; lde.estimator.overlay)."""
+    return p[P_K] / (p[P_N] * p[P_CF] * (p[P_LF] + p[P_LR]))
+
+
 @njit(cache=True, inline="always")
 def propagation_coefficients(m, iz, lf, lr, cf, cr, vx):  # pragma: no cover - compiled
     """The 2-DOF model's continuous-time coefficients at speed ``vx`` [m/s] (eqs. 7-8; per-axle
@@ -251,11 +278,11 @@ def propagation_coefficients(m, iz, lf, lr, cf, cr, vx):  # pragma: no cover - c
     return a00, a01, a0f, a10, a11, a13, b0, b1
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@njit(cache=True)
 def step_kernel(p, x, P, fs, ints, h, ph, t_ns, vx, angle, yaw, tcol, tast, ay,
                 fresh_r, fresh_t, fresh_a, mdps_ok, esc_ok, out):  # fmt: skip  # pragma: no cover - compiled
     """One step (module docstring): update with the fresh measurements at vx, output the
-    a-posteriori estimate, propagate it. Fills ``out`` (``lde.estimator.paper.O_*`` slots), returns the
+    a-posteriori estimate, propagate it. Fills ``out`` (:mod:`lde.estimator.outputs`), returns the
     status."""
     ints[I_STEPS] += 1
     status = 0

@@ -78,7 +78,7 @@ import numpy as np
 from numba import njit
 
 from lde.estimator import lateral as E
-from lde.estimator.paper import O_FW_WIND, O_MW_WIND
+from lde.estimator.outputs import O_FW_WIND, O_MW_WIND
 from lde.params import Vehicle
 from lde.units import DEG
 

@@ -156,7 +156,8 @@ def feedforward_torque(vehicle: Vehicle, fw: float | np.ndarray, mw: float | np.
 LP_GAIN, LP_LR, LP_MAX_T, LP_MAX_RATE, LP_MIN_V, LP_MAX_V, LP_MAX_STEER, LP_OVERRIDE = range(8)
 LP_HOLD_OFF_NS, LP_REARM_NS, LP_FAULT_PERSIST_NS, LP_FAULT_RECOVER_NS, LP_DT_MAX = range(8, 13)
 LP_LAW_TAU = 13  # time constant of the law's input low-pass [s] (0: none)
-N_LP = 14
+LP_ALLOWED = 14  # 1: the overlay may engage; 0: never (a profile whose torques are in unknown units)
+N_LP = 15
 
 # int64 state slots (times in ns; -1 = "not set")
 LS_STATE = 0  # OverlayState
@@ -188,8 +189,9 @@ def _timing_from(limits: OverlayLimits, timing: OverlayTiming | None) -> Overlay
     )
 
 
-def limiter_params(vehicle: Vehicle, timing: OverlayTiming | None = None) -> np.ndarray:
-    """The kernel's float64 parameter vector (layout ``LP_*``) from a vehicle (SI)."""
+def limiter_params(vehicle: Vehicle, timing: OverlayTiming | None = None, allowed: bool = True) -> np.ndarray:
+    """The kernel's float64 parameter vector (layout ``LP_*``) from a vehicle (SI); ``allowed``
+    False: the engine never enables the overlay (``LP_ALLOWED``)."""
     if not isinstance(vehicle, Vehicle):
         raise ConfigError(
             "the overlay needs the whole Vehicle (the law uses K, N, Cf, lf, lr; the limits come "
@@ -212,6 +214,7 @@ def limiter_params(vehicle: Vehicle, timing: OverlayTiming | None = None) -> np.
     p[LP_FAULT_RECOVER_NS] = round(tm.fault_recover * 1e9)
     p[LP_DT_MAX] = tm.dt_max
     p[LP_LAW_TAU] = o.law_time
+    p[LP_ALLOWED] = 1.0 if allowed else 0.0
     return p
 
 

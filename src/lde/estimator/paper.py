@@ -63,6 +63,7 @@ from lde.estimator.model import (
     discrete_into,
     params_vector,
 )
+from lde.estimator.outputs import N_OUT, O_BETA, O_FW, O_MW, O_T_ALIGN, O_YAW
 from lde.params import Vehicle
 from lde.status import DEGRADED, ESC_FAULT, LOW_SPEED, MDPS_FAULT, NOT_CONVERGED, VALID, Status
 from lde.units import STEP_S
@@ -103,24 +104,6 @@ def new_workspace() -> tuple[np.ndarray, ...]:
         np.zeros((UPDATE_WS, 4, 4)),
         np.ones(2, dtype=np.bool_),
     )
-
-
-# --- output slots: the contract of every backend's step (lde.engine.loop reads them) ----------------
-O_FW = 0  #: disturbance force Fw [N], left positive
-O_MW = 1  #: disturbance yaw moment Mw [Nm], left positive
-O_T_ALIGN = 2  #: aligning torque estimate T_align_hat [Nm], paper sign
-O_BETA = 3  #: side slip beta [rad]
-O_YAW = 4  #: yaw rate r [rad/s]
-O_FW_WIND = 5  #: the wind's part of Fw [N] (NaN: the backend does not tell wind from bank)
-O_MW_WIND = 6  #: the wind's yaw moment [Nm] (NaN: not told apart)
-O_BANK = 7  #: road bank angle [rad], road's left side lower positive (NaN: not told apart)
-O_LEARN = 8  #: learned state of the tires: 0 not learned, 1 learning, 2 learned, 3 no learner
-#: the overlay law's gain K / (N Cf L) [Nm at the column per N m] from the backend's current (learned)
-#: tires; NaN: the vehicle file's (lde.estimator.overlay.feedforward_gain)
-O_GAIN = 9
-N_OUT = 10
-#: ``O_LEARN`` of a backend without a learner
-LEARN_NONE = 3
 
 
 class StepInputError(LdeError, ValueError):

@@ -50,7 +50,15 @@ from lde.io.candump import (
 from lde.io.ending import FileEnd, blf_end, text_end
 from lde.io.gz import GZ, GZIP_MAGIC, gunzip_head, gunzip_pieces
 from lde.io.mcap_cdr import CAN_SCHEMA_NAME, CAN_SCHEMA_TEXT, TOPIC_RX, TOPIC_TX, can_payload, can_payloads
-from lde.io.mcap_read import McapData, McapLog, TopicInfo, check_can_channel, json_wanted, read_mcap
+from lde.io.mcap_read import (
+    McapData,
+    McapLog,
+    TopicInfo,
+    can_counts,
+    check_can_channel,
+    json_wanted,
+    read_mcap,
+)
 from lde.io.mcap_write import McapWriter
 from lde.io.pycan import PycanReader, pycan_suffixes
 from lde.io.stream import CHUNK_FRAMES, REORDER_WINDOW_NS, Reorder, split
@@ -445,8 +453,7 @@ def _ordered(pieces: Iterable[FrameBatch], reorder: Reorder, n: int) -> Iterator
 def _require_rx(m: McapLog, skip_tx: bool) -> None:
     """LogFormatError (before anything is read) for an MCAP recording that holds only the frames
     lde itself sent, when the counts are known from the statistics and the replay skips them."""
-    n_tx = m.topics[TOPIC_TX].count if TOPIC_TX in m.topics else 0
-    n_rx = m.topics[TOPIC_RX].count if TOPIC_RX in m.topics else 0
+    n_rx, n_tx = can_counts(m.topics)
     if skip_tx and n_tx > 0 and n_rx == 0:
         raise LogFormatError(
             f"{m.path}: only frames lde sent ({n_tx} on {TOPIC_TX}): no received input frames"
@@ -465,9 +472,7 @@ def _require_frames(
     recording that holds only the frames lde itself sent)."""
     if n:
         return
-    topics = mcap.topics if mcap is not None else {}
-    n_tx = topics[TOPIC_TX].count if TOPIC_TX in topics else 0
-    n_rx = topics[TOPIC_RX].count if TOPIC_RX in topics else 0
+    n_rx, n_tx = can_counts(mcap.topics) if mcap is not None else (0, 0)
     if n_tx > 0 and n_rx == 0:
         raise LogFormatError(f"{path}: only frames lde sent ({n_tx} on {TOPIC_TX}): no received input frames")
     raise LogFormatError(f"{path}: no CAN data frames in this {fmt} log ({_describe(stats, end)})")

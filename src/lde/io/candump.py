@@ -10,6 +10,9 @@ Line format (one frame per line)::
     (1700000000.123456) vcan0 2A0#0011 T                   python-can's optional direction (R rx, T tx)
     (1700000000.123456) 2A0#0011223344556677              no interface column (some other tools)
 
+The interface column is each frame's channel (:attr:`lde.can.frames.FrameBatch.channels`; a line
+without it: ``""``); CAN FD frames keep all their data bytes (up to 64).
+
 Timestamps are parsed from their text to integer nanoseconds exactly (seconds and up to 9 fraction
 digits; more digits are truncated), never through a float. The parser is a numba kernel over the raw
 bytes so that a million-line log reads in well under a second. Remote and error frames carry no
@@ -29,7 +32,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from lde.can.frames import FrameBatch
+from lde.can.frames import CLASSIC_DATA, MAX_DATA, FrameBatch, data_width
 from lde.errors import LogFormatError
 
 __all__ = [
@@ -54,12 +57,15 @@ ST_BLANK = 4
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF
 
-# counts of the kernel: lines, error frames, remote frames, malformed lines, then the 1-based line
-# numbers of the first BAD_LINES_KEPT malformed lines (0: none) from C_FIRST_BAD on
-C_LINES, C_ERROR, C_REMOTE, C_MALFORMED, C_FIRST_BAD = range(5)
+# counts of the kernel: lines, error frames, remote frames, malformed lines, interface names known,
+# then the 1-based line numbers of the first BAD_LINES_KEPT malformed lines (0: none) from C_FIRST_BAD on
+C_LINES, C_ERROR, C_REMOTE, C_MALFORMED, C_NAMES, C_FIRST_BAD = range(6)
 #: malformed lines whose numbers are kept (a warning names the first few, not thousands)
 BAD_LINES_KEPT = 3
 N_COUNTS = C_FIRST_BAD + BAD_LINES_KEPT
+#: interface names a log may hold, and their longest (Linux: 15 characters)
+MAX_NAMES = 256
+NAME_BYTES = 32
 
 #: hex digit value of every byte, -1 for the others
 _HEX = np.full(256, -1, np.int64)
@@ -79,17 +85,60 @@ def _sp(c):  # pragma: no cover - compiled
     return c == 32 or c == 9 or c == 13
 
 
+@numba.njit(cache=True, inline="always")
+def _name_index(buf, a, n, names, name_len, counts):  # pragma: no cover - compiled
+    """Index of the interface name ``buf[a:a+n]`` in the names table (added when new); -1 when it
+    is too long or the table is full."""
+    if n > NAME_BYTES:
+        return -1
+    for j in range(counts[C_NAMES]):
+        if name_len[j] != n:
+            continue
+        same = True
+        for q in range(n):
+            if names[j, q] != buf[a + q]:
+                same = False
+                break
+        if same:
+            return j
+    j = counts[C_NAMES]
+    if j >= MAX_NAMES:
+        return -1
+    for q in range(n):
+        names[j, q] = buf[a + q]
+    name_len[j] = n
+    counts[C_NAMES] = j + 1
+    return j
+
+
 @numba.njit(cache=True, nogil=True)
-def _parse_block(buf, hexv, t_out, id_out, ext_out, dlc_out, word_out, rx_out, counts):  # pragma: no cover
+def _parse_block(
+    buf,
+    hexv,
+    t_out,
+    id_out,
+    ext_out,
+    dlc_out,
+    word_out,
+    rx_out,
+    chan_out,
+    more,
+    more_off,
+    names,
+    name_len,
+    counts,
+):  # pragma: no cover
     """Parse every line of ``buf`` (which ends with a newline) in one pass; frames are packed into
-    the output rows (payload as a little-endian word), the other line kinds counted in ``counts``
-    (``C_*``; the malformed lines' numbers from ``C_FIRST_BAD`` on, counted from ``counts[C_LINES]``).
-    Returns the frames written.
-    The grammar is the module doc's; the kernel never reads past the block's last newline."""
+    the output rows (the first 8 data bytes as a little-endian word; the bytes past 8 of a CAN FD
+    frame into ``more`` from ``more_off[k]``, -1 for none; the interface's index in ``names``), the
+    other line kinds counted in ``counts`` (``C_*``; the malformed lines' numbers from
+    ``C_FIRST_BAD`` on, counted from ``counts[C_LINES]``). Returns the frames written. The grammar
+    is the module doc's; the kernel never reads past the block's last newline."""
     n = buf.shape[0]
     i = 0
     k = 0
     line = 0
+    m = 0  # bytes of ``more`` used
     while i < n:
         line += 1
         st = ST_MALFORMED
@@ -126,13 +175,16 @@ def _parse_block(buf, hexv, t_out, id_out, ext_out, dlc_out, word_out, rx_out, c
                     i += 1
                 n_if = 0  # interface token
                 tok = i
+                tok_len = 0
                 while buf[i] != 10 and not _sp(buf[i]):
                     if buf[i] == 35:  # '#': no interface column, this is the frame (other tools' -L)
                         i = tok
                         n_if = 1
+                        tok_len = 0
                         break
                     i += 1
                     n_if += 1
+                    tok_len += 1
                 while _sp(buf[i]):
                     i += 1
                 cid = np.int64(0)  # id: 3 (standard) or more (extended) hex digits, at most 8
@@ -161,6 +213,7 @@ def _parse_block(buf, hexv, t_out, id_out, ext_out, dlc_out, word_out, rx_out, c
                             i += 1
                     nb = 0
                     w = np.uint64(0)
+                    m0 = m
                     if good:
                         if not fd and (buf[i] == 82 or buf[i] == 114):  # 'R' / 'r': remote frame
                             i += 1
@@ -179,6 +232,9 @@ def _parse_block(buf, hexv, t_out, id_out, ext_out, dlc_out, word_out, rx_out, c
                                     break
                                 if nb < 8:
                                     w |= np.uint64(h1 * 16 + h2) << np.uint64(8 * nb)
+                                elif nb < 64:
+                                    more[m] = h1 * 16 + h2
+                                    m += 1
                                 nb += 1
                                 i += 2
                             if nb > 64 or (not fd and nb > 8):
@@ -207,6 +263,11 @@ def _parse_block(buf, hexv, t_out, id_out, ext_out, dlc_out, word_out, rx_out, c
                                 i += 1
                             if buf[i] != 10:
                                 good = False
+                    ch = 0
+                    if good and status == ST_FRAME:
+                        ch = _name_index(buf, tok, tok_len, names, name_len, counts)
+                        if ch < 0:
+                            good = False
                     if good:
                         st = status
                         if status == ST_FRAME:
@@ -216,7 +277,11 @@ def _parse_block(buf, hexv, t_out, id_out, ext_out, dlc_out, word_out, rx_out, c
                             dlc_out[k] = nb
                             word_out[k] = w
                             rx_out[k] = rx
+                            chan_out[k] = ch
+                            more_off[k] = m0 if nb > 8 else -1
                             k += 1
+                    if not good or status != ST_FRAME:
+                        m = m0  # bytes of a line that is not kept
         while buf[i] != 10:  # the rest of the line
             i += 1
         i += 1
@@ -232,7 +297,23 @@ def _parse_block(buf, hexv, t_out, id_out, ext_out, dlc_out, word_out, rx_out, c
     return k
 
 
-def _parse_lines(buf: np.ndarray, counts: np.ndarray) -> FrameBatch:
+class _Names:
+    """The interface names of one log, in order of first appearance (the kernel adds to them)."""
+
+    def __init__(self) -> None:
+        self.table = np.zeros((MAX_NAMES, NAME_BYTES), np.uint8)
+        self.length = np.zeros(MAX_NAMES, np.int64)
+        self._names: tuple[str, ...] = ()
+
+    def names(self, n: int) -> tuple[str, ...]:
+        if len(self._names) != n:
+            self._names = tuple(
+                bytes(self.table[j, : self.length[j]]).decode("ascii", "replace") for j in range(n)
+            )
+        return self._names
+
+
+def _parse_lines(buf: np.ndarray, counts: np.ndarray, names: _Names) -> FrameBatch:
     """The frames of ``buf`` (complete lines, ending with a newline), in file order."""
     cap = buf.shape[0] // _MIN_LINE + 1
     t = np.empty(cap, np.int64)
@@ -241,18 +322,39 @@ def _parse_lines(buf: np.ndarray, counts: np.ndarray) -> FrameBatch:
     dlc = np.empty(cap, np.uint8)
     words = np.empty(cap, np.uint64)
     rx = np.empty(cap, np.bool_)
+    chan = np.empty(cap, np.uint16)
+    more_off = np.empty(cap, np.int64)
+    more = np.empty(buf.shape[0] // 2 + MAX_DATA, np.uint8)  # untouched pages cost nothing
     if buf.flags.writeable:  # one signature (read-only, as a bytes buffer gives it): one compilation
         buf = buf.view()
         buf.flags.writeable = False
-    k = _parse_block(buf, _HEX, t, cid, ext, dlc, words, rx, counts) if buf.size else 0
+    k = 0
+    if buf.size:
+        k = _parse_block(
+            buf, _HEX, t, cid, ext, dlc, words, rx, chan, more, more_off, names.table, names.length, counts
+        )
     # copies: the capacity's unused pages are released with the arrays
+    data = words[:k].view(np.uint8).reshape(k, CLASSIC_DATA)
+    lens = dlc[:k]
+    fd = np.flatnonzero(more_off[:k] >= 0)
+    if fd.size:  # CAN FD frames: the batch as wide as its longest frame
+        width = data_width(int(lens.max()))
+        wide = np.zeros((k, width), np.uint8)
+        wide[:, :CLASSIC_DATA] = data
+        for i in fd.tolist():
+            n = int(lens[i]) - CLASSIC_DATA
+            o = int(more_off[i])
+            wide[i, CLASSIC_DATA : CLASSIC_DATA + n] = more[o : o + n]
+        data = wide
     return FrameBatch(
         t_ns=t[:k].copy(),
         can_id=cid[:k].copy(),
         is_extended=ext[:k].copy(),
-        dlc=dlc[:k].copy(),
-        data=words[:k].view(np.uint8).reshape(k, 8).copy(),
+        dlc=lens.copy(),
+        data=data.copy(),
         is_rx=rx[:k].copy(),
+        channel=chan[:k].copy(),
+        channels=names.names(int(counts[C_NAMES])) or ("",),
     )
 
 
@@ -291,6 +393,7 @@ class CandumpBlocks:
 
     def __init__(self) -> None:
         self.counts = np.zeros(N_COUNTS, np.int64)
+        self.names = _Names()
         self.truncated_last_line = 0
         self.cut_bytes = 0  # bytes of the cut last line (not parsed)
         self._carry = b""
@@ -306,7 +409,7 @@ class CandumpBlocks:
         else:
             block = np.frombuffer(data, np.uint8, count=cut + 1)
         self._carry = data[cut + 1 :]
-        return _parse_lines(block, self.counts)
+        return _parse_lines(block, self.counts, self.names)
 
     def read_file(self, fh: io.BufferedIOBase, block_bytes: int = BLOCK_BYTES) -> Iterator[FrameBatch]:
         """The frames of an open file, block by block: each block is read into one reused buffer
@@ -324,7 +427,7 @@ class CandumpBlocks:
             if cut < 0:
                 carry = end
                 continue
-            yield _parse_lines(np.frombuffer(buf, np.uint8, count=cut + 1), self.counts)
+            yield _parse_lines(np.frombuffer(buf, np.uint8, count=cut + 1), self.counts, self.names)
             rest = end - (cut + 1)
             buf[:rest] = buf[cut + 1 : end]
             carry = rest
@@ -383,7 +486,7 @@ _HEX_UPPER = np.frombuffer(b"0123456789ABCDEF", np.uint8).copy()
 
 
 @numba.njit(cache=True, nogil=True)
-def _format_lines(t, ndec, chan, ids, ext, dlc, data, rx, hexd, out):  # pragma: no cover - compiled
+def _format_lines(t, ndec, names, name_len, chan, ids, ext, dlc, data, rx, hexd, out):  # pragma: no cover
     """The candump lines of the frames into ``out`` (module doc of :func:`format_candump`);
     returns the bytes written."""
     o = 0
@@ -413,8 +516,9 @@ def _format_lines(t, ndec, chan, ids, ext, dlc, data, rx, hexd, out):  # pragma:
         out[o] = 41  # ')'
         out[o + 1] = 32
         o += 2
-        for j in range(chan.shape[0]):
-            out[o] = chan[j]
+        c = chan[i]
+        for j in range(name_len[c]):
+            out[o] = names[c, j]
             o += 1
         out[o] = 32
         o += 1
@@ -431,7 +535,6 @@ def _format_lines(t, ndec, chan, ids, ext, dlc, data, rx, hexd, out):  # pragma:
             out[o] = 35
             out[o + 1] = 48  # '##0': CAN FD, flags 0
             o += 2
-            d = 8
         for j in range(d):
             b = data[i, j]
             out[o] = hexd[b >> 4]
@@ -453,13 +556,15 @@ def candump_decimals(frames: FrameBatch) -> int:
 
 def format_candump_bytes(frames: FrameBatch, channel: str = "vcan0", decimals: int | None = None) -> bytes:
     """The candump ``-L`` text of ``frames`` as bytes (rx frames plain; frames sent by lde get a
-    `` T`` flag). Timestamps with ``decimals`` fraction digits (6 or 9; default
+    `` T`` flag). Each frame's interface is its channel name; ``channel`` names the frames whose
+    channel is not named (``""``). Timestamps with ``decimals`` fraction digits (6 or 9; default
     :func:`candump_decimals`: 6 when every one is a whole microsecond, else 9). Frames with
-    ``dlc > 8`` are written as CAN FD (``##0``) holding only their stored first 8 bytes.
+    ``dlc > 8`` are written as CAN FD (``##0``, flags 0) with all their bytes.
 
     Raises:
         LogFormatError: a negative timestamp.
-        ValueError: ``decimals`` not 6 or 9, or 6 for a timestamp that is not a whole microsecond.
+        ValueError: ``decimals`` not 6 or 9, or 6 for a timestamp that is not a whole microsecond,
+            or a channel name that is not one candump token of at most 32 ASCII characters.
     """
     n = len(frames)
     if n == 0:
@@ -470,17 +575,28 @@ def format_candump_bytes(frames: FrameBatch, channel: str = "vcan0", decimals: i
     ndec = candump_decimals(frames) if decimals is None else decimals
     if ndec not in (6, 9) or (ndec == 6 and np.any(t % 1000 != 0)):
         raise ValueError(f"candump timestamps with {decimals} decimals: need 9, or 6 for whole microseconds")
-    chan = np.frombuffer(channel.encode("ascii"), np.uint8)
-    width = 2 + 20 + 1 + ndec + 2 + chan.size + 1 + 8 + 3 + 16 + 2 + 1
+    labels = [c or channel for c in frames.channels]
+    table = np.zeros((len(labels), NAME_BYTES), np.uint8)
+    lens = np.zeros(len(labels), np.int64)
+    for j, name in enumerate(labels):
+        raw = name.encode("ascii", "replace")
+        if not raw or len(raw) > NAME_BYTES or any(b in b" \t\r\n#()" for b in raw):
+            raise ValueError(f"channel name {name!r} cannot be a candump interface column")
+        table[j, : len(raw)] = np.frombuffer(raw, np.uint8)
+        lens[j] = len(raw)
+    data = frames.data
+    width = 2 + 20 + 1 + ndec + 2 + int(lens.max()) + 1 + 8 + 3 + 2 * data.shape[1] + 2 + 1
     out = np.empty(n * width, np.uint8)
     k = _format_lines(
         t,
         ndec,
-        chan,
+        table,
+        lens,
+        frames.channel,
         frames.can_id.astype(np.int64),
         frames.is_extended,
-        frames.dlc,
-        frames.data,
+        np.minimum(frames.dlc, data.shape[1]),
+        data,
         frames.is_rx,
         _HEX_UPPER,
         out,
@@ -494,7 +610,8 @@ def format_candump(frames: FrameBatch, channel: str = "vcan0") -> str:
 
 
 def write_candump(path: str | Path, frames: FrameBatch, channel: str = "vcan0") -> None:
-    """Write ``frames`` as a candump ``-L`` log (see :func:`format_candump`)."""
+    """Write ``frames`` as a candump ``-L`` log (see :func:`format_candump_bytes`; ``channel`` names
+    the frames whose channel is not named)."""
     try:
         Path(path).write_bytes(format_candump_bytes(frames, channel))
     except OSError as exc:

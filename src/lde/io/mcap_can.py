@@ -1,9 +1,11 @@
 """python-can plugins for ``.mcap`` (entry points ``can.io.message_reader`` / ``message_writer``).
 
 After ``pip install -e .``, ``can.LogReader("x.mcap")`` iterates the CAN frames of an lde recording
-(``/can/rx`` and ``/can/tx``) as :class:`can.Message` in time order, read chunk by chunk
-(:class:`lde.io.mcap_read.McapLog`), and ``can.Logger("x.mcap")`` records messages to
-``/can/rx`` (``msg.is_rx`` True) or ``/can/tx`` (:class:`lde.io.mcap_write.McapWriter`).
+(every CAN channel: ``/can/rx``, ``/can/tx``, CAN FD and other buses' topics) as :class:`can.Message`
+in time order, each with its bus as ``channel``, read chunk by chunk
+(:class:`lde.io.mcap_read.McapLog`), and ``can.Logger("x.mcap")`` records messages to ``/can/rx``
+(``msg.is_rx`` True) or ``/can/tx``, on their bus's topics when ``msg.channel`` names one and on
+the CAN FD topics when longer than 8 bytes (:class:`lde.io.mcap_write.McapWriter`).
 """
 
 from __future__ import annotations
@@ -70,6 +72,7 @@ class McapCanWriter(MessageWriter):
             len(data),
             data,
             bool(msg.is_rx),
+            "" if msg.channel is None else str(msg.channel),
         )
 
     def stop(self) -> None:

@@ -47,9 +47,20 @@ import numba
 import numpy as np
 import zstandard
 
-from lde.can.frames import FrameBatch
+from lde.can.frames import CLASSIC_DATA, MAX_DATA, FrameBatch, data_width
 from lde.errors import LogFormatError
-from lde.io.mcap_cdr import CAN_PAYLOAD_SIZE, CAN_SCHEMA_NAME, CDR_HEADER, TOPIC_TX, frames_of_payloads
+from lde.io.mcap_cdr import (
+    CAN_FD_SCHEMA_NAME,
+    CAN_PAYLOAD_SIZE,
+    CAN_SCHEMA_NAME,
+    CDR_HEADER,
+    TOPIC_FD_RX,
+    TOPIC_FD_TX,
+    TOPIC_RX,
+    TOPIC_TX,
+    frames_of_fd_payloads,
+    frames_of_payloads,
+)
 from lde.io.mcap_json import json_columns
 from lde.io.mcap_write import (
     MAGIC,
@@ -66,10 +77,10 @@ from lde.io.mcap_write import (
 )
 from lde.io.stream import CHUNK_FRAMES, split, view
 
-__all__ = ["McapLog", "McapData", "TopicInfo", "read_mcap"]
+__all__ = ["McapLog", "McapData", "TopicInfo", "read_mcap", "can_counts"]
 
 # what the walk kernel does with a channel's messages
-W_COUNT, W_FRAME, W_TABLE = 0, 1, 2
+W_COUNT, W_FRAME, W_TABLE, W_FD = 0, 1, 2, 3
 _NO_CHANNEL = -1
 #: chunks with bad CAN messages whose offsets are kept (a warning names the first few)
 BAD_CHUNKS_KEPT = 3
@@ -85,6 +96,19 @@ class TopicInfo:
     schema_name: str
     schema_encoding: str
     count: int
+    #: a CAN channel of frames lde sent (``direction = tx``, or lde's ``/can/tx``)
+    is_tx: bool = False
+
+    @property
+    def is_can(self) -> bool:
+        return self.schema_name in (CAN_SCHEMA_NAME, CAN_FD_SCHEMA_NAME)
+
+
+def can_counts(topics: dict[str, TopicInfo]) -> tuple[int, int]:
+    """(received, sent) CAN frames over every CAN channel of a file."""
+    rx = sum(t.count for t in topics.values() if t.is_can and not t.is_tx)
+    tx = sum(t.count for t in topics.values() if t.is_can and t.is_tx)
+    return rx, tx
 
 
 # ----------------------------------------------------------------------------- the walk kernel
@@ -97,10 +121,11 @@ def _get(buf, o, nbytes):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _walk_chunk(buf, want, counts, t, cid, ext, dlc, data, rx, o_chan, o_t, o_off, o_len):
+def _walk_chunk(buf, want, counts, t, cid, ext, dlc, data, rx, chan, busmap, o_chan, o_t, o_off, o_len):
     """One pass over the records of one decompressed chunk (runs without the GIL).
 
-    Messages of channels with ``want[ch] == W_FRAME`` fill the frame columns, ``W_TABLE`` the
+    Messages of channels with ``want[ch] == W_FRAME`` (classic CAN) or ``W_FD`` (CAN FD: as wide as
+    ``data``) fill the frame columns (``chan``: the channel's bus, ``busmap[ch]``), ``W_TABLE`` the
     (channel, log time, offset, length) table, ``W_COUNT`` are only counted (``counts[ch]``, every
     message). ``want[ch] == -1``: a channel nobody declared. Returns (frames, table rows, bad CAN
     messages, status): status < 0 = a corrupt record stream (-4: an undeclared channel); a CAN
@@ -136,8 +161,34 @@ def _walk_chunk(buf, want, counts, t, cid, ext, dlc, data, rx, o_chan, o_t, o_of
                     ext[k] = buf[p + 8] != 0
                     rx[k] = buf[p + 9] != 0
                     dlc[k] = buf[p + 10]
+                    chan[k] = busmap[ch]
                     for j in range(8):
                         data[k, j] = buf[p + 11 + j]
+                    for j in range(8, data.shape[1]):
+                        data[k, j] = 0
+                    k += 1
+            elif w == W_FD:
+                n_data = int(_get(buf, p + 12, 4)) if plen >= 16 else -1
+                if (
+                    plen < 16
+                    or buf[p] != 0
+                    or buf[p + 1] != 1
+                    or n_data > buf[p + 10]
+                    or n_data > data.shape[1]
+                    or plen != 16 + n_data
+                ):
+                    bad += 1
+                else:
+                    t[k] = np.int64(_get(buf, i + 15, 8))
+                    cid[k] = np.uint32(_get(buf, p + 4, 4))
+                    ext[k] = buf[p + 8] != 0
+                    rx[k] = buf[p + 9] != 0
+                    dlc[k] = buf[p + 10]
+                    chan[k] = busmap[ch]
+                    for j in range(n_data):
+                        data[k, j] = buf[p + 16 + j]
+                    for j in range(n_data, data.shape[1]):
+                        data[k, j] = 0
                     k += 1
             elif w == W_TABLE:
                 o_chan[m] = ch
@@ -147,6 +198,16 @@ def _walk_chunk(buf, want, counts, t, cid, ext, dlc, data, rx, o_chan, o_t, o_of
                 m += 1
         i += 9 + int(length)
     return k, m, bad, 0
+
+
+def _bus_of(topic: str, meta: dict[str, str]) -> str:
+    """The bus of a CAN channel: its metadata's ``bus``; lde's topics of the unnamed bus: ``""``;
+    any other topic: the topic itself (an MCAP file of another tool, one bus per topic)."""
+    if "bus" in meta:
+        return meta["bus"]
+    if topic in (TOPIC_RX, TOPIC_TX, TOPIC_FD_RX, TOPIC_FD_TX):
+        return ""
+    return topic
 
 
 # ----------------------------------------------------------------------------- file layout
@@ -430,18 +491,31 @@ class McapLog:
             for ch, k in counts.items():
                 self._counts[ch] = k
         self._declared = np.full(65536, _NO_CHANNEL, np.int8)
-        self._can = set()
+        self._can: set[int] = set()
+        self._fd: set[int] = set()
+        self._tx: set[int] = set()
+        #: the buses of the CAN channels (:attr:`lde.can.frames.FrameBatch.channels` of the frames)
+        self.buses: tuple[str, ...] = ()
+        self._busmap = np.zeros(65536, np.uint16)
+        buses: dict[str, int] = {}
         self.topics: dict[str, TopicInfo] = {}
         for cid in sorted(channels):
             ch = channels[cid]
             sch = schemas.get(ch.schema_id)
             sname = sch.name if sch else ""
-            if sname == CAN_SCHEMA_NAME:
+            if sname in (CAN_SCHEMA_NAME, CAN_FD_SCHEMA_NAME):
                 self._can.add(cid)
+                if sname == CAN_FD_SCHEMA_NAME:
+                    self._fd.add(cid)
+                meta = dict(getattr(ch, "metadata", None) or {})
+                if meta.get("direction") == "tx" or ch.topic == TOPIC_TX:
+                    self._tx.add(cid)
+                self._busmap[cid] = buses.setdefault(_bus_of(ch.topic, meta), len(buses))
             self._declared[cid] = W_COUNT
             self.topics[ch.topic] = TopicInfo(
-                ch.topic, cid, ch.message_encoding, sname, sch.encoding if sch else "", 0
+                ch.topic, cid, ch.message_encoding, sname, sch.encoding if sch else "", 0, cid in self._tx
             )
+        self.buses = tuple(buses) or ("",)
         self.metadata = self._read_metadata(summary, layout)
         self._update_counts()
 
@@ -507,32 +581,37 @@ class McapLog:
             raise LogFormatError(f"chunk at offset {c.offset}: CRC mismatch")
         buf = np.frombuffer(out, np.uint8)
         cap = usize // MSG_OVERHEAD + 1  # at most one message per 31 bytes of records
+        fd = bool(self._fd) and (c.channels is None or bool(c.channels & self._fd))
         t = np.empty(cap, np.int64)
         cid = np.empty(cap, np.uint32)
         ext = np.empty(cap, np.bool_)
         dlc = np.empty(cap, np.uint8)
-        data = np.empty((cap, 8), np.uint8)
+        data = np.empty((cap, MAX_DATA if fd else CLASSIC_DATA), np.uint8)
         rx = np.empty(cap, np.bool_)
+        chan = np.empty(cap, np.uint16)
         o_chan = np.empty(cap, np.uint16)
         o_t = np.empty(cap, np.int64)
         o_off = np.empty(cap, np.int64)
         o_len = np.empty(cap, np.int64)
         counts = self._counts if count else np.zeros(65536, np.int64)
         k, m, bad, status = _walk_chunk(
-            buf, want, counts, t, cid, ext, dlc, data, rx, o_chan, o_t, o_off, o_len
+            buf, want, counts, t, cid, ext, dlc, data, rx, chan, self._busmap, o_chan, o_t, o_off, o_len
         )
         if status == -4:
             raise LogFormatError(f"chunk at offset {c.offset}: a message of an undeclared channel")
         if status < 0:
             raise LogFormatError(f"chunk at offset {c.offset}: corrupt record")
         self.chunks_read += 1
+        width = data_width(int(dlc[:k].max())) if fd and k else CLASSIC_DATA
         frames = FrameBatch(
             t_ns=t[:k].copy(),
             can_id=cid[:k].copy(),
             is_extended=ext[:k].copy(),
             dlc=dlc[:k].copy(),
-            data=data[:k].copy(),
+            data=data[:k, :width].copy(),
             is_rx=rx[:k].copy(),
+            channel=chan[:k].copy(),
+            channels=self.buses,
         )
         return _Walked(
             frames, o_chan[:m].copy(), o_t[:m].copy(), o_off[:m].copy(), o_len[:m].copy(), buf, bad
@@ -541,7 +620,7 @@ class McapLog:
     def _want(self, frames: set[int], table: set[int]) -> np.ndarray:
         want = self._declared.copy()
         for ch in frames:
-            want[ch] = W_FRAME
+            want[ch] = W_FD if ch in self._fd else W_FRAME
         for ch in table:
             want[ch] = W_TABLE
         return want
@@ -561,11 +640,14 @@ class McapLog:
         Raises:
             LogFormatError: a corrupt chunk (CRC, size, record stream).
         """
-        wanted = {ch for ch in self._can if tx or self._channels[ch].topic != TOPIC_TX}
+        wanted = {ch for ch in self._can if tx or ch not in self._tx}
         if self._library is not None:
             lib = self._library
             sel = np.isin(lib.frame_channel, np.array(sorted(wanted), np.int64))
-            yield from split(lib.frames.select(sel), chunk_frames)
+            f = lib.frames.select(sel)
+            ch = self._busmap[lib.frame_channel[sel]]
+            f = FrameBatch(f.t_ns, f.can_id, f.is_extended, f.dlc, f.data, f.is_rx, ch, self.buses)
+            yield from split(f, chunk_frames)
             return
         chunks = []
         for c in self._chunks:
@@ -790,6 +872,9 @@ def _read_library(fh: IO[bytes]) -> _LibraryData:
     t: list[int] = []
     fch: list[int] = []
     payload = bytearray()
+    fd_t: list[int] = []
+    fd_ch: list[int] = []
+    fd_pays: list[bytes] = []
     o_chan: list[int] = []
     o_t: list[int] = []
     other: list[bytes] = []
@@ -806,6 +891,10 @@ def _read_library(fh: IO[bytes]) -> _LibraryData:
             t.append(message.log_time)
             fch.append(channel.id)
             payload += d
+        elif schema is not None and schema.name == CAN_FD_SCHEMA_NAME:
+            fd_t.append(message.log_time)
+            fd_ch.append(channel.id)
+            fd_pays.append(bytes(message.data))
         else:
             o_chan.append(channel.id)
             o_t.append(message.log_time)
@@ -829,13 +918,18 @@ def _read_library(fh: IO[bytes]) -> _LibraryData:
     except Exception:  # noqa: BLE001 - metadata is optional
         pass
     frames = frames_of_payloads(np.array(t, np.int64), bytes(payload))
+    chans = np.array(fch, np.int64)
+    if fd_pays:
+        fd_frames, kept = frames_of_fd_payloads(np.array(fd_t, np.int64), fd_pays)
+        frames = FrameBatch.concat([frames, fd_frames], sort=False)
+        chans = np.concatenate([chans, np.array(fd_ch, np.int64)[kept]])
     order = np.argsort(frames.t_ns, kind="stable")
     return _LibraryData(
         schemas,
         channels,
         counts,
         frames.take(order),
-        np.array(fch, np.int64)[order],
+        chans[order],
         np.array(o_chan, np.int64),
         np.array(o_t, np.int64),
         other,

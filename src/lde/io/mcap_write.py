@@ -42,13 +42,17 @@ from lde import __version__ as lde_version
 from lde.can.frames import FrameBatch
 from lde.errors import LogFormatError, OutputError
 from lde.io.mcap_cdr import (
+    CAN_FD_SCHEMA_NAME,
+    CAN_FD_SCHEMA_TEXT,
     CAN_PAYLOAD_SIZE,
     CAN_SCHEMA_NAME,
     CAN_SCHEMA_TEXT,
     TOPIC_RX,
     TOPIC_TX,
+    can_fd_payloads,
     can_payload,
     can_payloads,
+    topic_of,
 )
 from lde.io.mcap_json import json_rows, object_schema, plain
 
@@ -187,9 +191,15 @@ class McapWriter:
 
         self._write(MAGIC, crc=False)
         self._write(_record(OP_HEADER, _str(profile) + _str(f"lde {lde_version}")))
-        can_schema = self._add_schema(CAN_SCHEMA_NAME, "ros2msg", CAN_SCHEMA_TEXT.encode())
-        self.rx_channel = self._add_channel(TOPIC_RX, "cdr", can_schema)
-        self.tx_channel = self._add_channel(TOPIC_TX, "cdr", can_schema)
+        self._can_schema = self._add_schema(CAN_SCHEMA_NAME, "ros2msg", CAN_SCHEMA_TEXT.encode())
+        self._fd_schema = 0  # registered with the first CAN FD frame
+        self.rx_channel = self._add_channel(TOPIC_RX, "cdr", self._can_schema)
+        self.tx_channel = self._add_channel(TOPIC_TX, "cdr", self._can_schema, {"direction": "tx"})
+        #: (bus, is_rx, CAN FD) -> channel id; more are registered as frames of other buses come
+        self._can_chan: dict[tuple[str, bool, bool], int] = {
+            ("", True, False): self.rx_channel,
+            ("", False, False): self.tx_channel,
+        }
         self._can_channels = {self.rx_channel, self.tx_channel}
         self._json_keys: dict[int, tuple[str, ...]] = {}
         self._metadata_indexes: list[bytes] = []
@@ -256,31 +266,78 @@ class McapWriter:
         self._json_keys[cid] = keys
         return cid
 
+    def can_channel(self, bus: str, is_rx: bool, fd: bool) -> int:
+        """The channel of a bus's received / sent, classic / CAN FD frames (registered when new:
+        topics and metadata as :mod:`lde.io.mcap_cdr` says)."""
+        key = (bus, bool(is_rx), bool(fd))
+        cid = self._can_chan.get(key)
+        if cid is None:
+            if fd and not self._fd_schema:
+                self._fd_schema = self._add_schema(CAN_FD_SCHEMA_NAME, "ros2msg", CAN_FD_SCHEMA_TEXT.encode())
+            meta = {"bus": bus} if bus else {}
+            if not is_rx:
+                meta["direction"] = "tx"
+            schema = self._fd_schema if fd else self._can_schema
+            cid = self._can_chan[key] = self._add_channel(topic_of(bus, is_rx, fd), "cdr", schema, meta)
+            self._can_channels.add(cid)
+        return cid
+
     def write_frames(self, frames: FrameBatch) -> None:
-        """Queue CAN frames: rx frames on ``/can/rx``, the others on ``/can/tx``."""
+        """Queue CAN frames: each on its bus's channel (module doc of :mod:`lde.io.mcap_cdr`): received
+        frames on ``/can/rx``, the others on ``/can/tx``, CAN FD frames on ``/can/fd/...``."""
         n = len(frames)
         if n == 0:
             return
-        pay = can_payloads(frames).reshape(-1)
-        chan = np.where(frames.is_rx, self.rx_channel, self.tx_channel).astype(np.uint16)
+        fd = frames.dlc > 8
+        # one group per (bus, direction, classic / FD)
+        key = frames.channel.astype(np.int64) * 4 + frames.is_rx.astype(np.int64) * 2 + fd
+        chan = np.zeros(n, np.uint16)
+        for k in np.unique(key).tolist():
+            cid = self.can_channel(frames.channels[k // 4], bool(k & 2), bool(k & 1))
+            chan[key == k] = cid
         seq = np.empty(n, np.uint32)
-        for c in (self.rx_channel, self.tx_channel):
+        for c in np.unique(chan).tolist():
             sel = chan == c
             k = int(np.count_nonzero(sel))
             seq[sel] = (np.arange(k, dtype=np.int64) + self._seq[c]) % (1 << 32)
             self._seq[c] += k
             self._counts[c] += k
-        off = np.arange(n, dtype=np.int64) * CAN_PAYLOAD_SIZE
-        self._queue(
-            _Block(chan, seq, frames.t_ns.astype(np.int64), pay, off, np.full(n, CAN_PAYLOAD_SIZE, np.int64))
-        )
+        t = frames.t_ns.astype(np.int64)
+        classic = np.flatnonzero(~fd)
+        if classic.size == n:
+            pay = can_payloads(frames).reshape(-1)
+            off = np.arange(n, dtype=np.int64) * CAN_PAYLOAD_SIZE
+            self._queue(_Block(chan, seq, t, pay, off, np.full(n, CAN_PAYLOAD_SIZE, np.int64)))
+            return
+        if classic.size:
+            c = frames.take(classic)
+            pay = can_payloads(c).reshape(-1)
+            off = np.arange(classic.size, dtype=np.int64) * CAN_PAYLOAD_SIZE
+            lens = np.full(classic.size, CAN_PAYLOAD_SIZE, np.int64)
+            self._queue(_Block(chan[classic], seq[classic], t[classic], pay, off, lens))
+        wide = np.flatnonzero(fd)
+        pay, off, lens = can_fd_payloads(frames.take(wide))
+        self._queue(_Block(chan[wide], seq[wide], t[wide], pay, off, lens))
 
     def write_frame(
-        self, t_ns: int, can_id: int, is_extended: bool, dlc: int, data: bytes, is_rx: bool
+        self, t_ns: int, can_id: int, is_extended: bool, dlc: int, data: bytes, is_rx: bool, bus: str = ""
     ) -> None:
-        """Queue one CAN frame (the live recorder's path)."""
-        pay = can_payload(can_id, is_extended, is_rx, dlc, data)
-        self._queue_single(self.rx_channel if is_rx else self.tx_channel, int(t_ns), pay)
+        """Queue one CAN frame (the live recorder's path); ``bus``: its bus's name (``""``: not named)."""
+        fd = dlc > 8
+        if fd:
+            row = np.frombuffer(bytes(data), np.uint8).reshape(1, -1)
+            one = FrameBatch(
+                np.array([t_ns]),
+                np.array([can_id]),
+                np.array([is_extended]),
+                np.array([dlc]),
+                row,
+                np.array([is_rx]),
+            )
+            pay = can_fd_payloads(one)[0].tobytes()
+        else:
+            pay = can_payload(can_id, is_extended, is_rx, dlc, data)
+        self._queue_single(self.can_channel(bus, is_rx, fd), int(t_ns), pay)
 
     def write_json(self, channel_id: int, t_ns: int, record: Mapping[str, Any]) -> None:
         """Queue one JSON message (a flat object of numbers) on a channel from :meth:`add_json_channel`."""
@@ -347,14 +404,23 @@ class McapWriter:
         off = np.concatenate([b.off + base[i] for i, b in enumerate(blocks)])
         pay = np.concatenate(pays) if len(pays) > 1 else pays[0]
         # one chunk stream ("lane") per channel: a reader decompresses only the channels it wants
-        # (replay: /can/rx), the others' log times and counts are in the message indexes
-        for lane_id in np.unique(chan).tolist():
+        # (replay: /can/rx), the others' log times and counts are in the message indexes; the
+        # received frames' lanes first (a file cut while writing keeps the inputs it can)
+        lanes = sorted(np.unique(chan).tolist(), key=lambda c: (self._lane_rank(c), c))
+        for lane_id in lanes:
             idx = np.flatnonzero(chan == lane_id)
             order = idx[np.argsort(t[idx], kind="stable")]
             self._write_lane(order, chan, seq, t, pay, off, length)
         t_lo, t_hi = int(t.min()), int(t.max())
         self._t_min = t_lo if self._t_min is None else min(self._t_min, t_lo)
         self._t_max = max(self._t_max, t_hi)
+
+    def _lane_rank(self, cid: int) -> int:
+        """0 for a channel of received CAN frames, 1 for sent ones, 2 for the others."""
+        for (_bus, is_rx, _fd), c in self._can_chan.items():
+            if c == cid:
+                return 0 if is_rx else 1
+        return 2
 
     def sync(self, fsync: bool = False) -> None:
         """:meth:`flush`, then push the file's buffer to the OS (a killed process loses nothing

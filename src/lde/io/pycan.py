@@ -3,9 +3,10 @@
 The format's ``can.LogReader`` is iterated and its messages are turned into columns in batches of
 :data:`BATCH` (file order). python-can gives float-second timestamps: they are converted with
 :func:`lde.can.frames.seconds_to_ns` (rounded to the microsecond). Error and remote frames are skipped
-with a count. Any exception of the format's reader becomes a :class:`LogFormatError` that says
-where the reader was: the line (text formats: ASC, TRC, CSV, read through a line-counting text
-file) or the byte offset it had read up to (binary formats such as BLF).
+with a count. A message's ``channel`` is its frame's bus (:attr:`lde.can.frames.FrameBatch.channels`;
+None: ``""``); CAN FD messages keep all their bytes. Any exception of the format's reader becomes a
+:class:`LogFormatError` that says where the reader was: the line (text formats: ASC, TRC, CSV, read
+through a line-counting text file) or the byte offset it had read up to (binary formats such as BLF).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from lde.can.frames import FrameBatch, seconds_to_ns
+from lde.can.frames import MAX_DATA, FrameBatch, pack_payloads, seconds_to_ns
 from lde.errors import LogFormatError
 
 if TYPE_CHECKING:
@@ -171,37 +172,41 @@ def _text_reader(p: Path, text: _LineCounter) -> can.io.generic.MessageReader:
 
 
 class _Columns:
+    """Messages gathered into a batch: CAN FD messages keep all their bytes; each message's
+    ``channel`` names its bus (the table grows over the log, so batches share its prefix)."""
+
     def __init__(self) -> None:
         self.t: list[int] = []
         self.ids: list[int] = []
         self.ext: list[bool] = []
-        self.dlc: list[int] = []
         self.rx: list[bool] = []
-        self.payload = bytearray()
+        self.chan: list[int] = []
+        self.payloads: list[bytes] = []
+        self.names: dict[str, int] = {}
 
     @property
     def n(self) -> int:
         return len(self.t)
 
     def add(self, m: can.Message) -> None:
-        raw = bytes(m.data or b"")
         self.t.append(seconds_to_ns(m.timestamp))
         self.ids.append(int(m.arbitration_id))
         self.ext.append(bool(m.is_extended_id))
-        self.dlc.append(len(raw))
         self.rx.append(True)  # the logger's direction, not lde's (module doc)
-        self.payload += raw[:8].ljust(8, b"\x00")
+        name = "" if m.channel is None else str(m.channel)
+        self.chan.append(self.names.setdefault(name, len(self.names)))
+        self.payloads.append(bytes(m.data or b"")[:MAX_DATA])
 
     def take(self) -> FrameBatch:
-        n = self.n
         out = FrameBatch(
             t_ns=np.array(self.t, np.int64),
             can_id=np.array(self.ids, np.uint32),
             is_extended=np.array(self.ext, np.bool_),
-            dlc=np.array(self.dlc, np.uint8),
-            data=np.frombuffer(bytes(self.payload), np.uint8).reshape(n, 8),
+            dlc=np.array([len(p) for p in self.payloads], np.uint8),
+            data=pack_payloads(self.payloads),
             is_rx=np.array(self.rx, np.bool_),
+            channel=np.array(self.chan, np.uint16),
+            channels=tuple(self.names) or ("",),
         )
-        self.t, self.ids, self.ext, self.dlc, self.rx = [], [], [], [], []
-        self.payload = bytearray()
+        self.t, self.ids, self.ext, self.rx, self.chan, self.payloads = [], [], [], [], [], []
         return out

@@ -59,12 +59,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from lde.can.frames import FrameBatch, seconds_to_ns
+from lde.can.frames import MAX_DATA, FrameBatch, seconds_to_ns
 from lde.can.profiles import INPUT_NAMES
 from lde.engine.engine import OUTPUT_MESSAGES, StepBlock
 from lde.engine.receiver import N_INPUTS
 from lde.errors import LogFormatError
-from lde.estimator.paper import N_OUT
+from lde.estimator.outputs import N_OUT
 from lde.io import TOPIC_RX, TOPIC_TX, McapLog, McapWriter
 from lde.io.textfmt import EXACT, Column, format_rows, time_column
 from lde.status import DEADLINE_MISS, STATUS_BITS, STATUS_MEANINGS
@@ -408,11 +408,14 @@ class StepRing:
         frames: frame slots (default 65536: 35 s of lde traffic at 4.5 frames per step, 64 B each).
         steps: step slots (default 16384: 64 s of steps, about 300 B each).
         n_outputs: output frames per step row (``StepBlock.frames``).
+        frame_bytes: data bytes kept per frame: 8 (a classic bus), up to 64 (a profile with CAN FD
+            input messages: bytes 8.. are kept in ``f_more``).
     """
 
     ctl: np.ndarray
     f_t: np.ndarray
     f_word: np.ndarray
+    f_more: np.ndarray | None
     f_id: np.ndarray
     f_ext: np.ndarray
     f_dlc: np.ndarray
@@ -438,11 +441,15 @@ class StepRing:
         steps: int = 1 << 14,
         n_outputs: int = len(OUTPUT_MESSAGES),
         fd: int | None = None,
+        frame_bytes: int = 8,
     ) -> None:
         for n in (frames, steps):
             if n <= 0 or n & (n - 1):
                 raise ValueError(f"ring capacities must be powers of two, got {n}")
+        if not 8 <= frame_bytes <= MAX_DATA:
+            raise ValueError(f"frame_bytes must lie in 8..{MAX_DATA}, got {frame_bytes}")
         self.nf, self.ns = int(frames), int(steps)
+        self.frame_bytes = int(frame_bytes)
         f, s = self.nf, self.ns
         spec: list[tuple[str, Any, tuple[int, ...]]] = [
             ("ctl", np.int64, (_N_CTL,)),
@@ -467,6 +474,8 @@ class StepRing:
             ("frames", np.uint8, (s, n_outputs, 8)),
             ("timing", np.int64, (s, 6)),
         ]
+        if frame_bytes > 8:
+            spec.append(("f_more", np.uint8, (f, frame_bytes - 8)))
         size = 0
         offs = []
         for _, dt, shape in spec:
@@ -482,6 +491,8 @@ class StepRing:
         for (name, dt, shape), off in zip(spec, offs, strict=True):
             a = np.frombuffer(self._mm, dtype=dt, count=int(np.prod(shape)), offset=off).reshape(shape)
             setattr(self, name, a)
+        if frame_bytes == 8:
+            self.f_more = None
         #: byte offset of each column in the shared memory (:meth:`memory`)
         self.offsets = {name: off for (name, _, _), off in zip(spec, offs, strict=True)}
         self._fh = 0  # producer's copies of its heads
@@ -491,7 +502,8 @@ class StepRing:
 
     # ------------------------------------------------------------------ producer (hot path)
     def put_frame(self, t_ns: int, can_id: int, is_extended: bool, dlc: int, word: int, is_rx: bool) -> None:
-        """One frame; ``word``: its first 8 data bytes as a little-endian integer."""
+        """One frame; ``word``: its data bytes as a little-endian integer (the first ``frame_bytes``
+        are kept)."""
         h = self._fh
         if h - self._f_tail_seen >= self.nf:
             self._f_tail_seen = int(self.ctl[_F_TAIL])
@@ -500,7 +512,11 @@ class StepRing:
                 return
         i = h & (self.nf - 1)
         self.f_t[i] = t_ns
-        self.f_word[i] = word
+        self.f_word[i] = word & _WORD
+        if self.f_more is not None:
+            self.f_more[i] = np.frombuffer((word >> 64).to_bytes(self.frame_bytes, "little"), np.uint8)[
+                : self.frame_bytes - 8
+            ]
         self.f_id[i] = can_id
         self.f_ext[i] = is_extended
         self.f_dlc[i] = dlc
@@ -557,12 +573,16 @@ class StepRing:
         """The frames written since the last call (copies), and frees their slots."""
         tail, head = int(self.ctl[_F_TAIL]), int(self.ctl[_F_HEAD])
         idx = np.arange(tail, head) & (self.nf - 1)
+        data = self.f_word[idx].astype("<u8").view(np.uint8).reshape(-1, 8)
+        if self.f_more is not None:  # bytes past a frame's length may be an older frame's: zeros
+            data = np.concatenate([data, self.f_more[idx]], axis=1)
+            data[np.arange(data.shape[1]) >= self.f_dlc[idx][:, None]] = 0
         fb = FrameBatch(
             t_ns=self.f_t[idx],
             can_id=self.f_id[idx],
             is_extended=self.f_ext[idx],
             dlc=self.f_dlc[idx],
-            data=self.f_word[idx].astype("<u8").view(np.uint8).reshape(-1, 8),
+            data=data,
             is_rx=self.f_rx[idx],
         )
         self.ctl[_F_TAIL] = head
@@ -603,7 +623,11 @@ _NO_TIMING = np.iinfo(np.int64).min
 
 
 def _word(data: bytes | bytearray) -> int:
-    return int.from_bytes(bytes(data[:8]), "little")
+    return int.from_bytes(bytes(data), "little")
+
+
+#: a data word's 64 bits
+_WORD = (1 << 64) - 1
 
 
 class _WriterProcess:
@@ -677,6 +701,7 @@ class Recorder:
         extra_topics: more JSON channels, topic -> {field: JSON-schema property}, written with
             :meth:`json_columns` (the demo's ``/sim/truth``).
         ring_frames, ring_steps: ring capacities (powers of two; :class:`StepRing`).
+        frame_bytes: data bytes kept per frame (:class:`StepRing`; the service's ``rx_width``).
     """
 
     def __init__(
@@ -688,6 +713,7 @@ class Recorder:
         extra_topics: dict[str, dict[str, dict[str, str]]] | None = None,
         ring_frames: int = 1 << 16,
         ring_steps: int = 1 << 14,
+        frame_bytes: int = 8,
     ) -> None:
         self.path = Path(path)
         meta = {k: str(v) for k, v in (metadata or {}).items()}
@@ -695,7 +721,7 @@ class Recorder:
             self.path.open("wb").close()
         except OSError as exc:
             raise LogFormatError(f"{path}: cannot write: {exc}") from exc
-        self.ring = StepRing(ring_frames, ring_steps)
+        self.ring = StepRing(ring_frames, ring_steps, frame_bytes=frame_bytes)
         self._extra_topics = dict(extra_topics or {})
         self._closed = False
         mine, theirs = socket.socketpair()
@@ -710,7 +736,7 @@ class Recorder:
         self._conn = Connection(mine.detach())
         self._conn.send(
             (self.path, meta, float(flush_interval_s), int(chunk_size), self._extra_topics,
-             self.ring.nf, self.ring.ns, self.ring.n_outputs)
+             self.ring.nf, self.ring.ns, self.ring.n_outputs, self.ring.frame_bytes)
         )  # fmt: skip
         # the writer has the file open with its header written when this returns (or says why not)
         ok = self._conn.poll(_START_TIMEOUT_S) and self._reply()
@@ -744,8 +770,8 @@ class Recorder:
 
     # ------------------------------------------------------------------ hot path
     def frame(self, t_ns: int, can_id: int, is_extended: bool, dlc: int, word: int, is_rx: bool) -> None:
-        """A received (``is_rx``) or sent frame at ``t_ns`` [ns]; ``word``: its first 8 data bytes as
-        a little-endian integer."""
+        """A received (``is_rx``) or sent frame at ``t_ns`` [ns]; ``word``: its data bytes as a
+        little-endian integer."""
         self.ring.put_frame(t_ns, can_id, is_extended, dlc, word, is_rx)
 
     def step(
@@ -858,8 +884,8 @@ def _writer_main(ring_fd: int, conn_fd: int) -> None:
     _background_priority()
     conn: Connection | None = Connection(conn_fd)
     assert conn is not None
-    path, meta, flush_interval, chunk_size, extra_topics, nf, ns, n_out = conn.recv()
-    ring = StepRing(nf, ns, n_out, fd=ring_fd)
+    path, meta, flush_interval, chunk_size, extra_topics, nf, ns, n_out, width = conn.recv()
+    ring = StepRing(nf, ns, n_out, fd=ring_fd, frame_bytes=width)
     try:
         w = McapWriter(path, chunk_size=chunk_size, buffer_bytes=64 << 20, metadata=meta)
         steps = StepTopicWriter(w)

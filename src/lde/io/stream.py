@@ -35,14 +35,7 @@ REORDER_WINDOW_NS = 10_000_000_000
 
 def view(f: FrameBatch, a: int, b: int) -> FrameBatch:
     """Rows ``a:b`` of ``f`` as views (no copy)."""
-    return FrameBatch(
-        t_ns=f.t_ns[a:b],
-        can_id=f.can_id[a:b],
-        is_extended=f.is_extended[a:b],
-        dlc=f.dlc[a:b],
-        data=f.data[a:b],
-        is_rx=f.is_rx[a:b],
-    )
+    return f.rows(a, b)
 
 
 def split(f: FrameBatch, n: int) -> Iterator[FrameBatch]:

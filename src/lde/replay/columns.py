@@ -8,7 +8,7 @@ working. Signs are ISO 8855 (x forward, y left, z up: left and counter-clockwise
 ``T_align``, which keeps the paper's sign. Units are SI except ``bank_deg`` (degrees, as on the bus).
 
 This module is light (no numba): ``lde replay --help`` lists the columns from it
-(:func:`columns_help`), and ``docs/csv.md`` documents the same list (a test holds them equal).
+(:func:`columns_help`), and ``docs/guide/csv.md`` documents the same list (a test holds them equal).
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ def columns_help(width: int = 100) -> str:
     return "\n".join(
         [
             "CSV columns (--csv), in this order; SI units, ISO 8855 signs (x forward, y left, z up:",
-            "left and counter-clockwise positive; T_align keeps the paper's sign); docs/csv.md:",
+            "left and counter-clockwise positive; T_align keeps the paper's sign); docs/guide/csv.md:",
             *rows(CSV_COLUMNS),
             "with --smooth:",
             *rows(SMOOTHED),

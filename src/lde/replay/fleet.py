@@ -60,7 +60,6 @@ class ReplayJob:
     use_recorded_steps: bool = True
     reorder_window_ns: int | None = REORDER_WINDOW_NS
     mcap_index: bool = False
-    shadow_thread: bool = False
     learned: Path | None = None
     smooth: bool = False  # also the RTS smoother's columns / topic (lde.replay.smoother): a second pass
     # the log read one piece ahead and the CSV written in threads of their own (on a spare core);
@@ -81,6 +80,10 @@ class LogReport:
     rejected_by_cause: dict[str, int] = field(default_factory=dict)
     resync: int = 0
     ignored: int = 0
+    #: frames of input messages on another bus than the one each is read from (not used)
+    other_bus: int = 0
+    #: the bus each input message was read from, when the log names buses
+    buses: dict[str, str] = field(default_factory=dict)
     tx: int = 0
     steps: int = 0
     valid_steps: int = 0
@@ -163,7 +166,7 @@ def _replay(job: ReplayJob, rep: LogReport, stop: Callable[[], bool] | None = No
     if job.vehicle not in _VEHICLES:
         _VEHICLES[job.vehicle] = load_vehicle(job.vehicle)
     vehicle = _VEHICLES[job.vehicle]
-    backend, _fn, _note = resolve_backend(job.backend)
+    backend = resolve_backend(job.backend)
     track = _smoothed(job, profile, vehicle, backend) if job.smooth else None
     try:
         _replay_outputs(job, rep, profile, vehicle, backend, track, stop)
@@ -244,7 +247,6 @@ def _replay_outputs(
             overlay_enable=li.overlay_enable,
             extra_status=li.extra_status,
             output_frames=job.mcap is not None,
-            shadow_thread=job.shadow_thread,
             read_ahead=job.helper_threads,
             learned=job.learned,
             learned_start=li.learned_start,
@@ -273,6 +275,7 @@ def _replay_outputs(
     rep.frames, rep.used, rep.rejected, rep.resync = f.total, f.used, f.rejected, f.resync
     rep.rejected_by_cause = f.rejected_by_cause()
     rep.ignored, rep.tx = f.ignored, f.tx
+    rep.other_bus, rep.buses = f.other_bus, {m: b for m, b in f.buses.items() if b}
     rep.steps, rep.valid_steps, rep.segments = res.steps, res.valid_steps, res.segments
     rep.recorded_steps = res.recorded_steps
     rep.skipped = {k: int(getattr(stats, k)) for k in _SKIPPED if getattr(stats, k)}

@@ -33,9 +33,10 @@ from typing import Any
 
 import numpy as np
 
+from lde.can.channels import ChannelSelect
 from lde.can.e2e import ReceiverStats
 from lde.can.frames import FrameBatch
-from lde.can.profiles import PROFILE_NAMES, Profile, load_profile
+from lde.can.profiles import DOCS, PROFILE_NAMES, Profile, load_profile, observe_timeouts
 from lde.can.watch import describe_ids
 from lde.engine.backends import DEFAULT_BACKEND, get_backend
 from lde.engine.engine import OUTPUT_MESSAGES, Engine, StepBlock, recorded_steps
@@ -54,6 +55,7 @@ from lde.io import (
     open_log,
 )
 from lde.io.ending import FileEnd
+from lde.io.mcap_read import can_counts
 from lde.io.recording import (
     ESTIMATE_TOPIC,
     EVENTS_TOPIC,
@@ -110,6 +112,9 @@ class FrameCounts:
     ignored: int
     messages: dict[str, ReceiverStats]
     ids: dict[int, int] = field(default_factory=dict)  # received frames per 11-bit id
+    #: input-message frames on another bus than their message's (not fed), and each message's bus
+    other_bus: int = 0
+    buses: dict[str, str] = field(default_factory=dict)
 
     @property
     def used(self) -> int:
@@ -232,12 +237,10 @@ class ReplayResult:
 
 
 # ----------------------------------------------------------------------------- backends
-def resolve_backend(backend: str | None) -> tuple[str, Callable[..., Any] | None, str]:
-    """(name, the backend's array-API ``run_batch`` or None, note) from the registry
-    (:mod:`lde.engine.backends`);
-    ``None`` is :data:`DEFAULT_BACKEND`. An unknown name raises ConfigError (never a fallback)."""
-    b = get_backend(DEFAULT_BACKEND if backend is None else backend)
-    return b.name, b.run_batch, ""
+def resolve_backend(backend: str | None) -> str:
+    """The registered backend's name (:mod:`lde.engine.backends`); ``None`` is :data:`DEFAULT_BACKEND`.
+    An unknown or removed name raises ConfigError (never a fallback)."""
+    return get_backend(DEFAULT_BACKEND if backend is None else backend).name
 
 
 # ----------------------------------------------------------------------------- the path
@@ -293,7 +296,6 @@ def run_replay(
     extra_status: np.ndarray | None = None,
     output_frames: bool = True,
     chunk_frames: int = CHUNK_FRAMES,
-    shadow_thread: bool = False,
     learned: str | Path | None = None,
     learned_start: str | None = None,
     stop: Callable[[], bool] | None = None,
@@ -305,33 +307,22 @@ def run_replay(
     ``frames``: one batch (any order: sorted here, then cut in pieces of ``chunk_frames``) or an
     iterable of pieces already in time order (a :class:`lde.io.LogStream`), read one at a time.
     ``tx_frames``: the log's count of frames lde sent when the pieces do not hold them all (or a
-    function giving it once the pieces are read). ``shadow_thread``: the fixed backend's float
-    shadow in a second thread (:class:`lde.engine.engine.Engine`; default inline: one core).
-    ``learned``: a learned-state file (``--learned``), read first when it exists and written
-    (atomically) at the end. ``learned_start``: the text of the learned state a live run started
-    from (its recording's ``learned_start``): used by a learning backend when ``learned`` names no
-    existing file, so that the recording replays to the live estimates. ``stop``: asked after
+    function giving it once the pieces are read). ``learned``: a learned-state file
+    (``--learned``), read first when it exists and written (atomically) at the end.
+    ``learned_start``: the text of the learned state a live run started from (its recording's
+    ``learned_start``): used by a learning backend when ``learned`` names no existing file, so that
+    the recording replays to the live estimates. ``stop``: asked after
     every piece; True ends the replay there (SIGINT / SIGTERM: the sinks have every row so far
     and can be closed; :attr:`ReplaySummary.stopped`). ``read_ahead`` (default True): an iterable of
     pieces is read in a thread one piece ahead of the engine (:class:`lde.io.stream.ReadAhead`: a
     candump block parsed, an MCAP chunk decompressed and walked on the other core; the timing
     ``read`` is then the time the engine waited for a piece; an error of the reader is raised here
     after the pieces before it). The piece in flight costs an MCAP replay about 10 MiB of peak RSS
-    (the decompressed chunk and its columns), paid for by scipy.linalg no longer being loaded
-    (:mod:`lde.lazyblas`, about 20 MiB). Other arguments as :func:`replay`.
+    (the decompressed chunk and its columns). Other arguments as :func:`replay`.
     """
     name = DEFAULT_BACKEND if backend is None else backend
     t0 = time.perf_counter()
     explicit = step_times_ns is not None
-    engine = Engine(
-        profile, vehicle, name, explicit=explicit, encode_outputs=output_frames, shadow_thread=shadow_thread
-    )
-    origin = ""
-    if learned is not None and engine.load_learned(learned) is not None:
-        origin = str(learned)
-    elif learned_start and engine.learns:
-        engine.load_learned_text(learned_start, "the recording's learned start")
-        origin = "the recording's learned start"
     ahead: ReadAhead[FrameBatch] | None = None
     if isinstance(frames, FrameBatch):
         pieces: Iterable[FrameBatch] = split(frames.sort(), chunk_frames)
@@ -340,20 +331,45 @@ def run_replay(
         pieces = ahead = ReadAhead(frames)
     else:
         pieces = frames
+    it = iter(pieces)
+    # each input message's frames of its own bus; timeouts the DBC does not give from the first piece
+    select = ChannelSelect(profile)
+    tr = time.perf_counter()
+    try:
+        head = next(it, None)
+        if not profile.timeouts_known:
+            profile = observe_timeouts(profile, select(head) if head is not None else FrameBatch.empty())
+        engine = Engine(
+            profile,
+            vehicle,
+            name,
+            explicit=explicit,
+            encode_outputs=output_frames,
+        )
+    except BaseException:
+        if ahead is not None:
+            ahead.close()
+        raise
+    t_read = time.perf_counter() - tr
+    origin = ""
+    if learned is not None and engine.load_learned(learned) is not None:
+        origin = str(learned)
+    elif learned_start and engine.learns:
+        engine.load_learned_text(learned_start, "the recording's learned start")
+        origin = "the recording's learned start"
     n = n_tx = 0
     id_counts = np.zeros(0x800, np.int64)
     input_gaps: list[tuple[int, int]] = []
     last_rx: int | None = None
     steps = valid = gaps = 0
     last_t: int | None = None
-    t_sinks = t_read = 0.0
+    t_sinks = 0.0
     first = True
     stopped = False
-    it = iter(pieces)
     try:
         while True:
             tr = time.perf_counter()
-            chunk = next(it, None)
+            chunk = head if first else next(it, None)
             t_read += time.perf_counter() - tr
             final = chunk is None
             if chunk is None:
@@ -376,7 +392,7 @@ def run_replay(
             if step_times_ns is not None and first:
                 kw = recorded_steps(step_times_ns, overlay_enable, extra_status)
             first = False
-            block = engine.feed(chunk, final=final, **kw)
+            block = engine.feed(select(chunk), final=final, **kw)
             m = len(block)
             if m:
                 steps += m
@@ -406,6 +422,8 @@ def run_replay(
         ignored=engine.n_ignored,
         messages=engine.stats(),
         ids={int(i): int(id_counts[i]) for i in np.flatnonzero(id_counts)},
+        other_bus=select.dropped,
+        buses=dict(select.chosen),
     )
     if learned is not None:
         engine.save_learned(learned, valid * STEP_NS * 1e-9)
@@ -549,34 +567,38 @@ def recorded_events(
 
 
 def profile_metadata(profile: Profile) -> dict[str, str]:
-    """The ``lde`` metadata entries that name ``profile`` in a recording: ``profile`` (its name)
-    and, for a profile loaded from a DBC file of the user's, ``profile_dbc`` (that file's path)."""
-    out = {"profile": profile.name}
-    if profile.name not in PROFILE_NAMES:
-        out["profile_dbc"] = str(Path(profile.dbc_path).resolve())
-    return out
+    """The ``lde`` metadata entries that name ``profile`` in a recording
+    (:meth:`lde.can.profiles.Profile.metadata`)."""
+    return profile.metadata()
 
 
 def recorded_profile(log: LogData | LogStream) -> str | None:
     """The CAN profile an MCAP log says it was made with, as :func:`lde.can.profiles.load_profile`
-    takes it: ``profile_dbc`` of its ``lde`` metadata record when that file exists, else the shipped
+    takes it: ``profile_file`` of its ``lde`` metadata record when that file exists, else the shipped
     profile named ``profile``; None when the log names none (candump, ASC, ... or a foreign MCAP).
 
     Raises:
-        ConfigError: the log names a profile that cannot be found here (a DBC file of another
-            machine): give ``--profile``.
+        ConfigError: the log names a profile that cannot be found here (a profile file of another
+            machine, or a DBC that older versions took as a profile): give ``--profile``.
     """
     meta = log.mcap.metadata.get("lde", {}) if log.mcap is not None else {}
-    name, dbc = meta.get("profile", ""), meta.get("profile_dbc", "")
-    if dbc and Path(dbc).is_file():
-        return dbc
-    if name in PROFILE_NAMES and not dbc:
+    name, file = meta.get("profile", ""), meta.get("profile_file", "")
+    dbc = meta.get("profile_dbc", "")  # recordings of versions that took a .dbc as the profile
+    if file and Path(file).is_file():
+        return file
+    if name in PROFILE_NAMES and not file and not dbc:
         return name
-    if name or dbc:
+    if name or file or dbc:
+        where = (
+            f" (file {file}, not found)"
+            if file
+            else f" (DBC {dbc}: write a profile file for it, {DOCS})"
+            if dbc
+            else " (not a shipped profile)"
+        )
         raise ConfigError(
-            f"{log.path}: recorded with CAN profile {name or dbc!r}"
-            + (f" (DBC {dbc}, not found)" if dbc else " (not a shipped profile)")
-            + ": give --profile (lde, hyundai or the .dbc path)"
+            f"{log.path}: recorded with CAN profile {name or file or dbc!r}{where}: give --profile "
+            f"({', '.join(PROFILE_NAMES)} or a profile file)"
         )
     return None
 
@@ -718,10 +740,11 @@ class LogInputs:
     learned_start: str | None = None  # the learned state a live run started from (its recording's)
 
     def tx_frames(self) -> int | None:
-        """The count of frames lde sent (``/can/tx``) of an MCAP log, else None."""
+        """The count of frames lde sent (``/can/tx`` and the other sent topics) of an lde MCAP log, else
+        None."""
         m = self.stream.mcap
         if m is not None and TOPIC_TX in m.topics:
-            return m.topics[TOPIC_TX].count
+            return can_counts(m.topics)[1]
         return None
 
 

@@ -4,12 +4,12 @@ lateral filter over a whole log, for analysis (non-causal: step k uses every lat
 Two passes over the same inputs on the same step grid as the causal replay:
 
 1. **Forward** (:class:`TracingEngine`): the float lateral filter and its learner (backend ``float``,
-   :func:`lde.engine.backends.lateral_step`, unchanged) in the one data path, plus a trace row per step of
+   :func:`lde.engine.backends.float.step`, unchanged) in the one data path, plus a trace row per step of
    what the backward pass needs: the a-priori state and covariance the step propagated to
    (``x_{k+1|k}``, ``P_{k+1|k}``), the transition ``Phi_k`` it used, its input term ``E_k u_k``, its
    process noise ``Qd`` and whether it propagated at all (a held step: low speed, ESC fault). The
-   causal backends' compiled loops are not touched: the trace is a separate compiled copy of the loop
-   (:func:`lde.engine.loop.make_loop`), used only here. The trace goes to a temporary file
+   traced step is registered for its own state class (:class:`TracedState`), so the one compiled loop
+   has a specialisation for it, used only here. The trace goes to a temporary file
    (:class:`TraceSpill`) chunk by chunk, so memory does not grow with the log.
 2. **Backward** (:func:`rts_backward`): per step, newest first::
 
@@ -51,17 +51,17 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
 
 from lde.can.frames import FrameBatch
 from lde.can.profiles import Profile
-from lde.engine.backends import Backend, BackendState, lateral_step
-from lde.engine.backends import _make_lateral as make_lateral_state
+from lde.engine.backends import BACKENDS, Backend, BackendState, get_backend
+from lde.engine.backends import float as float_backend
 from lde.engine.engine import Engine, StepBlock, recorded_steps
-from lde.engine.loop import make_loop
+from lde.engine.loop import register_step
 from lde.engine.receiver import I_SPEED
 from lde.errors import ConfigError, LogFormatError
 from lde.estimator import lateral as E
@@ -78,7 +78,6 @@ __all__ = [
     "rts_backward",
     "smooth_run",
     "check_backend",
-    "SMOOTHABLE_BACKENDS",
 ]
 
 NX = E.NX
@@ -96,34 +95,51 @@ NT = 35
 S_FW, S_MW, S_FW_WIND, S_MW_WIND, S_BANK = range(5)
 NS = 5  # in the order of SMOOTHED (lde.replay.columns): names, CSV decimals, units and meanings
 
-#: backends whose estimate the smoother can stand beside (the lateral filter, float or fixed)
-SMOOTHABLE_BACKENDS = ("float", "fixed")
-
 
 def check_backend(name: str) -> None:
-    """ConfigError unless ``name`` (a registered backend's name) runs the lateral filter."""
-    if name not in SMOOTHABLE_BACKENDS:
+    """ConfigError unless ``name`` (a registered backend's name) runs the lateral filter (its
+    module's ``SMOOTHABLE``: the smoothed float filter stands beside its estimate)."""
+    if not get_backend(name).smoothable:
+        able = ", ".join(b.name for b in BACKENDS.values() if b.smoothable)
         raise ConfigError(
-            f"--smooth smooths the lateral filter (backend float or fixed); backend {name!r} "
-            "(the paper's 4-state step) has no smoother"
+            f"--smooth smooths the lateral filter (backend {able}); backend {name!r} has no smoother"
         )
 
 
 # ------------------------------------------------------------------------------ forward: tracing
 
 
+class TracedState(NamedTuple):
+    """The float backend's state and the trace of the steps of one compiled call."""
+
+    inner: float_backend.State  # the float backend's state (the filter and the learner)
+    trace: np.ndarray  # (rows, NT) trace rows (T_* layout), one per step of the call
+    tt: np.ndarray  # (rows,) int64 their step times [ns]
+    cnt: np.ndarray  # (2,) int64 rows written, 1 when a row did not fit
+
+    @property
+    def p(self) -> np.ndarray:
+        """The filter's parameter vector (a learning backend's ``p``)."""
+        return self.inner.p
+
+    @property
+    def ls(self) -> np.ndarray:
+        """The learner's state (a learning backend's ``ls``)."""
+        return self.inner.ls
+
+
 @njit(cache=True)
-def traced_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
-    """:func:`lde.engine.backends.lateral_step` (the float filter and the learner, unchanged), then one
-    trace row (``T_*`` layout) into ``bs``'s trace buffer; a full buffer sets the overflow slot."""
-    st, trace, tt, cnt = bs
-    p, x, P = st[0], st[1], st[2]
-    fs, ints = st[3], st[4]
+def traced_step(params, state, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no cover - compiled
+    """:func:`lde.engine.backends.float.step` (the float filter and the learner, unchanged), then one
+    trace row (``T_*`` layout) into ``state.trace``; a full buffer sets the overflow slot."""
+    st, trace, tt, cnt = state.inner, state.trace, state.tt, state.cnt
+    p, f = st.p, st.filter
+    x, P, fs, ints = f.x, f.P, f.fs, f.ints
     # the transition of this step, from the parameters before the learner may push after it
     vx = inp[I_SPEED]
     m, iz, lf, lr, dt = p[E.P_M], p[E.P_IZ], p[E.P_LF], p[E.P_LR], p[E.P_DT]
     cf, cr = p[E.P_CF], p[E.P_CR]
-    status = lateral_step(bp, st, t_ns, inp, fresh, mdps_ok, esc_ok, out)
+    status = float_backend.step(params, st, t_ns, inp, fresh, mdps_ok, esc_ok, out)
     c = cnt[0]
     if c >= trace.shape[0]:
         cnt[1] = 1
@@ -160,25 +176,22 @@ def traced_step(bp, bs, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragma: no c
     return status
 
 
-#: the data path's loop with the traced step (its own compiled copy; the causal loops are untouched)
-run_traced = make_loop(traced_step, "run_traced")
+register_step(TracedState, traced_step)
 
 
-def _make_traced(vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool) -> BackendState:
-    inner = make_lateral_state(vehicle, dt, angle_above_torsion_bar)
-    state = (inner.state, np.zeros((0, NT)), np.zeros(0, np.int64), np.zeros(2, np.int64))
-    info = dict(inner.info)
-    info["m_g"] = vehicle.body.mass * inner.info["p"][E.P_G]
-    return BackendState(inner.params, state, info)
+def _make_traced(vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool) -> tuple[Any, TracedState]:
+    params, inner = float_backend.make(vehicle, dt, angle_above_torsion_bar)
+    return params, TracedState(inner, np.zeros((0, NT)), np.zeros(0, np.int64), np.zeros(2, np.int64))
 
 
+#: the float backend traced for the smoother (not in the registry: only TracingEngine makes it)
 TRACED = Backend(
     "float",
     "the lateral filter with the learner, traced for the RTS smoother",
     _make_traced,
-    run_traced,
-    None,
+    TracedState,
     learns=True,
+    smoothable=True,
 )
 
 
@@ -226,19 +239,25 @@ class TracingEngine(Engine):
     def __init__(
         self, profile: Profile, vehicle: Vehicle, spill: TraceSpill, *, explicit: bool = False
     ) -> None:
-        super().__init__(
-            profile, vehicle, "float", explicit=explicit, encode_outputs=False, shadow_thread=False
-        )
-        self.backend = TRACED
         self.spill = spill
-        self.reset()
+        super().__init__(profile, vehicle, "float", explicit=explicit, encode_outputs=False)
+
+    def _new_backend_state(self) -> BackendState:
+        params, state = _make_traced(self.vehicle, self._dt, self.profile.angle_above_torsion_bar)
+        return BackendState(TRACED, params, state)
+
+    @property
+    def m_g(self) -> float:
+        """The vehicle's weight [N] (the bank force of 1 rad)."""
+        return float(self.vehicle.body.mass * self.est.state.inner.p[E.P_G])
 
     def run_arrays(self, *args: Any, **kw: Any) -> tuple[int, int]:
         out: StepBlock = args[6] if len(args) > 6 else kw["out"]
-        inner, trace, tt, cnt = self.est.state
-        if trace.shape[0] < len(out):  # one trace row per row the call may write
-            trace, tt = np.zeros((len(out), NT)), np.zeros(len(out), np.int64)
-            self.est.state = (inner, trace, tt, cnt)
+        st = self.est.state
+        if st.trace.shape[0] < len(out):  # one trace row per row the call may write
+            st = st._replace(trace=np.zeros((len(out), NT)), tt=np.zeros(len(out), np.int64))
+            self.est.state = st
+        trace, tt, cnt = st.trace, st.tt, st.cnt
         cnt[:] = 0
         i, n = super().run_arrays(*args, **kw)
         if cnt[1] or cnt[0] != n:
@@ -553,8 +572,8 @@ def smooth_run(
                 break
         spill.finish()
         t1 = time.perf_counter()
-        pv = engine.est.info["p"]
-        bad = _backward(spill, float(engine.est.info["m_g"]), float(pv[E.P_XCP]), float(pv[E.P_WCP]))
+        pv = engine.est.state.inner.p
+        bad = _backward(spill, engine.m_g, float(pv[E.P_XCP]), float(pv[E.P_WCP]))
         (spill.dir / "trace.f8").unlink()
     except BaseException:
         spill.remove()

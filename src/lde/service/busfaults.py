@@ -13,11 +13,14 @@ Pure logic: times are passed in [ns]; nothing here reads a clock or a bus.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 __all__ = [
     "REPEAT_NS",
     "FLOOD_FOREIGN_HZ",
+    "OTHER_SENDER_RATE",
     "BusFaults",
+    "E2EWindow",
     "FaultTracker",
     "WindowCounts",
     "describe_error_frame",
@@ -31,6 +34,11 @@ QUIET_NS = 1_000_000_000
 #: bus at 500 kbit/s carries at most ~4400 frames/s in all; a car bus shared with other ECUs can carry
 #: well over 1000/s of other traffic, so raise it there (``Service(flood_hz=...)``).
 FLOOD_FOREIGN_HZ = 2000.0
+#: a message that was healthy and now fails its E2E checks while arriving at least this many times as
+#: often as its period says is reported as coming from a second sender (two ECUs, or two simulators
+#: on one udp_multicast group and port, each with its own counter). A second sender that starts late
+#: in a check window may show this rate only in the next one: its E2E line then comes first.
+OTHER_SENDER_RATE = 1.25
 
 # SocketCAN error frame classes (linux/can/error.h, bits of the can_id)
 _ERR_CLASSES = (
@@ -66,6 +74,7 @@ class FaultTracker:
     name: str
     clear_ns: int = 0
     repeat_ns: int = REPEAT_NS
+    sep: str = ": "  # between the name and the rest of its lines
     since_ns: int | None = None  # start of the current fault, None when clear
     last_ns: int = 0  # time of the last window with the fault [ns]
     count: int = 0  # events in the current fault
@@ -88,7 +97,7 @@ class FaultTracker:
                 self.count = events
                 self.episodes += 1
                 self._next_warn_ns = t_ns + self.repeat_ns
-                lines.append(("warning", f"{self.name}: {detail}"))
+                lines.append(("warning", f"{self.name}{self.sep}{detail}"))
             else:
                 self.count += events
                 if t_ns >= self._next_warn_ns:
@@ -96,7 +105,7 @@ class FaultTracker:
                     lines.append(
                         (
                             "warning",
-                            f"{self.name}: still, for {(t_ns - self.since_ns) * 1e-9:.1f} s"
+                            f"{self.name}{self.sep}still, for {(t_ns - self.since_ns) * 1e-9:.1f} s"
                             f" ({self.count} in all): {detail}",
                         )
                     )
@@ -105,11 +114,24 @@ class FaultTracker:
             lines.append(
                 (
                     "info",
-                    f"{self.name}: cleared after {lasted:.2f} s ({self.count} in all)",
+                    f"{self.name}{self.sep}cleared after {lasted:.2f} s ({self.count} in all)",
                 )
             )
             self.since_ns = None
         return lines
+
+
+class E2EWindow(NamedTuple):
+    """One input message in a check window: ``label`` ("MDPS_Sensors (0x2A0)"), frames ``rejected``
+    by E2E and ``used``, ``what`` the rejections were; ``received`` its frames in the window and
+    ``expected`` how many its period gives (0: not known)."""
+
+    label: str
+    rejected: int
+    used: int
+    what: str
+    received: int = 0
+    expected: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -125,7 +147,7 @@ class WindowCounts:
         foreign: frames of other messages that reached the service.
         bus_frames: frames the interface counted (SocketCAN ``rx_packets``), -1 when unknown.
         own_frames: frames of the profile on the bus in the window (inputs received + outputs sent).
-        e2e: per input message (label, frames rejected, frames used, what the rejections were).
+        e2e: per input message, :class:`E2EWindow` (or a tuple of its fields).
         send_error, recv_error: the text of the last failed send / receive.
     """
 
@@ -140,7 +162,7 @@ class WindowCounts:
     foreign: int = 0
     bus_frames: int = -1
     own_frames: int = 0
-    e2e: tuple[tuple[str, int, int, str], ...] = ()
+    e2e: tuple[E2EWindow | tuple, ...] = ()
     send_error: str = ""
     recv_error: str = ""
 
@@ -157,6 +179,12 @@ class BusFaults:
     errors: FaultTracker = field(init=False)
     flood: FaultTracker = field(init=False)
     e2e: dict[str, FaultTracker] = field(default_factory=dict)
+    #: per input message: a second sender (:data:`OTHER_SENDER_RATE`)
+    others: dict[str, FaultTracker] = field(default_factory=dict)
+    #: messages with a clean window (frames used, none rejected) since their last E2E episode
+    _healthy: set[str] = field(default_factory=set, init=False, repr=False)
+    #: per message: whether its current (or last) E2E episode began on a healthy message
+    _from_healthy: dict[str, bool] = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.send = FaultTracker("CAN send failing")
@@ -165,7 +193,7 @@ class BusFaults:
         self.flood = FaultTracker(f"foreign frames flood {self.where}", clear_ns=QUIET_NS)
 
     def trackers(self) -> list[FaultTracker]:
-        return [self.send, self.recv, self.errors, self.flood, *self.e2e.values()]
+        return [self.send, self.recv, self.errors, self.flood, *self.e2e.values(), *self.others.values()]
 
     @property
     def active(self) -> list[str]:
@@ -202,17 +230,48 @@ class BusFaults:
             f"{rate:.0f} foreign frames/s ({how}); {w.foreign} reached the service in"
             f" {w.span_ns * 1e-9:.2f} s (the input filters keep the others out)",
         )
-        for label, rejected, used, what in w.e2e:
-            tr = self.e2e.get(label)
-            if tr is None:
-                tr = self.e2e[label] = FaultTracker(f"E2E {label}", clear_ns=QUIET_NS)
-            out += tr.update(
-                w.t_ns,
-                rejected,
-                f"{rejected} frames rejected ({what}); the input is re-synchronised before it is used",
-                ok=used > 0,
-            )
+        for entry in w.e2e:
+            out += self._check_e2e(w, E2EWindow(*entry))
         return out
+
+    def _check_e2e(self, w: WindowCounts, e: E2EWindow) -> list[tuple[str, str]]:
+        """One input message's E2E rejections; a burst of them on a message that was healthy, while
+        it arrives more often than its period says, is said as another sender on the bus (once,
+        instead of the E2E line)."""
+        tr = self.e2e.get(e.label)
+        if tr is None:
+            tr = self.e2e[e.label] = FaultTracker(f"E2E {e.label}", clear_ns=QUIET_NS)
+        other = self.others.get(e.label)
+        if other is None:
+            other = self.others[e.label] = FaultTracker(
+                f"another sender on this bus ({self.where})?", clear_ns=QUIET_NS, sep=" "
+            )
+        if e.rejected > 0 and not tr.active:  # an E2E episode starts: was the message healthy?
+            self._from_healthy[e.label] = e.label in self._healthy
+            self._healthy.discard(e.label)
+        doubled = e.expected > 0 and e.received >= OTHER_SENDER_RATE * e.expected
+        suspect = e.rejected > 0 and doubled and self._from_healthy.get(e.label, False)
+        said = other.update(
+            w.t_ns,
+            e.rejected if suspect else 0,
+            f"{e.label} arrives {e.received / e.expected if e.expected else 0:.1f}x as often as its period"
+            f" says ({e.received} frames in {w.span_ns * 1e-9:.2f} s, {e.expected:.0f} expected) and"
+            f" {e.rejected} of them fail the E2E check ({e.what}): a second node sends it too. On"
+            " udp_multicast: another program on this host uses the same group and port; give each"
+            " bus a group and port of its own (docs/service.md, 'The bus')",
+            ok=e.used > 0,
+        )
+        lines = tr.update(
+            w.t_ns,
+            e.rejected,
+            f"{e.rejected} frames rejected ({e.what}); the input is re-synchronised before it is used",
+            ok=e.used > 0,
+        )
+        if e.rejected == 0 and e.used > 0 and not tr.active:
+            self._healthy.add(e.label)
+        if any(level == "warning" for level, _ in said):  # one warning for the burst: the likely cause
+            lines = [ln for ln in lines if ln[0] != "warning"]
+        return said + lines
 
     @staticmethod
     def _foreign_rate(w: WindowCounts) -> tuple[float, str]:

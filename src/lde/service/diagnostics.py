@@ -18,12 +18,14 @@ e.g. once per periodic log line, never per step.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 __all__ = [
     "DEADLINE_MISS_NS",
+    "ServiceStatus",
     "StepTiming",
     "TimingSummary",
     "TimingStats",
@@ -85,13 +87,70 @@ class TimingSummary:
 
     def log_line(self) -> str:
         """One human-readable line (the periodic log line of the service)."""
+        if self.steps == 0:
+            return (
+                f"timing: no step ran; deadline misses {self.deadline_misses} (skipped steps {self.skipped})"
+            )
+        if math.isnan(self.latency_p50_us):
+            latency = "latency: no input frame used"
+        else:
+            latency = f"latency p50 {self.latency_p50_us:.0f} us, p99 {self.latency_p99_us:.0f} us"
         return (
             f"timing over {self.steps} steps: period error p50 {self.period_error_p50_us:.0f} us, "
             f"p99 {self.period_error_p99_us:.0f} us, max {self.period_error_max_us:.0f} us; "
             f"step time p50 {self.step_time_p50_us:.0f} us, p99 {self.step_time_p99_us:.0f} us; "
-            f"latency p50 {self.latency_p50_us:.0f} us, p99 {self.latency_p99_us:.0f} us; "
-            f"deadline misses {self.deadline_misses} (skipped steps {self.skipped})"
+            f"{latency}; deadline misses {self.deadline_misses} (skipped steps {self.skipped})"
         )
+
+
+#: ``LDE_Overlay.State`` names (dbc/lde.dbc; :class:`lde.estimator.overlay.OverlayState`)
+_OVERLAY_STATES = ("off", "ramp-in", "active", "ramp-out", "fault")
+#: the learner's state (``learn_state`` in the CSV)
+_LEARN_STATES = ("not learned", "learning", "learned", "none")
+
+
+@dataclass(frozen=True)
+class ServiceStatus:
+    """What the live service does, for the status line ``lde run`` prints once a second (SI inside,
+    degrees for the bank in the line).
+
+    Attributes:
+        steps: steps since the previous status; valid: of them with a VALID estimate.
+        fw: the last step's disturbance force Fw [N], left positive; mw: its yaw moment Mw [Nm].
+        bank: road bank angle [rad] (NaN: the backend does not separate bank from wind).
+        overlay_state: the limiter's state (0 off .. 4 fault); t_overlay: the request [Nm].
+        learn_state: 0 not learned, 1 learning, 2 learned, 3 the backend does not learn.
+        deadline_misses: since start.
+        missing: the input messages missing now (none for longer than their timeout).
+    """
+
+    steps: int
+    valid: int
+    fw: float
+    mw: float
+    bank: float
+    overlay_state: int
+    t_overlay: float
+    learn_state: int
+    deadline_misses: int
+    missing: tuple[str, ...] = ()
+
+    def line(self) -> str:
+        """One line, e.g. ``valid 100 %, Fw 2105 N, Mw -312 Nm, bank -1.2 deg, overlay active
+        -2.85 Nm, learner learning, deadline misses 3``, then ``, missing: MDPS_Sensors`` if any."""
+        valid = f"valid {100.0 * self.valid / self.steps:.0f} %" if self.steps else "no step"
+        bank = f"bank {math.degrees(self.bank):.1f} deg" if math.isfinite(self.bank) else "bank n/a"
+        state = (
+            _OVERLAY_STATES[self.overlay_state] if 0 <= self.overlay_state < 5 else str(self.overlay_state)
+        )
+        learn = _LEARN_STATES[self.learn_state] if 0 <= self.learn_state < 4 else str(self.learn_state)
+        text = (
+            f"{valid}, Fw {self.fw:.0f} N, Mw {self.mw:.0f} Nm, {bank}, overlay {state} "
+            f"{self.t_overlay:.2f} Nm, learner {learn}, deadline misses {self.deadline_misses}"
+        )
+        if self.missing:
+            text += f", missing: {', '.join(self.missing)}"
+        return text
 
 
 def _pct(a: np.ndarray, q: float) -> float:

@@ -51,12 +51,9 @@ virtual bus). ``t_k = t_clock + offset`` with ``offset`` measured once at start
 
 from __future__ import annotations
 
-import ctypes
 import gc
 import logging
 import os
-import socket
-import struct
 import threading
 import time
 from collections import deque
@@ -68,21 +65,22 @@ from typing import Any
 import can
 import numpy as np
 
+from lde.can.busio import ERROR_FRAME, RxFrame, TxFrame, bus_io, describe_bus, open_bus, receive_only
 from lde.can.codec import MessageCodec
-from lde.can.frames import FrameBatch, seconds_to_ns
+from lde.can.frames import FrameBatch, data_width, seconds_to_ns
 from lde.can.profiles import Profile, load_profile
 from lde.can.watch import InputWatch, describe_ids
 from lde.clock import SimulatedClock
 from lde.engine.engine import Engine, StepBlock
 from lde.engine.grid import L_REF, lock_anchor, lock_deadline, lock_frame, lock_timeout, new_lock
 from lde.engine.receiver import Receiver
-from lde.errors import BusError, ConfigError
+from lde.errors import ConfigError
 from lde.estimator.learned import LearnedKeeper, LearnedSnapshot
+from lde.estimator.outputs import O_BANK, O_LEARN
 from lde.io.recording import StepRing
 from lde.params import Vehicle, load_vehicle
-from lde.service.busfaults import FLOOD_FOREIGN_HZ, BusFaults, WindowCounts
-from lde.service.busio import ERROR_FRAME, RxFrame, TxFrame, bus_io
-from lde.service.diagnostics import DEADLINE_MISS_NS, StepTiming, TimingStats, TimingSummary
+from lde.service.busfaults import FLOOD_FOREIGN_HZ, BusFaults, E2EWindow, WindowCounts
+from lde.service.diagnostics import DEADLINE_MISS_NS, ServiceStatus, StepTiming, TimingStats, TimingSummary
 from lde.service.handoff import (
     I_DIAG_CTR,
     I_DIAG_SLOT,
@@ -120,8 +118,12 @@ GRIDS = ("mdps", "fixed")
 _PENDING_CAP = 4096
 #: a young generation this large is collected in the idle time after a step (gc is off in the loop)
 _GC_YOUNG = 700
+#: frames queued before the first step and older than this are left out [ns] (Service._leave_out_backlog)
+_BACKLOG_NS = 100_000_000
 #: received frames per step handed to the compiled hand-off for the recorder (more: from Python)
 _RX_CAP = 256
+#: a data word's 64 bits (a CAN FD frame's word is longer)
+_WORD = (1 << 64) - 1
 
 
 _WATCH_PERIOD_NS = 250_000_000  # how often the input watch looks (its warnings repeat every 30 s)
@@ -183,8 +185,9 @@ class Service:
             frames, :mod:`lde.engine.grid`'s locked grid) for :meth:`run`.
         input_filters: pass only the profile's input messages up from the bus
             (:func:`set_input_filters`).
-        fast_io: frame I/O on the bus's socket where lde knows the bus type (``udp_multicast``,
-            SocketCAN: :mod:`lde.service.busio`); False, or any other bus: python-can's ``recv``/``send``.
+        bus_name: what the log lines call the bus (:func:`lde.can.busio.bus_label`:
+        ``udp_multicast:239.74.1.2
+            port 47311``, ``socketcan:vcan0``); None: python-can's ``channel_info``.
         learned: a learned-state file (``--learned``): read now when it exists (checked against the
             vehicle and profile), written every ``learned_period_s`` of step time and at
             :meth:`close`. Needs a backend that learns (ConfigError otherwise).
@@ -210,7 +213,7 @@ class Service:
         log_period_s: float = 10.0,
         grid: str = "fixed",
         input_filters: bool = True,
-        fast_io: bool = True,
+        bus_name: str | None = None,
         learned: str | Path | None = None,
         learned_period_s: float = 60.0,
         flood_hz: float = FLOOD_FOREIGN_HZ,
@@ -240,8 +243,7 @@ class Service:
         self._extra = np.zeros(1, np.uint8)
         # per-step scalars go through memoryviews of these arrays (half a numpy item store each)
         self._tk_mv, self._enable_mv, self._extra_mv = self._tk.data, self._enable.data, self._extra.data
-        # frame I/O: raw on the socket for the buses lde knows, python-can's recv/send otherwise
-        self.io = bus_io(bus, fast=fast_io)
+        self.io = bus_io(bus)
         # the output frames, built once and refilled in place (numpy views of their data bytes)
         self._tx = [
             self.io.tx(
@@ -283,7 +285,7 @@ class Service:
             self.stats.rows,
             self.stats.ctr,
             np.zeros(len(dc.order), np.float64),
-            np.stack([lay.shift, lay.nbits, lay.little_endian, lay.signed, lay.is_value]).astype(np.int64),
+            np.stack([lay.pos, lay.nbits, lay.little_endian, lay.signed, lay.is_value]).astype(np.int64),
             np.stack([lay.scale, lay.offset, lay.lo, lay.hi]).astype(np.float64),
             np.ascontiguousarray(dc.scheme.counter_parts),
             np.ascontiguousarray(dc.scheme.checksum_parts),
@@ -308,12 +310,15 @@ class Service:
         self._rxw_mv = self._handoff_args[18].data
         self._ring: StepRing | None = None
         self._recorder: Any = None
-        self._after_send = _resolved(after_send, *self._handoff_args)  # no recorder yet: stores nothing
-        self._ints[I_DIAG_CTR] = 0  # the resolving call above advanced it
+        after_send(*self._handoff_args)  # loads (or compiles) it now; no recorder yet: stores nothing
+        self._after_send = after_send
+        self._ints[I_DIAG_CTR] = 0  # the call above advanced it
         self.stats.ctr[:] = 0
         self.stats.rows[:] = 0
         self.recorder = recorder
-        # the frames received and not fed yet, in preallocated columns (the engine reads slices)
+        # the frames received and not fed yet, in preallocated columns (the engine reads slices); the
+        # data column is as wide as the profile's longest input message (8 bytes but for CAN FD)
+        self.rx_width = data_width(max(m.length for m in self.profile.messages.values()))
         self._np = 0
         self._pcols: tuple[np.ndarray, ...] = ()
         self._alloc_pending(_PENDING_CAP)
@@ -326,7 +331,8 @@ class Service:
         self._input_ids = frozenset(m.frame_id for m in self.profile.messages.values())
         self.filters = set_input_filters(bus, self.profile) if input_filters else "none"
         self.foreign = 0  # frames of other messages that reached the service (dropped)
-        where = f"{getattr(bus, 'channel_info', type(bus).__name__)}"
+        #: the bus's name in the log lines
+        self.bus_name = where = bus_name if bus_name is not None else describe_bus(bus)
         #: loud when blind: a required input that does not arrive is logged (lde.can.watch)
         self.watch = InputWatch(self.profile, where)
         self._watch_next = 0  # bus time of the next check [ns]
@@ -337,7 +343,7 @@ class Service:
         self._window: tuple[int, ...] | None = None  # the counts at the previous bus check
         self._e2e_prev: dict[str, tuple[int, ...]] = {}  # message -> E2E counts at that check
         self._warm_up()
-        self._run_engine_empty()  # resolves the pinned overload now (28 ms of numba typing), not at step 1
+        self._run_engine_empty()  # the loop for the live argument types loaded now, not at step 1
         self._newest_input_ns = -1  # receive time of the newest frame fed so far
         self._restamp: bool | None = None  # stamp frames on receipt (decided at the first frame)
         self._last_t_k: int | None = None  # the latest step time run [ns, bus time base]
@@ -358,6 +364,8 @@ class Service:
         self._warmed_for: int | None = None  # the expected MDPS time [ns, clock] of the last one
         self.last: StepResult | None = None
         self.valid_steps = 0  # steps with status VALID: the driving time the learner saw
+        self._status_from = (0, 0)  # (steps, valid_steps) at the previous status()
+        self.stale_at_start = 0  # frames queued before run()'s first step, left out (older than it)
         self.learned: LearnedKeeper | None = None
         #: the learned-state file's text this run started from ("" without one): a recording keeps it
         self.learned_start = ""
@@ -407,20 +415,23 @@ class Service:
     def _alloc_pending(self, cap: int) -> None:
         """(Re)allocate the pending columns with room for ``cap`` frames, keeping their contents."""
         n = self._np
+        w = self.rx_width
         new: tuple[np.ndarray, ...] = (
             np.zeros(cap, np.int64),  # receive time [ns]
             np.zeros(cap, np.uint32),  # id
             np.zeros(cap, np.bool_),  # extended
             np.zeros(cap, np.uint8),  # dlc
-            np.zeros(cap, np.uint64),  # first 8 data bytes, little-endian
+            np.zeros((cap, w), np.uint8),  # data bytes
         )
         if n:
             for dst, src in zip(new, self._pcols, strict=True):
                 dst[:n] = src[:n]
         self._pcols = new
-        self._pt, self._pid, self._pext, self._pdlc, self._pword = new
-        # _take stores through memoryviews of the columns (half a numpy item store each)
-        self._pmv = tuple(a.data for a in new)
+        self._pt, self._pid, self._pext, self._pdlc, self._pdata = new
+        # _take stores through memoryviews of the columns (half a numpy item store each): classic
+        # frames' 8 bytes as one little-endian word, wider rows as bytes
+        words = self._pdata.view(np.uint64).reshape(cap) if w == 8 else self._pdata.reshape(cap * w)
+        self._pmv = (*(a.data for a in new[:4]), words.data)
         self._prx = np.ones(cap, np.bool_)
         #: n -> the engine's live arguments with the columns' first n rows (views)
         self._heads: dict[int, tuple] = {}
@@ -440,7 +451,8 @@ class Service:
         lock_deadline(lock)
         lock_timeout(lock, 2 * STEP_NS)
         lock_anchor(lock, 3 * STEP_NS)
-        self._lock_frame = _resolved(lock_frame, new_lock(0), 0)
+        lock_frame(new_lock(0), 0)
+        self._lock_frame = lock_frame
 
     @property
     def receiver(self) -> Receiver:
@@ -471,7 +483,7 @@ class Service:
         self._recv_error = str(exc)
 
     def _take(self, f: RxFrame) -> None:
-        """One received frame (:mod:`lde.service.busio`'s five numbers) into the pending columns and, when it
+        """One received frame (:mod:`lde.can.busio`'s five numbers) into the pending columns and, when it
         is the MDPS frame, the locked grid; frames of other messages are dropped (counted in
         ``foreign``), error frames counted (``error_frames``, the last one's class kept for the bus
         check). This runs between the MDPS frame and its step, so it does only what the step needs:
@@ -502,14 +514,18 @@ class Service:
         n = self._np
         if n == self._pt.shape[0]:
             self._alloc_pending(2 * n)
-        pt, pid, pext, pdlc, pword = self._pmv
+        pt, pid, pext, pdlc, pdata = self._pmv
         if n and t_rx < pt[n - 1]:
             self._unsorted = True
         pt[n] = t_rx
         pid[n] = can_id
         pext[n] = False
         pdlc[n] = dlc
-        pword[n] = word
+        w = self.rx_width
+        if w == 8:
+            pdata[n] = word & _WORD
+        else:  # CAN FD: the frame's bytes (a longer frame is malformed for every input message)
+            pdata[n * w : n * w + w] = (word & ((1 << (8 * w)) - 1)).to_bytes(w, "little")
         self._np = n + 1
         self._backlog.append((t_rx, can_id, dlc, word))
         if anchor and self._lock is not None:
@@ -537,14 +553,15 @@ class Service:
             return
         saw = self.watch.saw
         rec = self._recorder
-        if handoff and self._ring is not None and len(bl) <= _RX_CAP:  # recorded by the compiled hand-off
+        # recorded by the compiled hand-off (classic frames: one word each)
+        if handoff and self._ring is not None and len(bl) <= _RX_CAP and self.rx_width == 8:
             rx, rxw = self._rx_mv, self._rxw_mv
             for k, (t_rx, can_id, dlc, word) in enumerate(bl):
                 saw(can_id, t_rx)
                 rx[3 * k] = t_rx
                 rx[3 * k + 1] = can_id
                 rx[3 * k + 2] = dlc
-                rxw[k] = word
+                rxw[k] = word & _WORD
             self._ints_mv[I_N_RX] = len(bl)
         else:
             for t_rx, can_id, dlc, word in bl:
@@ -635,21 +652,20 @@ class Service:
 
     def _run_engine_empty(self) -> None:
         """The live call with no frame and no step time: nothing runs, nothing changes, but the
-        compiled overload for the live argument types is resolved (``Engine.run_arrays(pinned=True)``)."""
-        pt, pid, pext, pdlc, pword = (a[:0] for a in self._pcols)
+        compiled loop for the live argument types is loaded (or compiled) now, not at the first step."""
+        pt, pid, pext, pdlc, pdata = (a[:0] for a in self._pcols)
         fed, steps = self.engine.run_arrays(
             pt,
             pid,
             pext,
             pdlc,
-            pword,
+            pdata,
             self._prx[:0],
             self._block,
             step_times=self._tk[:0],
             enable=self._enable[:0],
             extra_status=self._extra[:0],
             final=True,
-            pinned=True,
         )
         if fed or steps:
             raise RuntimeError(f"the engine ran {steps} steps on no step time")
@@ -746,6 +762,31 @@ class Service:
             rec.frame(t_ns, tx.can_id, tx.is_extended, tx.dlc, tx.word(), False)
         return t_ns
 
+    # ------------------------------------------------------------------ what it does
+    @property
+    def inputs_received(self) -> int:
+        """Frames of the profile's input messages received so far (any E2E result)."""
+        return sum(st.received + st.malformed for st in self.engine.stats().values())
+
+    def status(self) -> ServiceStatus:
+        """What the service does now (the last step's estimate, overlay and learner; the share of
+        valid steps since the previous call; the inputs missing now): ``lde run``'s status line."""
+        steps, valid = self.steps - self._status_from[0], self.valid_steps - self._status_from[1]
+        self._status_from = (self.steps, self.valid_steps)
+        res, est = self.last, self._est_mv
+        return ServiceStatus(
+            steps=steps,
+            valid=valid,
+            fw=res.fw if res else 0.0,
+            mw=res.mw if res else 0.0,
+            bank=est[O_BANK],
+            overlay_state=res.overlay_state if res else 0,
+            t_overlay=res.t_overlay if res else 0.0,
+            learn_state=int(est[O_LEARN]),
+            deadline_misses=self.stats.deadline_misses,
+            missing=tuple(self.watch.late(res.t_ns)) if res else (),
+        )
+
     # ------------------------------------------------------------------ learned state
     def learned_snapshot(self) -> LearnedSnapshot:
         """A copy of what was learned so far (driving time: this run's valid steps)."""
@@ -757,6 +798,7 @@ class Service:
         if self._bus_counter is not None:
             os.close(self._bus_counter)
             self._bus_counter = None
+        self.io.close()
         if self.learned is not None:
             keeper, self.learned = self.learned, None
             keeper.close(self.learned_snapshot())
@@ -803,6 +845,8 @@ class Service:
             self._k = 0
             self._t0 = t0
             next_step = self._next_fixed
+        if self.steps == 0:
+            self._leave_out_backlog(t0 + self.offset_ns)
         next_log = t0 + self.log_period_ns
         stop_at: int | None = None
         try:
@@ -833,6 +877,35 @@ class Service:
             if was_enabled:
                 gc.enable()
         return self.stats.summary()
+
+    def _leave_out_backlog(self, t_first: int) -> None:
+        """Before the first step of :meth:`run` (at ``t_first``, bus time base [ns]): the frames
+        that queued on the bus while the service was starting (a simulator or a car already
+        sending) and are more than :data:`_BACKLOG_NS` older than that step are read and left out
+        (counted, logged). Fed to the first step they would all be stale, and the first of them
+        would make the bus's timestamps look seconds off the service clock. Younger frames are
+        taken as usual."""
+        n = 0
+        while True:
+            try:
+                f = self.io.recv(0.0)
+            except (can.CanError, OSError) as exc:
+                self._recv_failed(exc)
+                break
+            if f is None:
+                break
+            if f[1] >= 0 and f[0] < t_first - _BACKLOG_NS:
+                n += 1
+            else:
+                self._take(f)
+        if n:
+            self.stale_at_start += n
+            log.info(
+                "left out %d frames that queued on %s while the service was starting (older than %.1f s)",
+                n,
+                self.bus_name,
+                _BACKLOG_NS / 1e9,
+            )
 
     def check_inputs(self, t_ns: int) -> None:
         """Loud when blind (:mod:`lde.can.watch`), at most every 0.25 s of bus time ``t_ns`` [ns]: log a
@@ -869,15 +942,18 @@ class Service:
         cur += (self.error_frames, self.foreign, bus_frames)
         e2e = []
         n_input = self._np
+        span_ns = t_ns - self._window[0] if self._window is not None else 0
         for name, st in self.engine.stats().items():
             n_input += st.received
-            now = (st.wrong_sequence, st.wrong_crc, st.repeated, st.malformed, st.used)
-            was = self._e2e_prev.get(name, (0, 0, 0, 0, 0))
+            n_id = st.received + st.malformed
+            now = (st.wrong_sequence, st.wrong_crc, st.repeated, st.malformed, st.used, n_id)
+            was = self._e2e_prev.get(name, (0, 0, 0, 0, 0, 0))
             self._e2e_prev[name] = now
             dd = [a - b for a, b in zip(now, was, strict=True)]
             what = ", ".join(f"{k} {v}" for k, v in zip(_E2E_KINDS, dd[:4], strict=True) if v)
             spec = self.profile.messages[name]
-            e2e.append((f"{name} (0x{spec.frame_id:X})", sum(dd[:4]), dd[4], what))
+            label = f"{name} (0x{spec.frame_id:X})"
+            e2e.append(E2EWindow(label, sum(dd[:4]), dd[4], what, dd[5], span_ns / spec.period_ns))
         cur += (n_input,)
         prev, self._window = self._window, cur
         if prev is None:
@@ -991,81 +1067,11 @@ class Service:
             return t_k, now
 
 
-def _resolved(fn: Any, *args: Any) -> Any:
-    """numba's compiled overload of ``fn`` for the types of ``args`` (compiled or loaded now), to be
-    called directly with arguments of exactly these types: no type dispatch per call (a few us on a
-    cold cache). ``fn`` itself when it is not a numba dispatcher."""
-    overloads = getattr(fn, "overloads", None)
-    if overloads is None:
-        return fn
-    fn(*args)
-    sig = tuple(fn.typeof_pyval(a) for a in args)
-    return overloads[sig].entry_point if sig in overloads else fn
-
-
-# a classic BPF program for python-can's udp_multicast bus (SO_ATTACH_FILTER, linux/filter.h)
-_SO_ATTACH_FILTER = 26
-_BPF_LD_B_ABS, _BPF_LD_H_ABS, _BPF_JEQ_K, _BPF_RET_K = 0x30, 0x28, 0x15, 0x06
-#: python-can's msgpack datagram (can.interfaces.udp_multicast.utils.pack_message): a map of 11 keys,
-#: "timestamp" as a float64, then "arbitration_id" and its value; offsets after the 8-byte UDP header
-#: (what a socket filter sees): (offset, byte) pairs that identify the layout, and the id's offset
-_UDP = 8
-_MSGPACK_MARKS = ((_UDP + 0, 0x8B), (_UDP + 11, 0xCB), (_UDP + 20, 0xAE))
-_MSGPACK_ID = _UDP + 35
-
-
-def _udp_multicast_program(ids: list[int]) -> bytes:
-    """Pass a datagram whose layout is not the expected one (python-can decodes and filters it), or
-    whose 11-bit id (encoded as msgpack uint16: ids 256..2047) is one of ``ids``; drop the others."""
-    ins: list[tuple[int, int, int, int]] = []
-    # each mark: load, jump to "accept" when it differs; then: uint16 marker, the id compare list
-    for off, byte in _MSGPACK_MARKS:
-        ins.append((_BPF_LD_B_ABS, 0, 0, off))
-        ins.append((_BPF_JEQ_K, 0, -1, byte))  # -1: patched to "accept"
-    ins.append((_BPF_LD_B_ABS, 0, 0, _MSGPACK_ID))
-    ins.append((_BPF_JEQ_K, 0, -2, 0xCD))  # -2: patched to "drop"
-    ins.append((_BPF_LD_H_ABS, 0, 0, _MSGPACK_ID + 1))
-    for i in ids:
-        ins.append((_BPF_JEQ_K, -1, 0, i))
-    ins.append((_BPF_RET_K, 0, 0, 0))  # drop
-    ins.append((_BPF_RET_K, 0, 0, 0xFFFFFFFF))  # accept
-    drop, accept = len(ins) - 2, len(ins) - 1
-    out = []
-    for pc, (code, jt, jf, k) in enumerate(ins):
-        jt = accept - pc - 1 if jt == -1 else jt
-        jf = accept - pc - 1 if jf == -1 else drop - pc - 1 if jf == -2 else jf
-        out.append(struct.pack("HBBI", code, jt, jf, k))
-    return b"".join(out)
-
-
 def set_input_filters(bus: can.BusABC, profile: Profile) -> str:
-    """Pass only the profile's input messages (11-bit ids) up from ``bus`` where the kernel can do it;
-    returns how. The service drops any other frame itself as well (:meth:`Service._take`).
-
-    SocketCAN: ``bus.set_filters`` installs kernel filters (CAN_RAW_FILTER), so other traffic never
-    wakes the service. python-can's ``udp_multicast``: a socket filter (classic BPF on the msgpack
-    datagram's id) drops the other frames in the kernel, the service's own outputs included (the
-    multicast loopback delivers them to its own socket). Elsewhere python-can would filter after
-    decoding, and its ``recv(0)`` returns None at the first frame it filters out, which would end a
-    drain with frames still queued: there the filters are left off and the service filters.
-    """
-    ids = sorted({m.frame_id for m in profile.messages.values()})
-    bus.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ids])
-    if getattr(bus, "_is_filtered", False):
-        return "kernel (SocketCAN filters)"
-    bus.set_filters(None)
-    mc = getattr(bus, "_multicast", None)
-    sock = getattr(mc, "_socket", None)
-    if isinstance(sock, socket.socket) and all(256 <= i <= 0x7FF for i in ids):
-        code = _udp_multicast_program(ids)
-        buf = ctypes.create_string_buffer(code, len(code))
-        prog = struct.pack("HL", len(code) // 8, ctypes.addressof(buf))
-        try:
-            sock.setsockopt(socket.SOL_SOCKET, _SO_ATTACH_FILTER, prog)
-            return "kernel (socket filter on udp_multicast)"
-        except OSError as exc:
-            log.info("udp_multicast: no socket filter (%s); the service filters", exc)
-    return "in the service"
+    """Pass only the profile's input messages (11-bit ids) up from ``bus`` where the kernel can do it
+    (:func:`lde.can.busio.receive_only`); returns how. The service drops any other frame itself as well
+    (:meth:`Service._take`)."""
+    return receive_only(bus, (m.frame_id for m in profile.messages.values()))
 
 
 def _open_bus_counter(bus: can.BusABC) -> int | None:
@@ -1088,16 +1094,3 @@ def _read_counter(fd: int | None) -> int:
         return int(os.pread(fd, 32, 0))
     except (OSError, ValueError):
         return -1
-
-
-def open_bus(**kwargs: Any) -> can.BusABC:
-    """Open a python-can bus the python-can way (arguments, environment, config file).
-
-    ``kwargs`` with value None are left out so that python-can's environment variables
-    (``CAN_INTERFACE``, ``CAN_CHANNEL``, ...) and config file fill them in.
-    """
-    kw = {k: v for k, v in kwargs.items() if v is not None}
-    try:
-        return can.Bus(**kw)
-    except (can.CanError, OSError, ValueError, ImportError, NotImplementedError) as exc:
-        raise BusError(f"cannot open CAN bus {kw or '(from python-can config)'}: {exc}") from exc

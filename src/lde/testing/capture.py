@@ -16,9 +16,9 @@ from typing import overload
 import can
 import numpy as np
 
-from lde.can.codec import MessageCodec, words_le
+from lde.can.codec import MessageCodec
 from lde.can.e2e import check_batch, read_counter_batch
-from lde.can.frames import seconds_to_ns
+from lde.can.frames import pack_payloads, seconds_to_ns
 from lde.can.profiles import MessageSpec, Profile
 from lde.errors import ConfigError
 
@@ -126,15 +126,11 @@ class FrameList(Sequence[Frame]):
         return self.t_ns / 1e9
 
     @cached_property
-    def _words(self) -> np.ndarray:
-        return words_le(np.ascontiguousarray(self.data, dtype=np.uint8))
-
-    @cached_property
     def _columns(self) -> dict[str, np.ndarray]:
         if self.codec is None:
             return {}
-        w = self._words
-        return {n: s.decode_batch(w) for n, s in self.codec.signals.items()}
+        d = np.ascontiguousarray(self.data, dtype=np.uint8)
+        return {n: s.decode_batch(d) for n, s in self.codec.signals.items()}
 
     def signal(self, name: str) -> np.ndarray:
         """One signal of every frame [DBC physical units] as a float array."""
@@ -212,13 +208,8 @@ class Capture:
 
     def _list(self, can_id: int, ts: list[int], raw: list[bytes]) -> FrameList:
         name, can_id, spec = self.resolve(can_id)
-        n = len(ts)
-        data = np.zeros((n, 8), np.uint8)
-        dlc = np.zeros(n, np.uint8)
-        for k, b in enumerate(raw):
-            m = min(len(b), 8)
-            data[k, :m] = np.frombuffer(b[:m], np.uint8)
-            dlc[k] = len(b)
+        data = pack_payloads(raw)
+        dlc = np.array([len(b) for b in raw], np.uint8)
         codec = None
         if spec is not None and name is not None:
             codec = self._codecs.get(name)

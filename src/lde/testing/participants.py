@@ -272,7 +272,8 @@ class BenchSimulator:
                     arbitration_id=int(frames.can_id[i]),
                     is_extended_id=bool(frames.is_extended[i]),
                     dlc=int(frames.dlc[i]),
-                    data=bytes(frames.data[i, : min(int(frames.dlc[i]), 8)]),
+                    data=bytes(frames.data[i, : int(frames.dlc[i])]),
+                    is_fd=int(frames.dlc[i]) > 8,
                 )
                 for i in range(k, j)
             ]
@@ -361,7 +362,9 @@ class BenchService:
             }
             if self.service.learned_start:
                 meta[LEARNED_START_KEY] = self.service.learned_start
-            self.recorder = self.service.recorder = Recorder(record, metadata=meta)
+            self.recorder = self.service.recorder = Recorder(
+                record, metadata=meta, frame_bytes=self.service.rx_width
+            )
         self.results: list[StepResult] = []
         self.task = bench.every(STEP_NS / 1e9, self._step, phase_s=phase_s, rank=Rank.SERVICE, name=name)
 

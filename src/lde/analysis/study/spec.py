@@ -27,7 +27,7 @@ OptionValue = float | int | str | bool
 OptionPairs = tuple[tuple[str, OptionValue], ...]
 
 
-class Estimator(str, enum.Enum):
+class Estimator(str, enum.Enum):  # noqa: UP042 - str() keeps the "Estimator.X" form
     """How a run estimates: the product in process, a prototype, or the CLI on a written log."""
 
     REPLAY = "replay"  #: lde.replay.replay.replay on the simulated frames (the product pipeline, in process)

@@ -61,7 +61,7 @@ HARD_SCENARIOS = ("rough_driver", "curve_800m", "speed_ramp")
 DEFECT_FRICTION_NM = 0.4
 
 
-class Mode(str, enum.Enum):
+class Mode(str, enum.Enum):  # noqa: UP042 - str() keeps the "Mode.X" form
     COLD = "cold"  #: `lde replay LOG` with only the spec-sheet file
     WARM = "warm"  #: after `lde replay PRIOR --learned S` on an earlier drive of the same car
 
