@@ -283,9 +283,10 @@ def run_first_drive(args: argparse.Namespace) -> int:
             raise ConfigError(f"{flag} does not apply to --first-drive (its drives and modes are fixed)")
     profiles = args.profiles or ((args.profile,) if args.profile else zoo.PROFILES)
     backends = args.backends or ((args.backend,) if args.backend else ("fixed",))
+    from lde.engine.backends import get_backend
+
     for b in backends:
-        if b not in BACKEND_CHOICES:
-            raise ConfigError(f"unknown backend {b!r} ({', '.join(BACKEND_CHOICES)})")
+        get_backend(b)  # ConfigError for an unknown or removed name
     out: Path = args.out
     specs = firstdrive.specs(
         plant_list=args.plants,

@@ -116,7 +116,7 @@ def params_vector(
     p[P_P0B], p[P_P0R], p[P_P0FA], p[P_P0MA], p[P_P0FB] = e.p0_beta, e.p0_yaw, e.p0_fw, e.p0_mw, e.p0_bank
     p[P_VMIN], p[P_CONV] = e.min_speed, e.converge_time
     p[P_XCP], p[P_WCP] = e.wind_cp, e.wind_cp_weight
-    p[P_QLO], p[P_QD0], p[P_QTAU], p[P_QHI] = 1.0, 0.05, 0.1, 20.0
+    p[P_QLO], p[P_QD0], p[P_QTAU], p[P_QHI] = 1.0, 1.0, 0.15, 1.0
     # the torque signals' scales to the reference unit (1: both in Nm; a profile that declares a
     # torque's scale unknown has it learned: lde.estimator.learner, L_TSCALE)
     p[P_KC], p[P_KA] = 1.0, 1.0

@@ -73,6 +73,7 @@ the learned-state thresholds too (their course over the first drive: scripts/lea
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 
 import numpy as np
 from numba import njit
@@ -105,10 +106,12 @@ N_SIG = 7
  L_LEARNED_REL, L_MIN_SAMPLES, L_SIG_B, L_ENABLE, L_RELAX, L_EXC_SW, L_SLIDE, L_SLOW,
  L_QUIET, L_EXC_F, L_SIG_CTB, L_SIGMA0, L_WIND_MAX, L_WIND_REL, L_WIND_SIG,
  L_WIND_Q, L_EXC_SW3, L_R3_ACC, L_EXC_SW2, L_EXC_F2, L_WIND_MAX2, L_R2_UPQ,
- L_LEARNED_ST, L_LEARNED_SCR, L_TSCALE) = range(48)  # fmt: skip
-N_LP = 48
+ L_LEARNED_ST, L_LEARNED_SCR, L_TSCALE, L_SCALE_SD) = range(49)  # fmt: skip
+N_LP = 49
 
-#: L_TSCALE: which torque scale is learned (TS_KNOWN: both torques in Nm)
+#: L_TSCALE: which torque's scale is learned. TS_KNOWN: both torques in Nm; TS_ASSIST: the assist's
+#: factor to the column torque (in Nm); TS_COLUMN: the column's to the assist (in Nm); TS_BOTH: the
+#: assist's to the column signal, whose own unit stays unknown (K, the friction, the twist in it)
 TS_KNOWN, TS_ASSIST, TS_COLUMN, TS_BOTH = 0, 1, 2, 3
 
 # --- learner state (ls, float) -----------------------------------------------------------------------
@@ -245,12 +248,15 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     lp[L_R2_UPQ] = 3.0e3
     # "learned" by the regressions' own uncertainty instead of a sample count: the posterior relative
     # std of the trail (R1) and of Cr (R2) below these, R2 running; 0: by L_MIN_SAMPLES
-    lp[L_LEARNED_ST] = 0.05
-    lp[L_LEARNED_SCR] = 0.08
+    lp[L_LEARNED_ST] = 0.0
+    lp[L_LEARNED_SCR] = 0.0
     # torque signals of unknown scale (TS_*): the assist's scale relative to the column's (TS_ASSIST,
     # TS_BOTH: K then in the column signal's unit) or the column's relative to the assist's
     # (TS_COLUMN). R3's tire-lag slot then carries the second torque's own rate coefficient
     lp[L_TSCALE] = TS_KNOWN
+    # a torque factor of unknown scale counts as learned once its posterior relative std is under this
+    # (the overlay waits for it: lde.engine.engine.Engine.overlay_allowed)
+    lp[L_SCALE_SD] = 0.05
     return lp
 
 
@@ -653,28 +659,34 @@ def push(lp, ls, p):  # pragma: no cover - compiled
         tfric = p[E.P_TFRIC]
     p[E.P_S] = min(max(s, 0.95), 1.25)
     ts = lp[L_TSCALE]
-    k_lo, k_hi, t_lo, t_hi, k_rate = 2000.0, 20000.0, 0.04, 0.25, rate
+    k_rate = rate
     if ts != TS_KNOWN:
         # the other torque's factor to the reference k = theta_2 / theta_1 (bounded 0.01..100, moving up
-        # to 20 % per push until learned); with both scales unknown K and the trail are in the column
-        # signal's unit: no physical bounds for them
-        if n_exc >= 0.15 * lp[L_MIN_SAMPLES] and ls[LS_T3 + 1] > 0 and ls[LS_T3 + 2] > 0:
+        # to 20 % per push until learned). With both scales unknown the overall scale is not
+        # identifiable (it is K's): the aligning torque's unit is chosen so that K keeps its prior
+        # (the vehicle file's), and both factors are learned in it, k_c = K theta_1 / s and
+        # k_a = K theta_2 / s (their ratio is what the data determine); the friction is then
+        # 2 K theta_3 / (s N) in that unit
+        th1, th2 = ls[LS_T3 + 1], ls[LS_T3 + 2]
+        if n_exc >= 0.15 * lp[L_MIN_SAMPLES] and th1 > 0 and th2 > 0:
             kr = 0.2 if ls[LS_STATE] != ST_LEARNED else rate
-            old = p[E.P_KC] if ts == TS_COLUMN else p[E.P_KA]
-            new = _lim(ls[LS_T3 + 2] / ls[LS_T3 + 1], old, kr, 0.01, 100.0)
-            if ts == TS_COLUMN:
-                p[E.P_KC] = new
+            if ts == TS_BOTH:
+                p[E.P_KC] = _lim(p[E.P_K] * th1 / p[E.P_S], p[E.P_KC], kr, 1e-4, 1e4)
+                p[E.P_KA] = _lim(p[E.P_K] * th2 / p[E.P_S], p[E.P_KA], kr, 1e-4, 1e4)
+                tfric = 2.0 * p[E.P_K] * ls[LS_T3 + 3] / (p[E.P_S] * n)
+            elif ts == TS_COLUMN:
+                p[E.P_KC] = _lim(th2 / th1, p[E.P_KC], kr, 0.01, 100.0)
             else:
-                p[E.P_KA] = new
+                p[E.P_KA] = _lim(th2 / th1, p[E.P_KA], kr, 0.01, 100.0)
         if ts == TS_BOTH:
-            k_lo, k_hi, t_lo, t_hi = 1e-9, 1e12, 1e-12, 1e9
+            k = p[E.P_K]
         if ls[LS_STATE] != ST_LEARNED:
             k_rate = 0.2
     k_old = p[E.P_K]
-    p[E.P_K] = _lim(k, p[E.P_K], k_rate, k_lo, k_hi)
+    p[E.P_K] = _lim(k, p[E.P_K], k_rate, 2000.0, 20000.0)
     t_old = p[E.P_K] / p[E.P_CF]
     t_new = min(max(t, t_old * (1.0 - k_rate)), t_old * (1.0 + k_rate))
-    t_new = min(max(t_new, t_lo), t_hi)
+    t_new = min(max(t_new, 0.04), 0.25)
     if lp[L_R2_UPQ] > 0.0:  # R2's samples on the K and trail it had (lp[L_R2_UPQ], default_lp)
         dk = p[E.P_K] / k_old - 1.0
         dt = t_new / (k_old / p[E.P_CF]) - 1.0
@@ -695,7 +707,7 @@ def push(lp, ls, p):  # pragma: no cover - compiled
         sd_t = math.sqrt(max(ls[LS_P1], 0.0)) / max(abs(ls[LS_T1]), 1e-9)
         sd_cr = math.sqrt(max(ls[LS_P2], 0.0)) / max(abs(ls[LS_T2]), 1e-9)
         r2_on = ls[LS_N + 2] > 0.15 * lp[L_MIN_SAMPLES]
-        scale_ok = ts == TS_KNOWN or scale_sd(ls) < lp[L_LEARNED_ST]
+        scale_ok = ts == TS_KNOWN or scale_sd(ls) < lp[L_SCALE_SD]
         if ls[LS_N] <= 0:
             ls[LS_STATE] = ST_NOT
         elif r2_on and scale_ok and sd_t < lp[L_LEARNED_ST] and sd_cr < lp[L_LEARNED_SCR]:
@@ -704,15 +716,45 @@ def push(lp, ls, p):  # pragma: no cover - compiled
             ls[LS_STATE] = ST_LEARNING
     elif ls[LS_N] <= 0:
         ls[LS_STATE] = ST_NOT
-    elif ls[LS_N] < lp[L_MIN_SAMPLES]:
-        ls[LS_STATE] = ST_LEARNING
+    elif ls[LS_N] < lp[L_MIN_SAMPLES] or (ts != TS_KNOWN and not scale_sd(ls) < lp[L_SCALE_SD]):
+        ls[LS_STATE] = ST_LEARNING  # (a torque of unknown scale: its factor not yet known well enough)
     else:
         ls[LS_STATE] = ST_LEARNED
 
 
-def learner_params(vehicle: Vehicle, angle_above_torsion_bar: bool) -> np.ndarray:
-    """The learner's constants for a vehicle and a profile."""
-    return default_lp(torsion=angle_above_torsion_bar, enable=vehicle.learning.enabled > 0.0)
+def learner_params(vehicle: Vehicle, angle_above_torsion_bar: bool, torque_scale: int = TS_KNOWN) -> np.ndarray:
+    """The learner's constants for a vehicle and a profile (``torque_scale``: :func:`torque_scale_mode`)."""
+    lp = default_lp(torsion=angle_above_torsion_bar, enable=vehicle.learning.enabled > 0.0)
+    lp[L_TSCALE] = torque_scale
+    return lp
+
+
+def torque_scale_mode(unknown: Collection[str]) -> int:
+    """The ``TS_*`` mode for a profile whose inputs ``unknown`` (names) have an unknown scale."""
+    col, ast = "column_torque" in unknown, "assist_torque" in unknown
+    if col and ast:
+        return TS_BOTH
+    if col:
+        return TS_COLUMN
+    return TS_ASSIST if ast else TS_KNOWN
+
+
+def torque_scales(p: np.ndarray, lp: np.ndarray, ls: np.ndarray) -> str:
+    """What the learner holds about torques of unknown scale, one phrase (empty when both are in Nm):
+    the learned factor, its posterior relative std, and the unit K and Fw/Mw are in."""
+    ts = int(lp[L_TSCALE])
+    if ts == TS_KNOWN:
+        return ""
+    sd = 100.0 * float(scale_sd(ls))
+    sd_text = f"+-{sd:.0f} %" if math.isfinite(sd) else "not yet estimated"
+    if ts == TS_COLUMN:
+        return f"column torque {p[E.P_KC]:.4g} Nm per unit ({sd_text}); K, friction in Nm"
+    if ts == TS_ASSIST:
+        return f"assist torque {p[E.P_KA]:.4g} Nm per unit ({sd_text}); K, friction in Nm"
+    return (
+        f"assist torque {p[E.P_KA]:.4g} column units per unit ({sd_text}); K, friction in column units "
+        "(their scale to Nm is not identifiable)"
+    )
 
 
 def tire_state(ls: np.ndarray) -> int:
