@@ -65,7 +65,9 @@ def test_specs_are_a_cold_first_drive_and_warm_light_runs_with_the_rack_friction
     assert len(first) == 4 and all(not s.est_options.learned_prior for s in first)
     light = [s for s in specs if s.scenario != "first_drive"]
     assert all(s.est_options.learned_prior == "prior_drive" for s in light)
-    assert sorted(s.sim_options.friction_Nm for s in light if s.sim_options.friction_Nm) == [0.4] * 4 + [0.8] * 4
+    assert (
+        sorted(s.sim_options.friction_Nm for s in light if s.sim_options.friction_Nm) == [0.4] * 4 + [0.8] * 4
+    )
     assert all(s.seed == 3 and s.estimator == "cli" and s.est_vehicle == "spec-sheet" for s in specs)
     with pytest.raises(ConfigError, match="no_such"):
         firstdrive.specs(["no_such"])
@@ -105,12 +107,17 @@ def test_rows_hold_each_figure_beside_its_target():
     assert "| warm, no disturbance (RMS of the estimate) | <= 10 N / 4 Nm | 9.0 N / 4.5 Nm (0/1 met) |" in md
     assert "learned at 95.0 s (0/1 met)" in md
     per_minute = firstdrive.minutes_markdown(list(rows.values()))
-    assert "| indep_twin | lde | 0 | 95 | 20.0 / 30.0 (80 N) | 4.0 / 6.0 (12 N) | 2.0 / 3.0 (9 N) |" in per_minute
+    assert (
+        "| indep_twin | lde | 0 | 95 | 20.0 / 30.0 (80 N) | 4.0 / 6.0 (12 N) | 2.0 / 3.0 (9 N) |"
+        in per_minute
+    )
 
 
 @pytest.mark.parametrize("flag", [["--scenarios", "wind_step"], ["--warm"], ["--prior", "slalom"]])
 def test_first_drive_refuses_options_that_select_other_drives(capsys, tmp_path, flag):
-    code = main(["evaluate", "--zoo", "--first-drive", "--plants", "indep_twin", "--out", str(tmp_path), *flag])
+    code = main(
+        ["evaluate", "--zoo", "--first-drive", "--plants", "indep_twin", "--out", str(tmp_path), *flag]
+    )
     assert code == 2
     assert "does not apply to --first-drive" in capsys.readouterr().err
 
@@ -121,7 +128,9 @@ def test_lde_evaluate_zoo_first_drive_end_to_end(tmp_path, capsys):
     argv = ["evaluate", "--zoo", "--first-drive", "--plants", "compact_quick", "--profiles", "lde"]
     argv += ["--duration", "190", "--workers", "0", "--out", str(out), "--no-progress"]
     assert main(argv) == 0
-    assert "| first drive, minutes 2-10 and each minute | <= 5 %, learned <= 120 s |" in capsys.readouterr().out
+    assert (
+        "| first drive, minutes 2-10 and each minute | <= 5 %, learned <= 120 s |" in capsys.readouterr().out
+    )
     rows = list(csv.DictReader((out / "first_drive.csv").open()))
     assert len(rows) == 1 + len(firstdrive.LIGHT_RUNS) and all(r["error"] == "" for r in rows)
     first = rows[0]

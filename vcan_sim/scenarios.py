@@ -562,10 +562,16 @@ def first_drive() -> Scenario:
     return Scenario(
         "first_drive",
         "10 min motorway first drive: lane changes every 18-32 s, a slalom, two gentle curves, a "
-        "crosswind episode in every minute (2-14 m/s, both sides), gusts, banks coming and going, 90-120 km/h",
+        "crosswind episode in every minute (2-14 m/s, both sides), gusts, banks coming and going, "
+        "90-120 km/h",
         duration=duration,
         speed_kmh=100.0,
-        speed_steps=(Step(90.0, 15.0, 120.0), Step(250.0, 15.0, 90.0), Step(400.0, 15.0, 110.0), Step(520.0, 10.0, 100.0)),
+        speed_steps=(
+            Step(90.0, 15.0, 120.0),
+            Step(250.0, 15.0, 90.0),
+            Step(400.0, 15.0, 110.0),
+            Step(520.0, 10.0, 100.0),
+        ),
         # m/s, positive: from the right (air toward the left); negative: from the left
         wind_speed=(
             Step(20.0, 2.0, 3.0),

@@ -58,9 +58,9 @@ from lde.engine.loop import (
 from lde.engine.receiver import N_INPUTS, RxState, RxTables
 from lde.errors import ConfigError
 from lde.estimator import lateral as E
+from lde.estimator import learner as Ln
 from lde.estimator.conditioning import check_profile
 from lde.estimator.learned import LearnedSnapshot, LearnedState, load_learned, parse_learned, save_snapshot
-from lde.estimator import learner as Ln
 from lde.estimator.learner import tire_state
 from lde.estimator.outputs import (
     N_OUT,
@@ -74,7 +74,13 @@ from lde.estimator.outputs import (
     O_T_ALIGN,
     O_YAW,
 )
-from lde.estimator.overlay import ALLOWED_ALWAYS, ALLOWED_NEVER, ALLOWED_ONCE_LEARNED, limiter_params, new_limiter_state
+from lde.estimator.overlay import (
+    ALLOWED_ALWAYS,
+    ALLOWED_NEVER,
+    ALLOWED_ONCE_LEARNED,
+    limiter_params,
+    new_limiter_state,
+)
 from lde.params import Vehicle
 from lde.units import STEP_S
 

@@ -68,8 +68,8 @@ from lde.engine.receiver import (
     rx_msg_of,
     rx_sample,
 )
-from lde.estimator.outputs import O_BANK, O_FW, O_FW_WIND, O_GAIN, O_LEARN, O_MW, O_MW_WIND, O_T_ALIGN
 from lde.estimator.learner import ST_LEARNED
+from lde.estimator.outputs import O_BANK, O_FW, O_FW_WIND, O_GAIN, O_LEARN, O_MW, O_MW_WIND, O_T_ALIGN
 from lde.estimator.overlay import ALLOWED_ONCE_LEARNED, LP_ALLOWED, LP_GAIN, LS_STATE, overlay_kernel
 from lde.status import DEGRADED, VALID
 from lde.units import DEG

@@ -275,14 +275,18 @@ def parse_learned(text: str, source: str, profile: str, p: np.ndarray, lp: np.nd
     got = {"cf": cf, "cr": cr, "k": k, "s": s}
     # with both torques of unknown scale K is in the column signal's unit: no bound in Nm applies
     free_k = lp[Ln.L_TSCALE] == Ln.TS_BOTH
-    bad = [n for n, (lo, hi) in Ln.PLAUSIBLE.items() if not (lo <= got[n] <= hi) and not (free_k and n == "k")]
+    bad = [
+        n for n, (lo, hi) in Ln.PLAUSIBLE.items() if not (lo <= got[n] <= hi) and not (free_k and n == "k")
+    ]
     if bad or not (kc > 0.0 and ka > 0.0):
         raise ConfigError(
-            f"{source}: implausible values (cf {cf:g}, cr {cr:g}, K {k:g}, s {s:g}, torque scales {kc:g}, {ka:g})"
+            f"{source}: implausible values (cf {cf:g}, cr {cr:g}, K {k:g}, s {s:g}, "
+            f"torque scales {kc:g}, {ka:g})"
         )
     if lp[Ln.L_TSCALE] == Ln.TS_KNOWN and (kc, ka) != (1.0, 1.0):
         raise ConfigError(
-            f"{source}: learned with torques of unknown scale (factors {kc:g}, {ka:g}); this profile's are in Nm"
+            f"{source}: learned with torques of unknown scale (factors {kc:g}, {ka:g}); "
+            "this profile's are in Nm"
         )
     p[E.P_CF], p[E.P_CR], p[E.P_K], p[E.P_S] = cf, cr, k, s
     p[E.P_KC], p[E.P_KA] = kc, ka

@@ -57,17 +57,20 @@ Offsets (not identifiable from a steady state: a steady crosswind looks like the
   leak only).
 
 Learned state of the tire group (``ST_*``): not learned (prior only), learning (after 150 excited
-samples the values are pushed), learned (the posterior relative std of the trail and of Cr under
-``L_LEARNED_ST`` / ``L_LEARNED_SCR``, R2 running, and a torque factor of unknown scale known as
-well). After 1000 excited samples (~16 s of manoeuvres) the regressions learn 1000x slower in
-variance: a car is not re-learned by the next drive's disturbances.
+samples the values are pushed), learned (after 1000 excited samples, ~16 s of manoeuvres, and with a
+torque of unknown scale its factor's posterior relative std under ``L_SCALE_SD``; it then learns
+1000x slower in variance: a learned car is not re-learned by the next drive's disturbances). Off by
+default: "learned" by the regressions' own uncertainty instead of the sample count (``L_LEARNED_ST``,
+``L_LEARNED_SCR``).
 
-Torques of unknown scale (``L_TSCALE``): the aligning torque is ``N (k_c T_col + k_a T_ast)`` with
-the unknown torque's factor learned relative to the other in R3 (the tire-lag slot then holds the
-second torque's rate coefficient ``s k / K``); R3 learns without the disturbance-quiet gate until the
-factor is known (the filter's wind needs the scale).
-Constants tuned on zoo plants indep_twin, tires_minus25, suv_slow, angle_above_tb (docs/estimator.md),
-the learned-state thresholds too (their course over the first drive: scripts/learn_trace.py).
+Torques of unknown scale (``L_TSCALE``, from the profile: :func:`torque_scale_mode`): the aligning
+torque is ``N (k_c T_col + k_a T_ast)``. With one torque of unknown scale its factor to the other
+(in Nm) is learned in R3, whose tire-lag slot then holds the second torque's own rate coefficient
+``s k / K``; with both unknown the overall scale is K's and not identifiable, so K keeps its prior and
+both factors are learned in that unit. R3 learns without the disturbance-quiet gate until the state
+is "learned" (the filter's wind estimate needs the scale), and nothing else is pushed before R3 has
+its samples. Fw and Mw keep N and Nm (the torque enters the filter only through ``T / 2K``).
+Constants tuned on zoo plants indep_twin, tires_minus25, suv_slow, angle_above_tb (docs/design/filters.md).
 """
 
 from __future__ import annotations
@@ -722,7 +725,9 @@ def push(lp, ls, p):  # pragma: no cover - compiled
         ls[LS_STATE] = ST_LEARNED
 
 
-def learner_params(vehicle: Vehicle, angle_above_torsion_bar: bool, torque_scale: int = TS_KNOWN) -> np.ndarray:
+def learner_params(
+    vehicle: Vehicle, angle_above_torsion_bar: bool, torque_scale: int = TS_KNOWN
+) -> np.ndarray:
     """The learner's constants for a vehicle and a profile (``torque_scale``: :func:`torque_scale_mode`)."""
     lp = default_lp(torsion=angle_above_torsion_bar, enable=vehicle.learning.enabled > 0.0)
     lp[L_TSCALE] = torque_scale

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from lde.analysis import metrics
@@ -24,6 +25,8 @@ from lde.analysis.study.zoo import PRIOR_SCENARIO, check_selection, plants
 
 #: the first drive (cold, scored per minute)
 FIRST_DRIVE = "first_drive"
+#: the zoo plants the learner's constants were tuned on (docs/design/studies.md); the others are held out
+TUNING_PLANTS = ("indep_twin", "tires_minus25", "suv_slow", "angle_above_tb")
 #: warm light loads: scenario, rack friction at the column [Nm] (None: the plant's own)
 LIGHT_RUNS: tuple[tuple[str, float | None], ...] = (
     ("light_crosswind", None),
@@ -198,7 +201,8 @@ def summary_markdown(table: Sequence[dict[str, Any]]) -> str:
         goal = (
             f"<= {t.max_rms_fw:g} N / {t.max_rms_mw:g} Nm"
             if math.isfinite(t.max_rms_fw)
-            else f"<= {100 * t.max_nrmse:g} %" + (f", learned <= {t.learned_s:g} s" if case == "first" else "")
+            else f"<= {100 * t.max_nrmse:g} %"
+            + (f", learned <= {t.learned_s:g} s" if case == "first" else "")
         )
         cells = []
         for p in profiles:
@@ -243,3 +247,28 @@ def minutes_markdown(table: Sequence[dict[str, Any]]) -> str:
             f"{'never' if not math.isfinite(learned) else f'{learned:.0f}'} | " + " | ".join(cells) + " |"
         )
     return "\n".join(lines)
+
+
+def read_rows(path: Path) -> list[dict[str, Any]]:
+    """The rows of an ``lde evaluate --zoo --first-drive`` CSV (``first_drive.csv``), typed as
+    :func:`rows` makes them (empty cells: NaN), so that runs of several commands (plant batches,
+    seeds) make one table with :func:`summary_markdown` and :func:`minutes_markdown`."""
+    import csv
+
+    out: list[dict[str, Any]] = []
+    with Path(path).open(newline="") as fh:
+        for raw in csv.DictReader(fh):
+            row: dict[str, Any] = {}
+            for k, v in raw.items():
+                if k in ("plant", "profile", "backend", "case", "scenario", "error", "target"):
+                    row[k] = v
+                elif k == "seed":
+                    row[k] = int(v)
+                elif k == "met":
+                    row[k] = v == "True"
+                elif k == "friction_Nm":
+                    row[k] = float(v) if v else None
+                else:
+                    row[k] = float(v) if v else math.nan
+            out.append(row)
+    return out

@@ -16,7 +16,8 @@
 - ``Params`` and ``State``: NamedTuples of numpy arrays (units in their field comments): what the
   step reads, and what it changes. They are made by ``make(vehicle, dt, angle_above_torsion_bar,
   torque_scale)`` (``torque_scale``: which torque's scale a learning backend learns,
-  :func:`lde.estimator.learner.torque_scale_mode`; 0: both in Nm) and owned by the engine; the compiled loop (:mod:`lde.engine.loop`) passes them to the step.
+  :func:`lde.estimator.learner.torque_scale_mode`; 0: both in Nm) and owned by the engine; the
+  compiled loop (:mod:`lde.engine.loop`) passes them to the step.
 - ``step(params, state, t_ns, inputs, fresh, mdps_ok, esc_ok, out) -> status``: the compiled step
   (:func:`lde.engine.loop.backend_step` says what the arguments are; ``out`` is a row of
   :mod:`lde.estimator.outputs`).
