@@ -96,10 +96,12 @@ def test_after_a_stall_the_schedule_moves_instead_of_a_burst():
     assert st.slips >= 1
     assert 0.09 < st.slipped_s < 0.5
     assert st.max_late_s <= MAX_LAG_S
-    gaps = np.diff(bus.sent[21:])  # from the first frame after the stall
-    # a burst would send the ~25 frames of the stall within a few ms; paced, at most a few of the
-    # 59 gaps are short (a shared machine may wake the pump late now and then)
-    assert np.count_nonzero(gaps < 1e-3) <= 5, np.round(gaps * 1e3, 2)
+    after = np.asarray(bus.sent[21:])  # from the first frame after the stall
+    # a burst would send the ~25 frames the stall held back within a few ms, so the 59 frames after it
+    # would span about 34 periods; paced, they span 59 periods or more. A loaded machine that wakes the
+    # pump late only stretches the span (its late frames then leave back to back), never shortens it.
+    span = after[-1] - after[0]
+    assert span >= 0.9 * (after.size - 1) * STEP_NS * 1e-9, np.round(np.diff(after) * 1e3, 2)
     assert st.wall_s > 80 * STEP_NS * 1e-9 + 0.09  # the traffic ended that much later
 
 

@@ -48,7 +48,7 @@ PROFILE_HELP = (
 )
 
 #: subcommand name -> module below lde.cli. A module that does not exist yet is skipped.
-SUBCOMMANDS = ("demo", "run", "sim", "replay", "evaluate", "study", "calibrate", "warmup")
+SUBCOMMANDS = ("demo", "run", "sim", "replay", "inspect", "evaluate", "study", "calibrate", "warmup")
 
 
 def _version() -> str:

@@ -41,6 +41,7 @@ from lde.can.watch import describe_ids
 from lde.engine.backends import DEFAULT_BACKEND, get_backend
 from lde.engine.engine import OUTPUT_MESSAGES, Engine, StepBlock, recorded_steps
 from lde.engine.grid import MAX_GAP_NS, InputGrid
+from lde.engine.receiver import I_SPEED
 from lde.errors import ConfigError, LogFormatError, OutputError
 from lde.io import (
     CHUNK_FRAMES,
@@ -69,7 +70,7 @@ from lde.params import Vehicle
 from lde.replay.columns import CSV_COLUMNS, SMOOTHED, STATUS_COLUMNS, csv_columns
 from lde.replay.smoother import NS, S_BANK, SmoothTrack, check_backend, smooth_run
 from lde.status import DEADLINE_MISS, STATUS_BITS, VALID
-from lde.units import STEP_NS
+from lde.units import KMH, STEP_NS
 
 __all__ = [
     "ReplayResult",
@@ -154,6 +155,8 @@ class ReplayResult:
         diag: per step ``frames_used`` (input frames accepted since the previous step) and
             ``e2e_rejects`` (frames rejected since the start), as the live ``LDE_Diag``.
         profile: the CAN profile used; profile_origin: ``"given"``, ``"recording"`` or ``"default"``.
+        max_speed: the highest fresh speed input at any step [m/s] (None: never fresh);
+        min_speed: the model's minimum speed [m/s] (below it no estimate is valid).
     """
 
     block: StepBlock
@@ -178,6 +181,8 @@ class ReplayResult:
     #: with ``smooth``: the RTS smoother's outputs per step (n, :data:`lde.replay.smoother.NS`; SI, the
     #: bank in rad; :data:`lde.replay.smoother.SMOOTHED` order), else None
     smooth: np.ndarray | None = None
+    max_speed: float | None = None
+    min_speed: float = 0.0
 
     @classmethod
     def of(cls, block: StepBlock, frames: FrameCounts, backend: str, **kw: Any) -> ReplayResult:
@@ -254,7 +259,7 @@ class ReplaySummary:
     Attributes:
         steps: rows produced; valid_steps: rows with the VALID bit; segments: runs of steps without a
             gap longer than :data:`lde.engine.grid.MAX_GAP_NS`; frames: frame counts; backend; recorded_steps;
-            timings [s]; profile, profile_origin (as :class:`ReplayResult`).
+            timings [s]; profile, profile_origin, max_speed, min_speed (as :class:`ReplayResult`).
     """
 
     steps: int
@@ -273,6 +278,8 @@ class ReplaySummary:
     #: the replay was stopped (``stop``) before the end of the log; its rows so far went to the sinks
     stopped: bool = False
     last_step_ns: int | None = None  # the time of the last row [ns]
+    max_speed: float | None = None  # the highest fresh speed input at any step [m/s]
+    min_speed: float = 0.0  # the model's minimum speed [m/s]
 
     def __len__(self) -> int:
         return self.steps
@@ -363,6 +370,7 @@ def run_replay(
     last_rx: int | None = None
     steps = valid = gaps = 0
     last_t: int | None = None
+    max_speed: float | None = None
     t_sinks = 0.0
     first = True
     stopped = False
@@ -397,6 +405,10 @@ def run_replay(
             if m:
                 steps += m
                 valid += int(np.count_nonzero(block.status & VALID))
+                fresh = (block.valid_mask >> I_SPEED) & 1 != 0
+                if np.any(fresh):
+                    top = float(np.max(block.inputs[fresh, I_SPEED]))
+                    max_speed = top if max_speed is None else max(max_speed, top)
                 t = block.t_ns
                 gaps += int(np.count_nonzero(np.diff(t) > MAX_GAP_NS))
                 if last_t is not None and int(t[0]) - last_t > MAX_GAP_NS:
@@ -444,6 +456,8 @@ def run_replay(
         input_gaps=input_gaps,
         stopped=stopped,
         last_step_ns=last_t,
+        max_speed=max_speed,
+        min_speed=vehicle.estimator.min_speed,
     )
 
 
@@ -511,7 +525,13 @@ def replay(
     )
     block = StepBlock.concat(blocks) if len(blocks) != 1 else blocks[0]
     res = ReplayResult.of(
-        block, summary.frames, summary.backend, recorded_steps=summary.recorded_steps, timings=summary.timings
+        block,
+        summary.frames,
+        summary.backend,
+        recorded_steps=summary.recorded_steps,
+        timings=summary.timings,
+        max_speed=summary.max_speed,
+        min_speed=summary.min_speed,
     )
     if smoothed is not None:
         if not np.array_equal(t_s, block.t_ns):
@@ -605,8 +625,10 @@ def recorded_profile(log: LogData | LogStream) -> str | None:
 
 def no_valid_note(res: ReplayResult | ReplaySummary) -> str | None:
     """A one-line explanation when a replay has not one VALID estimate (no step, or steps that all
-    stayed invalid: most often the wrong CAN profile; the missing input messages are named with the
-    ids the log has and the profile they fit, :mod:`lde.can.watch`), else None."""
+    stayed invalid), else None: the missing input messages, named with the ids the log has and the
+    profile they fit (:mod:`lde.can.watch`); a car that never reached the model's minimum speed (a
+    standing car: the profile is right, the estimator has nothing to estimate); else most often
+    the wrong CAN profile."""
     if isinstance(res, ReplaySummary):
         if res.valid_steps:
             return None
@@ -630,6 +652,11 @@ def no_valid_note(res: ReplayResult | ReplaySummary) -> str | None:
                 f"no valid estimate: no frame of {', '.join(missing)} in the log (profile"
                 f" {res.profile.name}, {_ORIGIN.get(res.profile_origin, res.profile_origin)}){ids}"
             )
+    if m is not None and m.used and res.max_speed is not None and res.max_speed < res.min_speed:
+        return (
+            f"no valid estimate: below the minimum speed of {res.min_speed / KMH:.0f} km/h for the whole log"
+            f" (highest {res.max_speed / KMH:.1f} km/h): the estimator needs the car moving"
+        )
     if m is None or m.received == 0:
         why = f"no {anchor or 'MDPS'} frames of this profile in the log"
     elif m.used == 0:
@@ -842,7 +869,13 @@ def replay_log(
         log = LogData(stream.path, stream.format, frames, stream.stats, mcap=_mcap_data(stream.mcap, frames))
     block = StepBlock.concat(blocks) if len(blocks) != 1 else blocks[0]
     res = ReplayResult.of(
-        block, summary.frames, summary.backend, recorded_steps=summary.recorded_steps, timings=summary.timings
+        block,
+        summary.frames,
+        summary.backend,
+        recorded_steps=summary.recorded_steps,
+        timings=summary.timings,
+        max_speed=summary.max_speed,
+        min_speed=summary.min_speed,
     )
     res.timings["open"] = li.read_s
     res.profile, res.profile_origin = li.profile, li.profile_origin
