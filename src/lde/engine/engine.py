@@ -502,7 +502,8 @@ class Engine:
                 if self.overlay_allowed == ALLOWED_NEVER
                 else "overlay off until learned"
             )
-            text += f"; torques of unknown scale: {scales}; Fw, Mw in N, Nm; {overlay}"
+            text += f"; torques of unknown scale: {scales}; Fw, Mw in N, Nm as far as these are right"
+            text += f"; {overlay}"
         return text
 
     def stats(self) -> dict[str, ReceiverStats]:
