@@ -76,10 +76,11 @@ def _slots(*r: int) -> tuple[np.int64, ...]:
     return tuple(np.int64(k) for k in range(*r))
 
 
-(CS_NT, CS_NTF, CS_CTB, CS_IFW, CS_A1, CS_A2, CS_DT, CS_BANK) = _slots(
-    6 * LC.N_K, 6 * LC.N_K + 16, 2
-)  # (raw, frac) pairs: N/s_T, N T_fric/s_T, c_tb, 1/w_fric, dt W^2, 2 Z W dt, dt, 2**e_FB/(m g)
-_S = 6 * LC.N_K + 16
+(CS_NT, CS_NTF, CS_CTB, CS_IFW, CS_A1, CS_A2, CS_DT, CS_BANK, CS_NTA) = _slots(
+    6 * LC.N_K, 6 * LC.N_K + 18, 2
+)  # (raw, frac) pairs: N k_c/s_T, N T_fric/s_T, c_tb, 1/w_fric, dt W^2, 2 Z W dt, dt, 2**e_FB/(m g),
+#    N k_a/s_T (k_c, k_a: the torque signals' factors to the aligning torque's unit, 1 in Nm)
+_S = 6 * LC.N_K + 18
 (CS_T0, CS_BR, CS_DSW, CS_RN_R, CS_RN_T, CS_RN_A) = _slots(_S, _S + 6)
 CS_QD = _S + 6  # 5 slots
 CS_P0 = _S + 11  # 5 slots
@@ -355,7 +356,7 @@ def coef_set_kernel(p, tv, cs):  # pragma: no cover - compiled
     s_t = 2.0 ** tv[T_E_T]
     n, dt = p[E.P_N], p[E.P_DT]
     consts = (
-        (CS_NT, n / s_t, fs - tv[T_F_TORQUE]),
+        (CS_NT, n * p[E.P_KC] / s_t, fs - tv[T_F_TORQUE]),
         (CS_NTF, n * p[E.P_TFRIC] / s_t, fs - fz),
         (CS_CTB, p[E.P_CTB], fst - tv[T_F_TORQUE]),
         (CS_IFW, 1.0 / p[E.P_FW], tv[T_F_U] - fr),
@@ -363,6 +364,7 @@ def coef_set_kernel(p, tv, cs):  # pragma: no cover - compiled
         (CS_A2, 2.0 * E.SVF_Z * E.SVF_W * dt, 0),
         (CS_DT, dt, fst - fr),
         (CS_BANK, 2.0 ** tv[T_E_FB] / (p[E.P_M] * p[E.P_G]), fz - fs),
+        (CS_NTA, n * p[E.P_KA] / s_t, fs - tv[T_F_TORQUE]),
     )
     for slot, value, f_min in consts:
         raw, f, hit = _const(value, f_min)
@@ -645,10 +647,15 @@ def step_kernel(
         # literal argument set (about 0.5 s each on a cold start)
         _update(tv, ft, x, P, sat, h, bool(True), z, int(0), cs[CS_RN_R], ph, g)  # noqa: UP018
     if fresh_t and mdps_valid:
-        # N (T_col + T_ast) - N T_fric z - T_0 = 2K (delta_f - beta - lf r / vx), scaled by 2**-e_T
-        tsum = sat32(sat, tcol + tas, S_IN_TORQUE)
+        # N (k_c T_col + k_a T_ast) - N T_fric z - T_0 = 2K (delta_f - beta - lf r / vx), scaled by
+        # 2**-e_T; with equal factors (both torques in Nm) one product of the sum: one rounding
+        if cs[CS_NTA] == cs[CS_NT] and cs[CS_NTA + 1] == cs[CS_NT + 1]:
+            tsum = sat32(sat, tcol + tas, S_IN_TORQUE)
+            nt = _cmul(cs, CS_NT, tsum, tv[T_F_TORQUE], fs)
+        else:
+            nt = _cmul(cs, CS_NT, tcol, tv[T_F_TORQUE], fs) + _cmul(cs, CS_NTA, tas, tv[T_F_TORQUE], fs)
         fz = tv[T_F_Z]
-        zt = _cmul(cs, CS_NT, tsum, tv[T_F_TORQUE], fs) - _cmul(cs, CS_NTF, zf, fz, fs) - cs[CS_T0]
+        zt = nt - _cmul(cs, CS_NTF, zf, fz, fs) - cs[CS_T0]
         zt = sat32(sat, zt, S_INNOV)
         one = 1 << fz
         fu = sat32(sat, _cmul(cs, CS_NTF, one - shr(zf * zf, fz), fz, fs), S_INNOV)

@@ -530,6 +530,125 @@ _LIST += [
     ),
 ]
 
+
+# --- the first drive and the light loads (the learner's first minutes; light disturbances) ---------
+
+#: the first drive's lane changes: one every FIRST_DRIVE_LANE_GAP s (uniform, a fixed draw: the
+#: same schedule on every seed; the seed varies the wind, the gusts, the driver and the sensors)
+FIRST_DRIVE_LANE_GAP = (18.0, 32.0)
+#: the first drive's slalom (no lane change in it) [s]
+_FD_WEAVE = Weave(t_start=150.0, amplitude=1.0, period=5.0, cycles=4)
+
+
+def _first_drive_lanes(duration: float) -> tuple[Step, ...]:
+    """3.5 m lane changes to the left and back, one every 18-32 s (rise 3.5-5 s), none within the
+    slalom (:data:`_FD_WEAVE`)."""
+    rng = np.random.default_rng(2027)
+    lo, hi = FIRST_DRIVE_LANE_GAP
+    w0, w1 = _FD_WEAVE.t_start - 5.0, _FD_WEAVE.t_start + _FD_WEAVE.period * _FD_WEAVE.cycles + 2.0
+    steps = []
+    t, left = 10.0, True
+    while t < duration - 8.0:
+        if not (w0 <= t <= w1):
+            steps.append(Step(round(t, 1), round(float(rng.uniform(3.5, 5.0)), 2), 3.5 if left else 0.0))
+            left = not left
+        t += float(rng.uniform(lo, hi))
+    return tuple(steps)
+
+
+def first_drive() -> Scenario:
+    """Ten minutes of ordinary motorway driving for a car's first drive (module registry)."""
+    duration = 600.0
+    return Scenario(
+        "first_drive",
+        "10 min motorway first drive: lane changes every 18-32 s, a slalom, two gentle curves, a "
+        "crosswind episode in every minute (2-14 m/s, both sides), gusts, banks coming and going, "
+        "90-120 km/h",
+        duration=duration,
+        speed_kmh=100.0,
+        speed_steps=(
+            Step(90.0, 15.0, 120.0),
+            Step(250.0, 15.0, 90.0),
+            Step(400.0, 15.0, 110.0),
+            Step(520.0, 10.0, 100.0),
+        ),
+        # m/s, positive: from the right (air toward the left); negative: from the left
+        wind_speed=(
+            Step(20.0, 2.0, 3.0),
+            Step(50.0, 2.0, 0.0),
+            Step(75.0, 1.5, 12.0),
+            Step(110.0, 2.0, 0.0),
+            Step(130.0, 2.0, 6.0),
+            Step(185.0, 2.0, 0.0),
+            Step(210.0, 2.0, -3.0),
+            Step(235.0, 2.0, 0.0),
+            Step(280.0, 1.5, -10.0),
+            Step(330.0, 2.0, 0.0),
+            Step(390.0, 2.0, 2.0),
+            Step(415.0, 2.0, 0.0),
+            Step(435.0, 2.0, 5.0),
+            Step(470.0, 2.0, 0.0),
+            Step(480.0, 1.5, 14.0),
+            Step(530.0, 2.0, 0.0),
+            Step(560.0, 2.0, -4.0),
+            Step(590.0, 2.0, 0.0),
+        ),
+        turbulence=0.1,
+        gusts=Gusts(count=8, amplitude=5.0, length=2.0, t_start=30.0, t_end=590.0, two_sided=True),
+        # deg; 200-260 s and 420-470 s: the curves' superelevation
+        bank_deg=(
+            Step(55.0, 3.0, 1.0),
+            Step(70.0, 3.0, 0.0),
+            Step(200.0, 4.0, 1.5),
+            Step(256.0, 4.0, 0.0),
+            Step(340.0, 3.0, -2.5),
+            Step(370.0, 3.0, 0.0),
+            Step(420.0, 4.0, -1.0),
+            Step(466.0, 4.0, 0.0),
+            Step(540.0, 3.0, 2.0),
+            Step(575.0, 3.0, 0.0),
+        ),
+        curvature=(
+            Step(200.0, 4.0, 1.0 / 1500.0),
+            Step(256.0, 4.0, 0.0),
+            Step(420.0, 4.0, -1.0 / 2000.0),
+            Step(466.0, 4.0, 0.0),
+        ),
+        lane=_first_drive_lanes(duration),
+        weave=_FD_WEAVE,
+    )
+
+
+_LIGHT_WIND = (Step(3.0, 1.5, 2.0), Step(33.0, 2.0, 0.0))
+
+_LIST += [
+    first_drive(),
+    Scenario(
+        "light_crosswind",
+        "light load: 2 m/s crosswind from the right (8 % turbulence) from 3 to 33 s, 100 km/h",
+        duration=40.0,
+        speed_kmh=100.0,
+        wind_speed=_LIGHT_WIND,
+        turbulence=0.08,
+    ),
+    Scenario(
+        "light_bank",
+        "light load: bank 0 -> +1 -> -1 -> 0 deg with 3 s transitions, no wind, 100 km/h",
+        duration=40.0,
+        speed_kmh=100.0,
+        bank_deg=(Step(5.0, 3.0, 1.0), Step(18.0, 3.0, -1.0), Step(31.0, 3.0, 0.0)),
+    ),
+    Scenario(
+        "light_crosswind_rough",
+        "light_crosswind with the rough driver (short, fast corrections)",
+        duration=40.0,
+        speed_kmh=100.0,
+        wind_speed=_LIGHT_WIND,
+        turbulence=0.08,
+        driver_style=ROUGH_DRIVER,
+    ),
+]
+
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in _LIST}
 
 

@@ -304,6 +304,28 @@ def test_fixed_step_within_bound_of_float_filter(vehicle, lt, kind):
     np.testing.assert_array_equal(res["status"], st_f)
 
 
+@pytest.mark.parametrize("column, assist", [(1.0, 2.7), (0.4, 1.0), (0.4, 2.7)])
+def test_fixed_step_carries_the_torque_factors_of_unknown_scale(vehicle, lt, column, assist):
+    """Torques read in other units than Nm (``column``, ``assist`` units per Nm) with the factors back
+    to Nm in the parameter vector (what the learner pushes for a torque of unknown scale): the
+    integer step within 5 N / 2 Nm of the float step at every step, and both within the same bounds
+    of the drive read in Nm."""
+    inputs = list(lateral_drive(vehicle, "gusts"))
+    p_nm = E.params_vector(vehicle)
+    fw_nm, mw_nm, _ = _float_run(p_nm, inputs)
+    inputs[4] = inputs[4] * column
+    inputs[5] = inputs[5] * assist
+    p = p_nm.copy()
+    p[E.P_KC], p[E.P_KA] = 1.0 / column, 1.0 / assist
+    res = FX.run_drive(lt, p, tuple(inputs))
+    fw_f, mw_f, st_f = _float_run(p, tuple(inputs))
+    si = np.array([FX.to_si(lt, row) for row in res["iout"]])
+    assert np.abs(si[:, 5] - fw_f).max() <= FW_BOUND_N and np.abs(si[:, 3] - mw_f).max() <= MW_BOUND_NM
+    assert np.abs(fw_f - fw_nm).max() <= FW_BOUND_N and np.abs(mw_f - mw_nm).max() <= MW_BOUND_NM
+    assert not res["sat"].any(), dict(zip(FX.SAT_NAMES, res["sat"].tolist(), strict=True))
+    np.testing.assert_array_equal(res["status"], st_f)
+
+
 def test_learning_requantises_the_coefficient_set(vehicle):
     """The fixed backend with its learner (fast learning: a short test drive) and its inline
     float shadow: every push re-derives the coefficient set from p and nothing else (the set at

@@ -318,6 +318,63 @@ def meets(acc: Accuracy, target: Target, file_cg_is_true: bool = False) -> bool:
     return f <= target.max_nrmse and m <= target.max_nrmse
 
 
+#: a long drive is scored per window of this length [s] (a late minute cannot hide behind a good
+#: average) and as a whole from :data:`LONG_SCORED_FROM_S` on
+LONG_WINDOW_S = 60.0
+#: a long (first) drive's score starts here [s after the first estimate]: the learner's first minute
+LONG_SCORED_FROM_S = 120.0
+#: a drive at least this long [s] gets the per-window figures (:func:`long_drive`)
+LONG_DRIVE_MIN_S = 180.0
+
+
+@dataclass(frozen=True)
+class LongDrive:
+    """A long drive's figures: the whole from :data:`LONG_SCORED_FROM_S` (``scored``), one
+    :class:`Accuracy` per :data:`LONG_WINDOW_S` window from the first estimate (``windows``; a window
+    with too few valid samples is None), and when the learner first reported "learned"
+    (``learned_s``, seconds after the first estimate; NaN: never, or not reported)."""
+
+    scored: Accuracy
+    windows: tuple[Accuracy | None, ...]
+    learned_s: float
+
+
+def long_drive(
+    t: np.ndarray,
+    fw_hat: np.ndarray,
+    mw_hat: np.ndarray,
+    truth: Truth,
+    *,
+    valid: np.ndarray | None = None,
+    learn_state: np.ndarray | None = None,
+    learned: int = 2,
+) -> LongDrive:
+    """Per-window and from-minute-2 accuracy of a long drive (each window normalised by its own
+    max |truth|, :func:`accuracy` with no settling inside the window), and the first time
+    ``learn_state`` equals ``learned`` (the learner's ``ST_LEARNED``)."""
+    t = np.asarray(t, dtype=np.float64)
+    if t.size == 0:
+        raise MetricsError("a long drive without estimates")
+    t0 = float(t[0])
+    scored = accuracy(t, fw_hat, mw_hat, truth, settle=LONG_SCORED_FROM_S, valid=valid)
+    wins: list[Accuracy | None] = []
+    n_win = int(math.ceil((float(t[-1]) - t0) / LONG_WINDOW_S - 1e-9))
+    fw_hat, mw_hat = np.asarray(fw_hat, dtype=np.float64), np.asarray(mw_hat, dtype=np.float64)
+    for i in range(n_win):
+        sel = (t >= t0 + i * LONG_WINDOW_S) & (t < t0 + (i + 1) * LONG_WINDOW_S)
+        ok = sel if valid is None else sel & np.asarray(valid, dtype=bool)
+        if np.count_nonzero(ok) < 10:
+            wins.append(None)
+            continue
+        wins.append(accuracy(t[sel], fw_hat[sel], mw_hat[sel], truth, settle=0.0, valid=ok[sel]))
+    learned_s = math.nan
+    if learn_state is not None:
+        hit = np.flatnonzero(np.asarray(learn_state) == learned)
+        if hit.size:
+            learned_s = float(t[hit[0]]) - t0
+    return LongDrive(scored, tuple(wins), learned_s)
+
+
 #: issue 11: the wind's force within 10 % (NRMSE of Fw_wind, where the truth has wind)
 WIND_MAX_NRMSE = 0.10
 #: issue 11: bank angle RMS error at most 0.3 deg

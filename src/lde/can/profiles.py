@@ -18,8 +18,9 @@ Estimator inputs (SI, ISO 8855 signs; names used everywhere, see docs/design/arc
 An input the car does not have is declared absent: it is never valid (NaN), never fresh, and does not
 count against its group (the group is usable without it); what the estimator then does without it is
 documented in ``docs/guide/profiles.md``. A torque input may have an unknown scale (raw counts): its value
-enters as the DBC value with scale 1, and :attr:`Profile.torque_scales_known` is False (the engine
-keeps the overlay off).
+enters as the DBC value with scale 1, and :attr:`Profile.torque_scales_known` is False: the
+estimator learns what the data make identifiable and the engine keeps the overlay off until it is
+learned, or for good with both torques of unknown scale (``docs/guide/profiles.md``).
 
 A message without a cycle time in its DBC (``GenMsgCycleTime`` or lde's ``LdeCycleTime_us``) and
 without ``timeout_ms`` gets its timeout from a log: :func:`observe_timeouts` (3 periods of the rate
@@ -235,7 +236,7 @@ class Profile:
     @property
     def torque_scales_known(self) -> bool:
         """Every torque input present has a known scale (a torque request in unknown units is unsafe:
-        the overlay stays off otherwise)."""
+        otherwise the overlay waits for the learned factor, or stays off with both unknown)."""
         return not self.unknown_scale
 
     @property
@@ -249,7 +250,12 @@ class Profile:
         out = [f"profile {self.name}: {name} absent: {_ABSENT_EFFECT[name]}" for name in sorted(self.absent)]
         if self.unknown_scale:
             names = " and ".join(sorted(self.unknown_scale))
-            out.append(f"profile {self.name}: {names} of unknown scale: the overlay stays off")
+            why = (
+                "the overlay stays off (the torques' unit to Nm is not identifiable)"
+                if len(self.unknown_scale) > 1
+                else "its factor to the other torque is learned; the overlay stays off until it is"
+            )
+            out.append(f"profile {self.name}: {names} of unknown scale: {why}")
         return out
 
     def metadata(self) -> dict[str, str]:

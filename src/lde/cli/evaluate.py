@@ -19,6 +19,12 @@ and OUT/spec_sheets/. ``--modes cold,warm`` (the default): cold runs with the sp
 first replays an earlier drive of the same car with ``--learned S`` and then the run with it
 (``--prior A,B``: which drives, each its own mode ``warm after NAME``; default ``prior_drive``). A
 payload plant also runs with the spec sheet plus the load (``PLANT + load`` rows).
+``--first-drive``: instead of the scenario table, each plant's first drive (ten minutes of motorway
+driving, cold, scored from minute 2 on and per minute, and when the learner reports "learned") and
+warm light loads (2 m/s crosswind, 1 deg bank, no disturbance, the crosswind with 0.4 and 0.8 Nm of
+rack friction and with a rough driver), each beside its target; ``--backends`` defaults to
+``fixed`` there, ``--duration`` shortens the first drive only. Writes OUT/first_drive.md and
+OUT/first_drive.csv (every run, every minute).
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ import time
 from pathlib import Path
 
 from lde.analysis import study
-from lde.analysis.study import zoo, zooreport
+from lde.analysis.study import firstdrive, zoo, zooreport
 from lde.analysis.study.execute import load_sim_vehicle
 from lde.analysis.study.specsheet import write_spec_sheet
 from lde.analysis.study.tables import write_rows
@@ -97,6 +103,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="A,B",
         help="warm: the earlier drive(s) of the same car to learn on, each reported apart "
         f"(scenario names, another seed than the scored drive; default {zoo.PRIOR_SCENARIO})",
+    )
+    z.add_argument(
+        "--first-drive",
+        action="store_true",
+        help="first drives (10 min, cold, per minute, time to learned) and warm light loads, with targets",
     )
     z.add_argument("--out", type=Path, default=Path("results/zoo"), help="output directory (results/zoo)")
     z.add_argument("--keep-logs", action="store_true", help="keep every run's log, truth, spec sheet, CSV")
@@ -171,6 +182,8 @@ def run_zoo(args: argparse.Namespace) -> int:
         raise ConfigError("--sim-vehicle/--estimator do not apply to --zoo (use --plants)")
     if args.workers is None:
         args.workers = 2
+    if args.first_drive:
+        return run_first_drive(args)
     modes = _modes(args)
     priors = tuple(args.prior or (zoo.PRIOR_SCENARIO,))
     if args.prior and zoo.Mode.WARM not in modes:
@@ -228,6 +241,53 @@ def run_zoo(args: argparse.Namespace) -> int:
     print()
     print(zoo.plant_table_markdown(results, backend=backends[0]))
     print(f"\n{len(results)} runs in {wall:.0f} s; tables in {out}/zoo_table.{{md,csv}}", file=sys.stderr)
+    for r in results:
+        if not r.ok:
+            print(f"FAILED {r.spec.label}: {r.error}", file=sys.stderr)
+    return 0 if all(r.ok for r in results) else 1
+
+
+def run_first_drive(args: argparse.Namespace) -> int:
+    """``lde evaluate --zoo --first-drive``: see the module docstring."""
+    for flag, given in (
+        ("--scenarios/--scenario", _scenarios(args)),
+        ("--modes/--warm", args.modes or args.warm),
+        ("--prior", args.prior),
+    ):
+        if given:
+            raise ConfigError(f"{flag} does not apply to --first-drive (its drives and modes are fixed)")
+    profiles = args.profiles or ((args.profile,) if args.profile else zoo.PROFILES)
+    backends = args.backends or ((args.backend,) if args.backend else ("fixed",))
+    from lde.engine.backends import get_backend
+
+    for b in backends:
+        get_backend(b)  # ConfigError for an unknown or removed name
+    out: Path = args.out
+    specs = firstdrive.specs(
+        plant_list=args.plants,
+        profiles=profiles,
+        backends=backends,
+        seed=args.seed,
+        first_drive_s=args.duration,
+        work_dir=str((out / "runs").resolve()) if args.keep_logs else "",
+    )
+    print(f"lde evaluate --zoo --first-drive: {len(specs)} runs", file=sys.stderr)
+    t0 = time.perf_counter()
+    results = study.run_specs(
+        specs, cluster_config(args), progress=not args.no_progress, desc="lde first drives", engine=engine
+    )
+    wall = time.perf_counter() - t0
+    table = firstdrive.rows(results)
+    out.mkdir(parents=True, exist_ok=True)
+    write_rows(table, out / "first_drive.csv")
+    text = (
+        f"# First drives and light loads\n\n`{_command(args)} --first-drive` (seed {args.seed}; "
+        f"{len(results)} runs in {wall:.0f} s)\n\n{firstdrive.summary_markdown(table)}\n\n"
+        f"Per minute (NRMSE Fw / Mw %, RMS Fw error):\n\n{firstdrive.minutes_markdown(table)}\n"
+    )
+    (out / "first_drive.md").write_text(text)
+    print(firstdrive.summary_markdown(table))
+    print(f"\n{len(results)} runs in {wall:.0f} s; tables in {out}/first_drive.{{md,csv}}", file=sys.stderr)
     for r in results:
         if not r.ok:
             print(f"FAILED {r.spec.label}: {r.error}", file=sys.stderr)

@@ -104,14 +104,17 @@ def replay_argv(
 
 
 def run_dir_name(spec: RunSpec) -> Path:
-    """The run's directory below ``spec.work_dir``: plant/profile-backend/scenario-sSEED[-warm[-PRIOR]]
-    (``-PRIOR`` after another prior drive than the zoo's shipped one)."""
+    """The run's directory below ``spec.work_dir``:
+    plant/profile-backend/scenario[-fFRICTION]-sSEED[-warm[-PRIOR]] (``-PRIOR`` after another prior
+    drive than the zoo's shipped one; ``-fFRICTION`` with the rack friction set by the run)."""
     prior = spec.est_options.learned_prior
     warm = "" if not prior else "-warm" if prior == PRIOR_DRIVE else f"-warm-{prior}"
+    fr = spec.sim_options.friction_Nm
+    rack = "" if fr is None else f"-f{fr:g}"
     return (
         Path(plant_name(spec.sim_vehicle))
         / f"{spec.profile}-{spec.backend}"
-        / f"{spec.scenario}-s{spec.seed}{warm}"
+        / f"{spec.scenario}{rack}-s{spec.seed}{warm}"
     )
 
 

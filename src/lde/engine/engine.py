@@ -58,6 +58,7 @@ from lde.engine.loop import (
 from lde.engine.receiver import N_INPUTS, RxState, RxTables
 from lde.errors import ConfigError
 from lde.estimator import lateral as E
+from lde.estimator import learner as Ln
 from lde.estimator.conditioning import check_profile
 from lde.estimator.learned import LearnedSnapshot, LearnedState, load_learned, parse_learned, save_snapshot
 from lde.estimator.learner import tire_state
@@ -73,7 +74,13 @@ from lde.estimator.outputs import (
     O_T_ALIGN,
     O_YAW,
 )
-from lde.estimator.overlay import limiter_params, new_limiter_state
+from lde.estimator.overlay import (
+    ALLOWED_ALWAYS,
+    ALLOWED_NEVER,
+    ALLOWED_ONCE_LEARNED,
+    limiter_params,
+    new_limiter_state,
+)
 from lde.params import Vehicle
 from lde.units import STEP_S
 
@@ -386,15 +393,31 @@ class Engine:
     def _new_backend_state(self) -> BackendState:
         """The backend's parameters and state at the start (:meth:`reset`)."""
         return make_backend_state(
-            self.backend_name, self.vehicle, self._dt, self.profile.angle_above_torsion_bar
+            self.backend_name,
+            self.vehicle,
+            self._dt,
+            self.profile.angle_above_torsion_bar,
+            self.torque_scale,
         )
 
     @property
-    def overlay_allowed(self) -> bool:
-        """The overlay may be enabled: not while a torque input of the profile has an unknown
-        scale (a torque request in unknown units is unsafe). The loop's enable is this and the
-        step's own enable (``LP_ALLOWED`` of the limiter's parameters carries it)."""
-        return self.profile.torque_scales_known
+    def torque_scale(self) -> int:
+        """Which torque's scale the learner learns (:func:`lde.estimator.learner.torque_scale_mode`
+        of the profile's inputs of unknown scale; 0: both torques in Nm)."""
+        return Ln.torque_scale_mode(self.profile.unknown_scale)
+
+    @property
+    def overlay_allowed(self) -> int:
+        """When the overlay may be enabled (``lde.estimator.overlay.ALLOWED_*``): always when both
+        torques are in Nm; with one of unknown scale only once the learner reports "learned", which
+        needs that torque's factor to the other (in Nm) known to ``L_SCALE_SD``; never when both are
+        of unknown scale (their unit to Nm is not identifiable from driving: a torque request in
+        unknown units is unsafe). The loop's enable is this and the step's own enable
+        (``LP_ALLOWED`` of the limiter's parameters carries it)."""
+        ts = self.torque_scale
+        if ts == Ln.TS_KNOWN:
+            return ALLOWED_ALWAYS
+        return ALLOWED_NEVER if ts == Ln.TS_BOTH else ALLOWED_ONCE_LEARNED
 
     @property
     def steps(self) -> int:
@@ -463,13 +486,25 @@ class Engine:
         """What the learner holds now, one line (empty for a backend that does not learn)."""
         if not self.learns:
             return ""
-        p, ls = self.est.state.p, self.est.state.ls
+        p, ls, lp = self.est.state.p, self.est.state.ls, self.est.params.lp
         state = ("not learned", "learning", "learned")[min(2, tire_state(ls))]
-        return (
-            f"tires {state}: Cf {p[E.P_CF]:.0f} Cr {p[E.P_CR]:.0f} N/rad, K {p[E.P_K]:.0f} Nm/rad, "
-            f"accel scale {p[E.P_S]:.3f}, friction {p[E.P_TFRIC]:.2f} Nm, angle offset "
+        # with both torques of unknown scale K and the friction are in the column signal's unit
+        unit = "unit" if self.torque_scale == Ln.TS_BOTH else "Nm"
+        text = (
+            f"tires {state}: Cf {p[E.P_CF]:.0f} Cr {p[E.P_CR]:.0f} N/rad, K {p[E.P_K]:.4g} {unit}/rad, "
+            f"accel scale {p[E.P_S]:.3f}, friction {p[E.P_TFRIC]:.3g} {unit}, angle offset "
             f"{np.degrees(p[E.P_DSW]):.3f} deg, gyro bias {np.degrees(p[E.P_BR]):.4f} deg/s"
         )
+        scales = Ln.torque_scales(p, lp, ls)
+        if scales:
+            overlay = (
+                "overlay off (the torques' unit to Nm is not identifiable)"
+                if self.overlay_allowed == ALLOWED_NEVER
+                else "overlay off until learned"
+            )
+            text += f"; torques of unknown scale: {scales}; Fw, Mw in N, Nm as far as these are right"
+            text += f"; {overlay}"
+        return text
 
     def stats(self) -> dict[str, ReceiverStats]:
         """Per input message counts so far."""

@@ -68,8 +68,9 @@ from lde.engine.receiver import (
     rx_msg_of,
     rx_sample,
 )
+from lde.estimator.learner import ST_LEARNED
 from lde.estimator.outputs import O_BANK, O_FW, O_FW_WIND, O_GAIN, O_LEARN, O_MW, O_MW_WIND, O_T_ALIGN
-from lde.estimator.overlay import LP_ALLOWED, LP_GAIN, LS_STATE, overlay_kernel
+from lde.estimator.overlay import ALLOWED_ONCE_LEARNED, LP_ALLOWED, LP_GAIN, LS_STATE, overlay_kernel
 from lde.status import DEGRADED, VALID
 from lde.units import DEG
 
@@ -359,6 +360,8 @@ def run_loop(params, state, la, frames, steps, out, i0, final, t_end, have_end, 
     vals = np.zeros(N_V)
     scratch = np.empty(otab[9].shape[0])
     allowed = lp[LP_ALLOWED] > 0.0  # Engine.overlay_allowed: the profile's torques have known units
+    # ... or one of unknown scale whose factor the learner must report learned first
+    once_learned = lp[LP_ALLOWED] == ALLOWED_ONCE_LEARNED
     i = i0
     n = 0
     while n < cap:
@@ -386,6 +389,8 @@ def run_loop(params, state, la, frames, steps, out, i0, final, t_end, have_end, 
             mask, fresh, ok_m, ok_e = sample_inputs(tb, st, prev_t, tk, vin, o_age[n])
             status = backend_step(params, state, tk, vin, fresh, ok_m, ok_e, est)
             status |= extra
+            if once_learned and est[O_LEARN] != ST_LEARNED:
+                enable = False
             # np.int64 / bool: numba types a call while the loop's types are still partial (the
             # literal 0 or True of their first assignment) and would compile the callee once more
             torque, status, ovst = step_outputs(

@@ -16,8 +16,13 @@ Measurements, each used only on a step at which its CAN signal brought a new sam
 is not new information; ``fresh`` flags from the receiver's sample ages)::
 
     r_meas - b_r                          = r                                                    (yaw rate)
-    N (T_col + T_ast) - N T_fric z - T_0  = 2K alpha_f                                          (eqs. 11-12)
+    N (k_c T_col + k_a T_ast) - N T_fric z - T_0 = 2K alpha_f                                   (eqs. 11-12)
     a_y,meas                              = (s (2 Cf alpha_f + 2 Cr alpha_r) + F_wind) / m (accelerometer)
+
+``k_c``, ``k_a`` are 1 when both torques are in Nm; a torque of unknown scale (raw counts) has its
+factor learned relative to the other (:mod:`lde.estimator.learner`, ``L_TSCALE``); with both unknown
+K, the friction and the twist are in the column signal's unit, and Fw, Mw stay in N and Nm (the
+torque enters only through ``T / 2K``).
 
 The accelerometer measures specific force: the tire and aerodynamic forces, never gravity. A bank,
 whose gravity component the tires balance, shows in a_y only through the tire forces; a gust shows
@@ -68,13 +73,15 @@ IX_BETA, IX_R, IX_FA, IX_MA, IX_FB = range(5)
  P_QB, P_QR, P_QFA, P_QMA, P_QFB, P_RR, P_RT, P_RA,      # noise densities / variances
  P_P0B, P_P0R, P_P0FA, P_P0MA, P_P0FB,
  P_VMIN, P_CONV,
- P_XCP, P_WCP) = range(34)  # fmt: skip
-N_P = 34
+ P_XCP, P_WCP,
+ P_QLO, P_QD0, P_QTAU, P_QHI,
+ P_KC, P_KA) = range(40)  # fmt: skip
+N_P = 40
 
 # --- aux state slots ---------------------------------------------------------------------------
 # float: last valid delta_f, last T_align_hat, last friction sign, the 10 Hz rate filter (y, y')
-F_DELTA, F_TALIGN, F_ZFRIC, F_SVF_Y, F_SVF_YD, F_SVF_INIT = range(6)
-N_F = 6
+F_DELTA, F_TALIGN, F_ZFRIC, F_SVF_Y, F_SVF_YD, F_SVF_INIT, F_ZR, F_ZT, F_ZA, F_QG = range(10)
+N_F = 10
 # int: held (1 after a reset / while held), convergence start t_ns (-1: not running), steps
 I_HELD, I_CONV_START, I_STEPS = range(3)
 N_I = 3
@@ -109,6 +116,10 @@ def params_vector(
     p[P_P0B], p[P_P0R], p[P_P0FA], p[P_P0MA], p[P_P0FB] = e.p0_beta, e.p0_yaw, e.p0_fw, e.p0_mw, e.p0_bank
     p[P_VMIN], p[P_CONV] = e.min_speed, e.converge_time
     p[P_XCP], p[P_WCP] = e.wind_cp, e.wind_cp_weight
+    p[P_QLO], p[P_QD0], p[P_QTAU], p[P_QHI] = 1.0, 1.0, 0.15, 1.0
+    # the torque signals' scales to the reference unit (1: both in Nm; a profile that declares a
+    # torque's scale unknown has it learned: lde.estimator.learner, L_TSCALE)
+    p[P_KC], p[P_KA] = 1.0, 1.0
     return p
 
 
@@ -162,7 +173,8 @@ def reset_kernel(p, x, P, fs, ints):  # pragma: no cover - compiled
 
 @njit(cache=True, inline="always")
 def _scalar_update(x, P, h, d, z, r, ph):  # pragma: no cover - compiled
-    """x += k (z - h x - d),  P -= k (P h)^T,  k = P h / (h P h + r)."""
+    """x += k (z - h x - d),  P -= k (P h)^T,  k = P h / (h P h + r). Returns the normalised
+    innovation (z - h x - d) / sqrt(h P h + r)."""
     innov = z - d
     for i in range(NX):
         innov -= h[i] * x[i]
@@ -181,7 +193,7 @@ def _scalar_update(x, P, h, d, z, r, ph):  # pragma: no cover - compiled
             v = P[i, j] - ph[i] * ph[j] * inv_s
             P[i, j] = v
             P[j, i] = v
-    return innov
+    return innov * math.sqrt(inv_s)
 
 
 @njit(cache=True, inline="always")
@@ -305,20 +317,25 @@ def step_kernel(p, x, P, fs, ints, h, ph, t_ns, vx, angle, yaw, tcol, tast, ay,
     iv = 1.0 / vx
 
     # --- updates (sequential, scalar), each with a fresh sample only
+    # the change detector of the adaptive process noise: each measurement's normalised innovation,
+    # low-passed over P_QTAU (a disturbance that moves shows as a persistent innovation)
+    ad = min(1.0, p[P_DT] / p[P_QTAU])
     if fresh_r:
         for i in range(NX):
             h[i] = 0.0
         h[IX_R] = 1.0
-        _scalar_update(x, P, h, 0.0, yaw - p[P_BR], p[P_RR], ph)
+        nu = _scalar_update(x, P, h, 0.0, yaw - p[P_BR], p[P_RR], ph)
+        fs[F_ZR] += ad * (nu - fs[F_ZR])
     if fresh_t and mdps_valid:
         # N (T_col + T_ast) - N T_fric z - T_0 = 2K alpha_f = 2K (delta - beta - lf r / vx)
         for i in range(NX):
             h[i] = 0.0
         h[IX_BETA] = -2.0 * k
         h[IX_R] = -2.0 * k * lf * iv
-        z = n * (tcol + tast) - n * p[P_TFRIC] * zf - p[P_T0]
+        z = n * (p[P_KC] * tcol + p[P_KA] * tast) - n * p[P_TFRIC] * zf - p[P_T0]
         fu = n * p[P_TFRIC] * (1.0 - zf * zf)  # sticking: the friction torque is anywhere in +-T_fric
-        _scalar_update(x, P, h, 2.0 * k * delta, z, p[P_RT] + fu * fu, ph)
+        nu = _scalar_update(x, P, h, 2.0 * k * delta, z, p[P_RT] + fu * fu, ph)
+        fs[F_ZT] += ad * (nu - fs[F_ZT])
     if fresh_a and math.isfinite(ay):
         # a_y = (s (2 Cf alpha_f + 2 Cr alpha_r) + F_wind) / m
         for i in range(NX):
@@ -326,7 +343,8 @@ def step_kernel(p, x, P, fs, ints, h, ph, t_ns, vx, angle, yaw, tcol, tast, ay,
         h[IX_BETA] = -2.0 * s * (cf + cr) / m
         h[IX_R] = -2.0 * s * (lf * cf - lr * cr) * iv / m
         h[IX_FA] = 1.0 / m
-        _scalar_update(x, P, h, 2.0 * s * cf * delta / m, ay, p[P_RA], ph)
+        nu = _scalar_update(x, P, h, 2.0 * s * cf * delta / m, ay, p[P_RA], ph)
+        fs[F_ZA] += ad * (nu - fs[F_ZA])
 
     fs[F_TALIGN] = 2.0 * k * (delta - x[IX_BETA] - lf * x[IX_R] * iv)
     _outputs(p, x, fs, out)
@@ -355,9 +373,14 @@ def step_kernel(p, x, P, fs, ints, h, ph, t_ns, vx, angle, yaw, tcol, tast, ay,
         P[i, 1] = c1
     P[0, 0] += p[P_QB] * dt
     P[1, 1] += p[P_QR] * dt
-    P[2, 2] += p[P_QFA] * dt
-    P[3, 3] += p[P_QMA] * dt
-    P[4, 4] += p[P_QFB] * dt
+    # adaptive process noise of the disturbances: P_QLO x the densities while the innovations are
+    # unbiased, up to the full densities as their low-passed square reaches P_QD0
+    dstat = fs[F_ZR] * fs[F_ZR] + fs[F_ZT] * fs[F_ZT] + fs[F_ZA] * fs[F_ZA]
+    g = min(p[P_QHI], p[P_QLO] + (1.0 - p[P_QLO]) * dstat / p[P_QD0])
+    fs[F_QG] = g
+    P[2, 2] += p[P_QFA] * g * dt
+    P[3, 3] += p[P_QMA] * g * dt
+    P[4, 4] += p[P_QFB] * g * dt
 
     # convergence timer: runs while both the MDPS and the ESC groups are used
     if not mdps_valid:

@@ -9,13 +9,20 @@ JSON, one object, written atomically (a temporary file in the same directory, th
      "state": "not learned" | "learning" | "learned",   # the tire group
      "params": {"cf_N_per_rad", "cr_N_per_rad", "align_rate_Nm_per_rad", "accel_scale",
                 "steering_friction_Nm", "torsion_deg_per_Nm", "steering_angle_offset_deg",
-                "yaw_rate_bias_deg_s", "align_offset_Nm"},
+                "yaw_rate_bias_deg_s", "align_offset_Nm",
+                "column_torque_scale", "assist_torque_scale"},
      "learner": [... the learner's state vector ...]}
 
 On load the parameters go into the filter's parameter vector and the learner's state is restored
 with the between-drive changes (:func:`between_drives`): the regressions' intercepts (which carry the
 previous drive's disturbance and bank) return to their priors, the gyro-bias variance is widened (the
 bias drifts with temperature), the signal filters restart.
+
+``column_torque_scale`` and ``assist_torque_scale`` are the factors from each torque signal as the
+profile reads it to the unit the aligning torque is in (both 1 when the profile's torques are in Nm;
+a torque of unknown scale has its learned factor, :mod:`lde.estimator.learner`, ``L_TSCALE``). With
+both torques of unknown scale that unit is the column signal's, and ``align_rate_Nm_per_rad`` and
+``steering_friction_Nm`` are in it too. A file without them (written before they existed) reads as 1.
 """
 
 from __future__ import annotations
@@ -118,6 +125,8 @@ def save_learned(
             "steering_angle_offset_deg": d(float(p[E.P_DSW])),
             "yaw_rate_bias_deg_s": d(float(p[E.P_BR])),
             "align_offset_Nm": float(p[E.P_T0]),
+            "column_torque_scale": float(p[E.P_KC]),
+            "assist_torque_scale": float(p[E.P_KA]),
         },
         "learner": [float(v) for v in ls],
     }
@@ -255,16 +264,32 @@ def parse_learned(text: str, source: str, profile: str, p: np.ndarray, lp: np.nd
             math.radians(float(q["steering_angle_offset_deg"])),
             math.radians(float(q["yaw_rate_bias_deg_s"])),
             float(q.get("align_offset_Nm", 0.0)),
+            float(q.get("column_torque_scale", 1.0)),
+            float(q.get("assist_torque_scale", 1.0)),
         ]
     except (KeyError, TypeError, ValueError) as exc:
         raise ConfigError(f"{source}: incomplete ({exc})") from exc
     if ls.shape != (Ln.N_LS,) or not np.all(np.isfinite(ls)) or not all(math.isfinite(v) for v in vals):
         raise ConfigError(f"{source}: learner state of the wrong size or not finite")
-    cf, cr, k, s, tfric, ctb, dsw, br, t0 = vals
+    cf, cr, k, s, tfric, ctb, dsw, br, t0, kc, ka = vals
     got = {"cf": cf, "cr": cr, "k": k, "s": s}
-    if not all(lo <= got[name] <= hi for name, (lo, hi) in Ln.PLAUSIBLE.items()):
-        raise ConfigError(f"{source}: implausible values (cf {cf:g}, cr {cr:g}, K {k:g}, s {s:g})")
+    # with both torques of unknown scale K is in the column signal's unit: no bound in Nm applies
+    free_k = lp[Ln.L_TSCALE] == Ln.TS_BOTH
+    bad = [
+        n for n, (lo, hi) in Ln.PLAUSIBLE.items() if not (lo <= got[n] <= hi) and not (free_k and n == "k")
+    ]
+    if bad or not (kc > 0.0 and ka > 0.0):
+        raise ConfigError(
+            f"{source}: implausible values (cf {cf:g}, cr {cr:g}, K {k:g}, s {s:g}, "
+            f"torque scales {kc:g}, {ka:g})"
+        )
+    if lp[Ln.L_TSCALE] == Ln.TS_KNOWN and (kc, ka) != (1.0, 1.0):
+        raise ConfigError(
+            f"{source}: learned with torques of unknown scale (factors {kc:g}, {ka:g}); "
+            "this profile's are in Nm"
+        )
     p[E.P_CF], p[E.P_CR], p[E.P_K], p[E.P_S] = cf, cr, k, s
+    p[E.P_KC], p[E.P_KA] = kc, ka
     p[E.P_TFRIC], p[E.P_CTB], p[E.P_DSW], p[E.P_BR], p[E.P_T0] = tfric, ctb, dsw, br, t0
     return LearnedState(between_drives(ls), int(doc.get("drives", 1)), float(doc.get("seconds", 0.0)), text)
 

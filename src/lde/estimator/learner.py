@@ -57,14 +57,26 @@ Offsets (not identifiable from a steady state: a steady crosswind looks like the
   leak only).
 
 Learned state of the tire group (``ST_*``): not learned (prior only), learning (after 150 excited
-samples the values are pushed), learned (after 1000 excited samples, ~16 s of manoeuvres; it then
-learns 1000x slower in variance: a learned car is not re-learned by the next drive's disturbances).
+samples the values are pushed), learned (after 1000 excited samples, ~16 s of manoeuvres, and with a
+torque of unknown scale its factor's posterior relative std under ``L_SCALE_SD``; it then learns
+1000x slower in variance: a learned car is not re-learned by the next drive's disturbances). Off by
+default: "learned" by the regressions' own uncertainty instead of the sample count (``L_LEARNED_ST``,
+``L_LEARNED_SCR``).
+
+Torques of unknown scale (``L_TSCALE``, from the profile: :func:`torque_scale_mode`): the aligning
+torque is ``N (k_c T_col + k_a T_ast)``. With one torque of unknown scale its factor to the other
+(in Nm) is learned in R3, whose tire-lag slot then holds the second torque's own rate coefficient
+``s k / K``; with both unknown the overall scale is K's and not identifiable, so K keeps its prior and
+both factors are learned in that unit. R3 learns without the disturbance-quiet gate until the state
+is "learned" (the filter's wind estimate needs the scale), and nothing else is pushed before R3 has
+its samples. Fw and Mw keep N and Nm (the torque enters the filter only through ``T / 2K``).
 Constants tuned on zoo plants indep_twin, tires_minus25, suv_slow, angle_above_tb (docs/design/filters.md).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 
 import numpy as np
 from numba import njit
@@ -96,8 +108,14 @@ N_SIG = 7
  L_TORSION, L_B_TAU, L_B_GATE, L_D_TAU, L_D_GATE_F, L_D_GATE_M, L_RATE,
  L_LEARNED_REL, L_MIN_SAMPLES, L_SIG_B, L_ENABLE, L_RELAX, L_EXC_SW, L_SLIDE, L_SLOW,
  L_QUIET, L_EXC_F, L_SIG_CTB, L_SIGMA0, L_WIND_MAX, L_WIND_REL, L_WIND_SIG,
- L_WIND_Q, L_EXC_SW3, L_R3_ACC, L_EXC_SW2, L_EXC_F2, L_WIND_MAX2, L_R2_UPQ) = range(45)  # fmt: skip
-N_LP = 45
+ L_WIND_Q, L_EXC_SW3, L_R3_ACC, L_EXC_SW2, L_EXC_F2, L_WIND_MAX2, L_R2_UPQ,
+ L_LEARNED_ST, L_LEARNED_SCR, L_TSCALE, L_SCALE_SD) = range(49)  # fmt: skip
+N_LP = 49
+
+#: L_TSCALE: which torque's scale is learned. TS_KNOWN: both torques in Nm; TS_ASSIST: the assist's
+#: factor to the column torque (in Nm); TS_COLUMN: the column's to the assist (in Nm); TS_BOTH: the
+#: assist's to the column signal, whose own unit stays unknown (K, the friction, the twist in it)
+TS_KNOWN, TS_ASSIST, TS_COLUMN, TS_BOTH = 0, 1, 2, 3
 
 # --- learner state (ls, float) -----------------------------------------------------------------------
 # svf: 3 * N_SIG (value, derivative, second derivative); then regression blocks
@@ -232,6 +250,17 @@ def default_lp(torsion: bool = False, enable: bool = True) -> np.ndarray:
     # ((dK/K)^2 + (dt/t)^2) of the push: the samples on the old model are forgotten as fast as it
     # moves, and not at all once it has settled. 0: off (docs/design/filters.md, "The learner")
     lp[L_R2_UPQ] = 3.0e3
+    # "learned" by the regressions' own uncertainty instead of a sample count: the posterior relative
+    # std of the trail (R1) and of Cr (R2) below these, R2 running; 0: by L_MIN_SAMPLES
+    lp[L_LEARNED_ST] = 0.0
+    lp[L_LEARNED_SCR] = 0.0
+    # torque signals of unknown scale (TS_*): the assist's scale relative to the column's (TS_ASSIST,
+    # TS_BOTH: K then in the column signal's unit) or the column's relative to the assist's
+    # (TS_COLUMN). R3's tire-lag slot then carries the second torque's own rate coefficient
+    lp[L_TSCALE] = TS_KNOWN
+    # a torque factor of unknown scale counts as learned once its posterior relative std is under this
+    # (the overlay waits for it: lde.engine.engine.Engine.overlay_allowed)
+    lp[L_SCALE_SD] = 0.05
     return lp
 
 
@@ -268,6 +297,15 @@ def init_state(p: np.ndarray, lp: np.ndarray, friction_prior: float = 0.3) -> np
         N3,
         (0.08**2, (0.3 / k0) ** 2, (rx * 0.015 / k0) ** 2, (n * 0.4 / (2.0 * k0)) ** 2, sig_ctb**2, 1.0),
     )
+    if lp[L_TSCALE] != TS_KNOWN:
+        # a torque of unknown scale: the lag slot is the other torque's rate coefficient s k / K (k its
+        # factor to the reference torque, prior 1, std 2); with both unknown the reference itself (s/K,
+        # and R1's L/t) is known to a factor of a few only
+        ls[LS_T3 + 2] = ls[LS_T3 + 1]
+        ls[LS_P3 + 2 * N3 + 2] = (2.0 * ls[LS_T3 + 1]) ** 2
+        if lp[L_TSCALE] == TS_BOTH:
+            ls[LS_P3 + N3 + 1] = (3.0 * ls[LS_T3 + 1]) ** 2
+            ls[LS_P1] = (3.0 * ls[LS_T1]) ** 2
     ls[LS_B + 1] = lp[L_SIG_B] ** 2
     ls[LS_D + 1] = (1.0 * DEG) ** 2
     ls[LS_HT] = -1.0  # no gyro-bias window open: the first opens at the first anchor
@@ -364,7 +402,9 @@ def learner_step(
         ls[LS_INIT] = 0.0
         ls[LS_HT] = -1.0  # no heading through a gap: the next gyro-bias window starts at an anchor
         return False
-    T = n * (tcol + tast)
+    unknown = lp[L_TSCALE] != TS_KNOWN
+    # the SVF's torque channel: N (T_col + T_ast), or with a torque of unknown scale N T_ast as read
+    T = n * tast if unknown else n * (tcol + tast)
     u = (yaw, ay, T, zfric, angle, tcol, vx)
     if ls[LS_INIT] == 0.0:
         for k in range(N_SIG):
@@ -387,6 +427,14 @@ def learner_step(
     ay_f = ls[o + 3 * S_AY]
     T_f, T_d, T_dd = ls[o + 3 * S_T], ls[o + 3 * S_T + 1], ls[o + 3 * S_T + 2]
     z_f, z_d = ls[o + 3 * S_Z], ls[o + 3 * S_Z + 1]
+    a_raw_d = T_d  # the assist part's rate as read (unknown scale)
+    if unknown:
+        # the aligning torque in the reference unit from the two parts: N (k_c T_col + k_a T_ast)
+        kc, ka = p[E.P_KC], p[E.P_KA]
+        tc = LS_SVF + 3 * S_TCOL
+        T_f = n * kc * ls[tc] + ka * T_f
+        T_d = n * kc * ls[tc + 1] + ka * T_d
+        T_dd = n * kc * ls[tc + 2] + ka * T_dd
     a_f, a_d = ls[o + 3 * S_DSW], ls[o + 3 * S_DSW + 1]
     tc_f, tc_d = ls[o + 3 * S_TCOL], ls[o + 3 * S_TCOL + 1]
     v_f = ls[o + 3 * S_VX]
@@ -442,6 +490,10 @@ def learner_step(
         excited = force_exc and ls[LS_EXC] > lp[L_EXC_SW] ** 2
         gate3 = lp[L_EXC_SW3] if lp[L_EXC_SW3] >= 0.0 else lp[L_EXC_SW]
         excited3 = force_exc and ls[LS_EXC] > gate3**2
+        if unknown and ls[LS_STATE] != ST_LEARNED:
+            # a torque of unknown scale: the filter's wind estimate (the quiet gate) is meaningless
+            # until the scale is learned; R3, nearly blind to wind, learns on the force excitation alone
+            excited3 = ls[LS_BP + 4] > lp[L_EXC_F] ** 2 and ls[LS_EXC] > gate3**2
         if lp[L_EXC_SW2] >= 0.0 and force_exc:
             # the low-rate tier (default_lp): slow steering with a large manoeuvre force, no wind
             low = ls[LS_EXC] > lp[L_EXC_SW2] ** 2 and ls[LS_BP + 4] > lp[L_EXC_F2] ** 2
@@ -451,14 +503,24 @@ def learner_step(
         xr = ws[0]
         ph = ws[1]
         sliding = abs(a_d) > lp[L_SLIDE]
-        slow = lp[L_SLOW] if ls[LS_STATE] == ST_LEARNED else 1.0
+        # once learned the regressions slow down (a learned car is not re-learned by the next drive's
+        # disturbances); where the state comes from the uncertainty, the slow-down waits for the
+        # sample count as before
+        settled = ls[LS_N] >= lp[L_MIN_SAMPLES] if lp[L_LEARNED_ST] > 0.0 else ls[LS_STATE] == ST_LEARNED
+        slow = lp[L_SLOW] if settled else 1.0
         slow *= 1.0 + (ls[LS_BP + 3] / lp[L_WIND_SIG]) ** 2
-        if linear and force_exc and sliding:
+        if linear and (force_exc or excited3) and sliding:
             tfric = p[E.P_TFRIC]
             # R3: a_y = s X0 - (s/K) X1 - (s tau/K) X2 + (s N Tfric/(2K)) Xz - (s c_tb) Xtb + c3
             xr[0] = v_f * a_d / n - lf * r_d + v_f * (r_f - p[E.P_BR])
             xr[1] = -v_f * T_d / 2.0
             xr[2] = -v_f * T_dd / 2.0
+            if unknown:  # the reference torque's rate (slot 1) and the other's as read (slot 2)
+                col_d = -v_f * n * tc_d / 2.0
+                ast_d = -v_f * a_raw_d / 2.0
+                ref_col = lp[L_TSCALE] != TS_COLUMN
+                xr[1] = col_d if ref_col else ast_d
+                xr[2] = ast_d if ref_col else col_d
             xr[3] = v_f * z_d
             xr[4] = -v_f * tc_d / n
             xr[5] = 1.0
@@ -561,6 +623,17 @@ def learner_step(
 
 
 @njit(cache=True, inline="always")
+def scale_sd(ls):  # pragma: no cover - compiled
+    """The posterior relative std of the learned torque factor theta_2 / theta_1 (R3, first order)."""
+    a, b = ls[LS_T3 + 1], ls[LS_T3 + 2]
+    if a <= 0.0 or b <= 0.0:
+        return math.inf
+    p11, p22, p12 = ls[LS_P3 + N3 + 1], ls[LS_P3 + 2 * N3 + 2], ls[LS_P3 + N3 + 2]
+    v = p22 / (b * b) + p11 / (a * a) - 2.0 * p12 / (a * b)
+    return math.sqrt(max(v, 0.0))
+
+
+@njit(cache=True, inline="always")
 def _lim(new, old, rate, lo, hi):  # pragma: no cover - compiled
     v = min(max(new, old * (1.0 - rate)), old * (1.0 + rate))
     return min(max(v, lo), hi)
@@ -579,7 +652,10 @@ def push(lp, ls, p):  # pragma: no cover - compiled
     # R1: t = L / theta1[0];  R2: Cr = theta2[0] / 2
     t = L / ls[LS_T1 + 0] if ls[LS_T1 + 0] > 0 else p[E.P_K] / p[E.P_CF]
     cr = 0.5 * ls[LS_T2 + 0]
-    if ls[LS_N] < 0.15 * lp[L_MIN_SAMPLES]:
+    # excited samples behind the values (with a torque of unknown scale R3's own: the others wait for
+    # the filter, which needs the scale)
+    n_exc = ls[LS_N + 1] if lp[L_TSCALE] != TS_KNOWN else ls[LS_N]
+    if n_exc < 0.15 * lp[L_MIN_SAMPLES]:
         # too few excited samples: the derived values are not yet meaningful; keep the prior tires
         k = p[E.P_K]
         t = p[E.P_K] / p[E.P_CF]
@@ -587,10 +663,34 @@ def push(lp, ls, p):  # pragma: no cover - compiled
         s = p[E.P_S]
         tfric = p[E.P_TFRIC]
     p[E.P_S] = min(max(s, 0.95), 1.25)
+    ts = lp[L_TSCALE]
+    k_rate = rate
+    if ts != TS_KNOWN:
+        # the other torque's factor to the reference k = theta_2 / theta_1 (bounded 0.01..100, moving up
+        # to 20 % per push until learned). With both scales unknown the overall scale is not
+        # identifiable (it is K's): the aligning torque's unit is chosen so that K keeps its prior
+        # (the vehicle file's), and both factors are learned in it, k_c = K theta_1 / s and
+        # k_a = K theta_2 / s (their ratio is what the data determine); the friction is then
+        # 2 K theta_3 / (s N) in that unit
+        th1, th2 = ls[LS_T3 + 1], ls[LS_T3 + 2]
+        if n_exc >= 0.15 * lp[L_MIN_SAMPLES] and th1 > 0 and th2 > 0:
+            kr = 0.2 if ls[LS_STATE] != ST_LEARNED else rate
+            if ts == TS_BOTH:
+                p[E.P_KC] = _lim(p[E.P_K] * th1 / p[E.P_S], p[E.P_KC], kr, 1e-4, 1e4)
+                p[E.P_KA] = _lim(p[E.P_K] * th2 / p[E.P_S], p[E.P_KA], kr, 1e-4, 1e4)
+                tfric = 2.0 * p[E.P_K] * ls[LS_T3 + 3] / (p[E.P_S] * n)
+            elif ts == TS_COLUMN:
+                p[E.P_KC] = _lim(th2 / th1, p[E.P_KC], kr, 0.01, 100.0)
+            else:
+                p[E.P_KA] = _lim(th2 / th1, p[E.P_KA], kr, 0.01, 100.0)
+        if ts == TS_BOTH:
+            k = p[E.P_K]
+        if ls[LS_STATE] != ST_LEARNED:
+            k_rate = 0.2
     k_old = p[E.P_K]
-    p[E.P_K] = _lim(k, p[E.P_K], rate, 2000.0, 20000.0)
+    p[E.P_K] = _lim(k, p[E.P_K], k_rate, 2000.0, 20000.0)
     t_old = p[E.P_K] / p[E.P_CF]
-    t_new = min(max(t, t_old * (1.0 - rate)), t_old * (1.0 + rate))
+    t_new = min(max(t, t_old * (1.0 - k_rate)), t_old * (1.0 + k_rate))
     t_new = min(max(t_new, 0.04), 0.25)
     if lp[L_R2_UPQ] > 0.0:  # R2's samples on the K and trail it had (lp[L_R2_UPQ], default_lp)
         dk = p[E.P_K] / k_old - 1.0
@@ -607,17 +707,61 @@ def push(lp, ls, p):  # pragma: no cover - compiled
     # learned state of the tire group: by the excited samples seen (a learned value stays learned)
     if ls[LS_STATE] == ST_LEARNED:
         pass
+    elif lp[L_LEARNED_ST] > 0.0:
+        # by the posterior relative std of the trail (R1's L/t) and of Cr (R2's 2 Cr), once R2 runs
+        sd_t = math.sqrt(max(ls[LS_P1], 0.0)) / max(abs(ls[LS_T1]), 1e-9)
+        sd_cr = math.sqrt(max(ls[LS_P2], 0.0)) / max(abs(ls[LS_T2]), 1e-9)
+        r2_on = ls[LS_N + 2] > 0.15 * lp[L_MIN_SAMPLES]
+        scale_ok = ts == TS_KNOWN or scale_sd(ls) < lp[L_SCALE_SD]
+        if ls[LS_N] <= 0:
+            ls[LS_STATE] = ST_NOT
+        elif r2_on and scale_ok and sd_t < lp[L_LEARNED_ST] and sd_cr < lp[L_LEARNED_SCR]:
+            ls[LS_STATE] = ST_LEARNED
+        else:
+            ls[LS_STATE] = ST_LEARNING
     elif ls[LS_N] <= 0:
         ls[LS_STATE] = ST_NOT
-    elif ls[LS_N] < lp[L_MIN_SAMPLES]:
-        ls[LS_STATE] = ST_LEARNING
+    elif ls[LS_N] < lp[L_MIN_SAMPLES] or (ts != TS_KNOWN and not scale_sd(ls) < lp[L_SCALE_SD]):
+        ls[LS_STATE] = ST_LEARNING  # (a torque of unknown scale: its factor not yet known well enough)
     else:
         ls[LS_STATE] = ST_LEARNED
 
 
-def learner_params(vehicle: Vehicle, angle_above_torsion_bar: bool) -> np.ndarray:
-    """The learner's constants for a vehicle and a profile."""
-    return default_lp(torsion=angle_above_torsion_bar, enable=vehicle.learning.enabled > 0.0)
+def learner_params(
+    vehicle: Vehicle, angle_above_torsion_bar: bool, torque_scale: int = TS_KNOWN
+) -> np.ndarray:
+    """The learner's constants for a vehicle and a profile (``torque_scale``: :func:`torque_scale_mode`)."""
+    lp = default_lp(torsion=angle_above_torsion_bar, enable=vehicle.learning.enabled > 0.0)
+    lp[L_TSCALE] = torque_scale
+    return lp
+
+
+def torque_scale_mode(unknown: Collection[str]) -> int:
+    """The ``TS_*`` mode for a profile whose inputs ``unknown`` (names) have an unknown scale."""
+    col, ast = "column_torque" in unknown, "assist_torque" in unknown
+    if col and ast:
+        return TS_BOTH
+    if col:
+        return TS_COLUMN
+    return TS_ASSIST if ast else TS_KNOWN
+
+
+def torque_scales(p: np.ndarray, lp: np.ndarray, ls: np.ndarray) -> str:
+    """What the learner holds about torques of unknown scale, one phrase (empty when both are in Nm):
+    the learned factor, its posterior relative std, and the unit K and Fw/Mw are in."""
+    ts = int(lp[L_TSCALE])
+    if ts == TS_KNOWN:
+        return ""
+    sd = 100.0 * float(scale_sd(ls))
+    sd_text = f"+-{sd:.0f} %" if math.isfinite(sd) else "not yet estimated"
+    if ts == TS_COLUMN:
+        return f"column torque {p[E.P_KC]:.4g} Nm per unit ({sd_text}); K, friction in Nm"
+    if ts == TS_ASSIST:
+        return f"assist torque {p[E.P_KA]:.4g} Nm per unit ({sd_text}); K, friction in Nm"
+    return (
+        f"assist torque {p[E.P_KA]:.4g} column units per unit ({sd_text}); K, friction in column units "
+        "(their scale to Nm is not identifiable)"
+    )
 
 
 def tire_state(ls: np.ndarray) -> int:

@@ -156,7 +156,10 @@ def feedforward_torque(vehicle: Vehicle, fw: float | np.ndarray, mw: float | np.
 LP_GAIN, LP_LR, LP_MAX_T, LP_MAX_RATE, LP_MIN_V, LP_MAX_V, LP_MAX_STEER, LP_OVERRIDE = range(8)
 LP_HOLD_OFF_NS, LP_REARM_NS, LP_FAULT_PERSIST_NS, LP_FAULT_RECOVER_NS, LP_DT_MAX = range(8, 13)
 LP_LAW_TAU = 13  # time constant of the law's input low-pass [s] (0: none)
-LP_ALLOWED = 14  # 1: the overlay may engage; 0: never (a profile whose torques are in unknown units)
+LP_ALLOWED = 14  # ALLOWED_* below: whether the overlay may engage
+#: LP_ALLOWED: never (a torque whose unit to Nm cannot be learned), always, once the estimator's learner
+#: reports "learned" (a torque of unknown scale whose factor to the other, in Nm, is learned)
+ALLOWED_NEVER, ALLOWED_ALWAYS, ALLOWED_ONCE_LEARNED = 0, 1, 2
 N_LP = 15
 
 # int64 state slots (times in ns; -1 = "not set")
@@ -189,9 +192,11 @@ def _timing_from(limits: OverlayLimits, timing: OverlayTiming | None) -> Overlay
     )
 
 
-def limiter_params(vehicle: Vehicle, timing: OverlayTiming | None = None, allowed: bool = True) -> np.ndarray:
+def limiter_params(
+    vehicle: Vehicle, timing: OverlayTiming | None = None, allowed: int = ALLOWED_ALWAYS
+) -> np.ndarray:
     """The kernel's float64 parameter vector (layout ``LP_*``) from a vehicle (SI); ``allowed``
-    False: the engine never enables the overlay (``LP_ALLOWED``)."""
+    (``ALLOWED_*``): when the engine may enable the overlay (``LP_ALLOWED``)."""
     if not isinstance(vehicle, Vehicle):
         raise ConfigError(
             "the overlay needs the whole Vehicle (the law uses K, N, Cf, lf, lr; the limits come "
@@ -214,7 +219,7 @@ def limiter_params(vehicle: Vehicle, timing: OverlayTiming | None = None, allowe
     p[LP_FAULT_RECOVER_NS] = round(tm.fault_recover * 1e9)
     p[LP_DT_MAX] = tm.dt_max
     p[LP_LAW_TAU] = o.law_time
-    p[LP_ALLOWED] = 1.0 if allowed else 0.0
+    p[LP_ALLOWED] = float(allowed)
     return p
 
 

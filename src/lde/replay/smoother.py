@@ -179,8 +179,10 @@ def traced_step(params, state, t_ns, inp, fresh, mdps_ok, esc_ok, out):  # pragm
 register_step(TracedState, traced_step)
 
 
-def _make_traced(vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool) -> tuple[Any, TracedState]:
-    params, inner = float_backend.make(vehicle, dt, angle_above_torsion_bar)
+def _make_traced(
+    vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool, torque_scale: int = 0
+) -> tuple[Any, TracedState]:
+    params, inner = float_backend.make(vehicle, dt, angle_above_torsion_bar, torque_scale)
     return params, TracedState(inner, np.zeros((0, NT)), np.zeros(0, np.int64), np.zeros(2, np.int64))
 
 
@@ -243,7 +245,9 @@ class TracingEngine(Engine):
         super().__init__(profile, vehicle, "float", explicit=explicit, encode_outputs=False)
 
     def _new_backend_state(self) -> BackendState:
-        params, state = _make_traced(self.vehicle, self._dt, self.profile.angle_above_torsion_bar)
+        params, state = _make_traced(
+            self.vehicle, self._dt, self.profile.angle_above_torsion_bar, self.torque_scale
+        )
         return BackendState(TRACED, params, state)
 
     @property

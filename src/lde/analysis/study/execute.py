@@ -15,6 +15,7 @@ A run in which the simulated driver loses control is discarded (:func:`check_pla
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -291,13 +292,28 @@ def run_one(spec: RunSpec, engine: Engine | None = None) -> RunResult:
 def split_figures(est: Estimate) -> dict[str, float]:
     """The run's extra figures where the engine gives them: wind force NRMSE (``wind_nrmse``,
     fraction; NaN without wind), its scale (``wind_scale_N``), bank RMS error (``bank_rms_deg``)
-    and the learner's state at the last step (``learn_state``)."""
+    and the learner's state at the last step (``learn_state``); for a drive of at least
+    :data:`~lde.analysis.metrics.LONG_DRIVE_MIN_S` the figures of
+    :func:`~lde.analysis.metrics.long_drive`: ``scored_fw`` / ``scored_mw`` from minute 2 on,
+    ``minutes``, per minute ``min<k>_fw`` / ``min<k>_mw`` (NRMSE fractions; Mw about the unloaded CG)
+    and ``min<k>_rms_fw`` [N], and ``learned_s`` (NaN: never)."""
     out: dict[str, float] = {}
     if est.fw_wind is not None and est.bank is not None and est.truth.fw_wind is not None:
         sp = metrics.split_accuracy(est.t, est.fw_wind, est.bank, est.truth, valid=est.valid)
         out.update(wind_nrmse=sp.wind_nrmse, wind_scale_N=sp.wind_scale, bank_rms_deg=sp.bank_rms_deg)
     if est.learn_state is not None and len(est.learn_state):
         out["learn_state"] = float(est.learn_state[-1])
+    if len(est.t) and float(est.t[-1] - est.t[0]) >= metrics.LONG_DRIVE_MIN_S:
+        ld = metrics.long_drive(
+            est.t, est.fw, est.mw, est.truth, valid=est.valid, learn_state=est.learn_state
+        )
+        out["scored_fw"], out["scored_mw"] = metrics.target_figures(ld.scored)
+        out["minutes"] = float(len(ld.windows))
+        for k, w in enumerate(ld.windows):
+            f, m = metrics.target_figures(w) if w is not None else (math.nan, math.nan)
+            out[f"min{k + 1}_fw"], out[f"min{k + 1}_mw"] = f, m
+            out[f"min{k + 1}_rms_fw"] = w.rms_fw if w is not None else math.nan
+        out["learned_s"] = ld.learned_s
     return out
 
 

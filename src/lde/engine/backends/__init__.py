@@ -14,8 +14,10 @@
 **The protocol** (:class:`BackendModule`). A backend module declares
 
 - ``Params`` and ``State``: NamedTuples of numpy arrays (units in their field comments): what the
-  step reads, and what it changes. They are made by ``make(vehicle, dt, angle_above_torsion_bar)``
-  and owned by the engine; the compiled loop (:mod:`lde.engine.loop`) passes them to the step.
+  step reads, and what it changes. They are made by ``make(vehicle, dt, angle_above_torsion_bar,
+  torque_scale)`` (``torque_scale``: which torque's scale a learning backend learns,
+  :func:`lde.estimator.learner.torque_scale_mode`; 0: both in Nm) and owned by the engine; the
+  compiled loop (:mod:`lde.engine.loop`) passes them to the step.
 - ``step(params, state, t_ns, inputs, fresh, mdps_ok, esc_ok, out) -> status``: the compiled step
   (:func:`lde.engine.loop.backend_step` says what the arguments are; ``out`` is a row of
   :mod:`lde.estimator.outputs`).
@@ -65,7 +67,9 @@ class BackendModule(Protocol):
     State: type
     step: Any  # the compiled step
 
-    def make(self, vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool) -> tuple[Any, Any]: ...
+    def make(
+        self, vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool, torque_scale: int = 0
+    ) -> tuple[Any, Any]: ...
 
 
 @dataclass(frozen=True)
@@ -74,7 +78,7 @@ class Backend:
 
     name: str
     description: str
-    make: Callable[[Vehicle, float, bool], tuple[Any, Any]]  # (vehicle, dt, angle_above_torsion_bar)
+    make: Callable[[Vehicle, float, bool, int], tuple[Any, Any]]  # (vehicle, dt, above bar, torque_scale)
     state_class: type
     learns: bool = False
     smoothable: bool = False  # the smoother's float lateral filter can stand beside it (--smooth)
@@ -142,11 +146,21 @@ def get_backend(name: str) -> Backend:
 
 
 def make_backend_state(
-    name: str, vehicle: Vehicle, dt: float = STEP_S, angle_above_torsion_bar: bool = False
+    name: str,
+    vehicle: Vehicle,
+    dt: float = STEP_S,
+    angle_above_torsion_bar: bool = False,
+    torque_scale: int = 0,
 ) -> BackendState:
-    """:func:`get_backend` and its ``Params`` and ``State`` for ``vehicle``."""
+    """:func:`get_backend` and its ``Params`` and ``State`` for ``vehicle``; ``torque_scale``
+    (:func:`lde.estimator.learner.torque_scale_mode`) only for a backend that learns."""
     b = get_backend(name)
-    params, state = b.make(vehicle, dt, angle_above_torsion_bar)
+    if torque_scale and not b.learns:
+        raise ConfigError(
+            f"backend {name!r} does not learn: a profile with a torque of unknown scale needs a learning "
+            "backend (fixed or float)"
+        )
+    params, state = b.make(vehicle, dt, angle_above_torsion_bar, torque_scale)
     return BackendState(b, params, state)
 
 

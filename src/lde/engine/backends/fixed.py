@@ -80,9 +80,11 @@ class State(NamedTuple):
     lws: np.ndarray  # (2, N3) the learner's workspace
 
 
-def make(vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool) -> tuple[Params, State]:
+def make(
+    vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool, torque_scale: int = Ln.TS_KNOWN
+) -> tuple[Params, State]:
     p = E.params_vector(vehicle, dt, angle_above_torsion_bar=angle_above_torsion_bar)
-    lp, ls, lws = learner_arrays(vehicle, p, angle_above_torsion_bar)
+    lp, ls, lws = learner_arrays(vehicle, p, angle_above_torsion_bar, torque_scale)
     lt = lateral_tables_for(vehicle, int(round(dt * 1e9)))
     tv, ft = FX.tables_vectors(lt)
     cs = np.zeros(FX.N_CS, np.int64)

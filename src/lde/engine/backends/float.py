@@ -45,16 +45,21 @@ class State(NamedTuple):
     lws: np.ndarray  # (2, N3) the learner's workspace
 
 
-def learner_arrays(vehicle: Vehicle, p: np.ndarray, angle_above_torsion_bar: bool) -> tuple[np.ndarray, ...]:
-    """The learner's (parameters, state, workspace) for ``vehicle`` starting from the filter's ``p``."""
-    lp = Ln.learner_params(vehicle, angle_above_torsion_bar)
+def learner_arrays(
+    vehicle: Vehicle, p: np.ndarray, angle_above_torsion_bar: bool, torque_scale: int = Ln.TS_KNOWN
+) -> tuple[np.ndarray, ...]:
+    """The learner's (parameters, state, workspace) for ``vehicle`` starting from the filter's ``p``
+    (``torque_scale``: which torque's scale it learns, :func:`lde.estimator.learner.torque_scale_mode`)."""
+    lp = Ln.learner_params(vehicle, angle_above_torsion_bar, torque_scale)
     prior = vehicle.corrections.friction or vehicle.learning.friction_prior
     return lp, Ln.init_state(p, lp, friction_prior=prior), np.zeros((2, Ln.N3))
 
 
-def make(vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool) -> tuple[Params, State]:
+def make(
+    vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool, torque_scale: int = Ln.TS_KNOWN
+) -> tuple[Params, State]:
     p = E.params_vector(vehicle, dt, angle_above_torsion_bar=angle_above_torsion_bar)
-    lp, ls, lws = learner_arrays(vehicle, p, angle_above_torsion_bar)
+    lp, ls, lws = learner_arrays(vehicle, p, angle_above_torsion_bar, torque_scale)
     return Params(lp), State(p, E.new_filter_state(p), ls, lws)
 
 

@@ -42,7 +42,11 @@ class State(NamedTuple):
     wk: tuple  # the step's scratch arrays (lde.estimator.paper.new_workspace)
 
 
-def make(vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool) -> tuple[Params, State]:
+def make(
+    vehicle: Vehicle, dt: float, angle_above_torsion_bar: bool, torque_scale: int = 0
+) -> tuple[Params, State]:
+    """The paper's filter learns nothing: ``torque_scale`` must be 0 (both torques in Nm; the engine
+    refuses a profile with a torque of unknown scale for a backend that does not learn)."""
     p = params_vector(without_corrections(vehicle), dt)
     st = K.EstimatorState.initial(p)
     params = Params(p, corrections_vector(vehicle), is_active(vehicle))

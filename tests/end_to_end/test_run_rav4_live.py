@@ -45,7 +45,7 @@ from lde.units import STEP_NS
 
 pytest.importorskip("msgpack")
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 NAME = "rav4_2017_highway.log.gz"
 PROFILE = "toyota_rav4_2017"
 VEHICLE = "toyota_rav4_2017"
