@@ -257,7 +257,12 @@ def _backend_step(params, state, t_ns, inputs, fresh, mdps_ok, esc_ok, out):
     return impl
 
 
-# --- the loop's parts, each its own compiled (cached) function, shared by every backend's loop -----
+# --- the loop's parts, shared by every backend's loop ---------------------------------------------
+# feed_frame is its own compiled function. The two per-step parts are inlined into the loop: a call
+# into a compiled function increfs and decrefs every array it is given (the receiver's and the
+# output encoder's tables are tuples of about 20 arrays each), and inlining them measured -24 % of
+# the engine's time on an hour's replay (CSV identical, the cold compile unchanged); inlining
+# feed_frame as well measured no difference.
 
 
 @njit(cache=True)
@@ -272,7 +277,7 @@ def feed_frame(tb, st, g, used_since, anchor, t_ns, can_id, is_ext, dlc, data): 
     grid_frame(g, t_ns, m >= 0, m == anchor and accepted)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def sample_inputs(tb, st, prev_t, tk, vin, age):  # pragma: no cover - compiled
     """The inputs at step time ``tk`` [ns] into ``vin`` (SI) and ``age`` [ns]
     (:func:`lde.engine.receiver.rx_sample`). Returns (valid mask, fresh mask: the inputs that brought a new
@@ -286,7 +291,7 @@ def sample_inputs(tb, st, prev_t, tk, vin, age):  # pragma: no cover - compiled
     return mask, np.int64(fresh), bool(ok_m), bool(ok_e)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def step_outputs(
     otab, lp, lsi, lsf, counters, tk, est, status, enable, vin, encode, frames_row, vals, scratch
 ):  # pragma: no cover - compiled
