@@ -8,8 +8,6 @@ with ISO 8855; a flipped sign is named with the key to change, and only that one
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import shutil
 from pathlib import Path
@@ -17,23 +15,15 @@ from pathlib import Path
 import pytest
 
 from lde.can.profiles import dbc_dir
-from lde.cli import main
 
-from helpers import TESTS
+from helpers.cli import run_lde as run
+from helpers.real_cars import RAV4_LOG
 
-RAV4 = TESTS / "data" / "real" / "rav4_2017_highway.log.gz"
+RAV4 = RAV4_LOG
 PROFILE = "toyota_rav4_2017"
 #: the checks a drive with gentle curves in both directions decides (the drive's lane-keeping holds
 #: the wheel, so the driver's torque may stay undecided: it must not fail)
 DECIDED = ("lat_accel", "yaw_vs_steering", "wheel_speeds", "assist_torque", "steering_rate")
-
-
-def run(*argv: str) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main(list(argv))
-    assert "Traceback" not in err.getvalue()
-    return rc, out.getvalue(), err.getvalue()
 
 
 def flipped_copy(folder: Path, name: str) -> Path:

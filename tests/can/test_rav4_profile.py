@@ -4,9 +4,6 @@ lie in the drive's physical ranges. The signs are not checked here (``lde inspec
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -16,29 +13,13 @@ from lde.engine.receiver import decode_batch
 from lde.io import read_log
 from lde.units import DEG, KMH
 
-from helpers import TESTS
+from helpers.real_cars import RAV4_LOG
 
-REPO = TESTS.parent
-NAME = "rav4_2017_highway.log.gz"
-
-
-def _real_log() -> Path | None:
-    """The RAV4 log: the repository's test data, ``$LDE_REAL_LOGS``, or the ``shared/real`` folder
-    beside the repository or one of its parents."""
-    places = [REPO / "tests" / "data" / "real"]
-    if os.environ.get("LDE_REAL_LOGS"):
-        places.insert(0, Path(os.environ["LDE_REAL_LOGS"]))
-    places += [p / "shared" / "real" for p in REPO.parents]
-    return next((p / NAME for p in places if (p / NAME).is_file()), None)
-
-
-LOG = _real_log()
-pytestmark = pytest.mark.skipif(LOG is None, reason="the real RAV4 log (shared/real) is not on this machine")
+LOG = RAV4_LOG
 
 
 @pytest.fixture(scope="module")
 def frames():
-    assert LOG is not None
     return read_log(LOG).frames
 
 

@@ -3,26 +3,17 @@ exit codes a script relies on."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from pathlib import Path
 
 import pytest
 
-from lde.cli import main
 from lde.io import write_candump
+
+from helpers.cli import run_lde as run
 
 #: the checks a drive with curves decides (e: the hyundai speed is the wheels' mean)
 DECIDED = ("lat_accel", "yaw_vs_steering", "wheel_speeds", "column_torque", "assist_torque")
-
-
-def run(*argv: str) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main(list(argv))
-    assert "Traceback" not in err.getvalue()
-    return rc, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")

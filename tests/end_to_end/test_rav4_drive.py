@@ -10,8 +10,6 @@ must meet; the profile's signs pass the physics checks with the car's own geomet
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from dataclasses import replace
 from pathlib import Path
@@ -20,26 +18,18 @@ import numpy as np
 import pytest
 
 from lde.analysis.calibrate import MAX_ACCEL_SCALE, MIN_ACCEL_SCALE
-from lde.cli import main
 from lde.params import TireParams, load_vehicle, validate
 from lde.units import DEG
 
-from helpers import TESTS
+from helpers.cli import run_lde as run
+from helpers.real_cars import RAV4_LOG
 
-RAV4 = TESTS / "data" / "real" / "rav4_2017_highway.log.gz"
+RAV4 = RAV4_LOG
 ARGS = ("--profile", "toyota_rav4_2017", "--vehicle", "toyota_rav4_2017")
 #: the estimate may be invalid for its convergence time after the start (and after a restart): of a
 #: 60 s drive whose inputs never go stale, at least this share of the steps above the minimum speed
 #: is valid
 MIN_VALID_SHARE = 0.9
-
-
-def run(*argv: str) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main(list(argv))
-    assert "Traceback" not in err.getvalue()
-    return rc, out.getvalue(), err.getvalue()
 
 
 def replay(folder: Path, backend: str) -> tuple[int, str, np.ndarray, dict]:

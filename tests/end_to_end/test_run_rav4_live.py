@@ -43,10 +43,10 @@ from lde.io.recording import read_recording
 from lde.testing.bus import private_multicast
 from lde.units import STEP_NS
 
+from helpers.real_cars import RAV4_LOG
+
 pytest.importorskip("msgpack")
 
-REPO = Path(__file__).resolve().parents[2]
-NAME = "rav4_2017_highway.log.gz"
 PROFILE = "toyota_rav4_2017"
 VEHICLE = "toyota_rav4_2017"
 #: the float filter: the fixed-point one saturates on this car's raw torque counts (docs/guide/rav4.md)
@@ -55,21 +55,8 @@ BACKEND = "float"
 START_TIMEOUT_S = 300.0
 
 
-def _real_log() -> Path | None:
-    """The RAV4 log: the repository's test data, ``$LDE_REAL_LOGS``, or the ``shared/real`` folder
-    beside the repository or one of its parents."""
-    places = [REPO / "tests" / "data" / "real"]
-    if os.environ.get("LDE_REAL_LOGS"):
-        places.insert(0, Path(os.environ["LDE_REAL_LOGS"]))
-    places += [p / "shared" / "real" for p in REPO.parents]
-    return next((p / NAME for p in places if (p / NAME).is_file()), None)
-
-
-LOG = _real_log()
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(LOG is None, reason="the real RAV4 log (shared/real) is not on this machine"),
-]
+LOG = RAV4_LOG
+pytestmark = pytest.mark.slow
 
 
 def _lde(*args: str) -> list[str]:
@@ -170,7 +157,6 @@ def _replay_to(log: Path, out: Path) -> Path:
 
 
 def test_lde_run_listen_only_on_the_rav4s_bus_gives_replays_estimates(tmp_path) -> None:
-    assert LOG is not None
     kw = private_multicast()
     bus = ["-i", "udp_multicast", "-c", kw["channel"], "--bus-kwarg", f"port={kw['port']}"]
     bus += ["--bus-kwarg", "hop_limit=0"]

@@ -5,25 +5,14 @@ a wrong profile."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 
-from lde.cli import main
+from helpers.cli import run_lde as run
+from helpers.real_cars import KONA_LOG
 
-from helpers import TESTS
-
-KONA = TESTS / "data" / "real" / "kona_ev_2019_standstill.log.gz"
+KONA = KONA_LOG
 #: the checks that need the car moving (e: the hyundai speed is the wheels' mean)
 MOVING = ("lat_accel", "yaw_vs_steering", "wheel_speeds", "column_torque", "assist_torque")
-
-
-def run(*argv: str) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main(list(argv))
-    assert "Traceback" not in err.getvalue()
-    return rc, out.getvalue(), err.getvalue()
 
 
 def test_a_standing_car_is_not_enough_excitation_below_the_minimum_speed():
