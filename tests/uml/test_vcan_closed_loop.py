@@ -269,7 +269,9 @@ def _recording(run: Run):
 
 
 def test_outputs_every_step_with_valid_e2e(run: Run) -> None:
-    """candump: one LDE_Estimate, LDE_Overlay and LDE_Diag per step, valid CRC, no counter gap."""
+    """candump: one LDE_Estimate, LDE_Overlay and LDE_Diag per step once the service transmits (it
+    first listens 1 s for its output ids on the bus, recording steps but sending nothing), every one
+    it recorded as sent on the bus, valid CRC, no counter gap."""
     profile = load_profile("lde")
     frames: dict[int, list[bytes]] = defaultdict(list)
     for m in can.CanutilsLogReader(str(run.dump)):
@@ -288,9 +290,12 @@ def test_outputs_every_step_with_valid_e2e(run: Run) -> None:
     for name in ("LDE_Estimate", "LDE_Overlay", "LDE_Diag", "LDE_Disturbance"):
         fid = profile.output_id(name)
         got = frames[fid]
-        assert killed or abs(len(got) - n_steps - dropped) <= 2, (
-            f"{name}: {len(got)} frames for {n_steps} recorded + {dropped} dropped steps"
+        sent = int(np.count_nonzero(rec.tx.can_id == fid))  # recorded as sent, one per step once transmitting
+        assert 0 < sent <= n_steps, f"{name}: {sent} recorded as sent in {n_steps} steps"
+        assert killed or abs(len(got) - sent - dropped) <= 2, (
+            f"{name}: {len(got)} frames on the bus for {sent} recorded as sent + {dropped} dropped steps"
         )
+        assert killed or n_steps - sent <= 300, f"{name}: sent at {sent} of {n_steps} steps"  # the 1 s listen
         assert all(p01_check(fid, d) for d in got), name
         counters = [d[1] & 0x0F for d in got]
         gaps = [i for i, (a, b) in enumerate(zip(counters, counters[1:], strict=False)) if b != (a + 1) % 15]
